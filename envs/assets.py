@@ -1,0 +1,37 @@
+"""Finding and loading MJCF models.
+
+Installed from a wheel, the models live in `envs/assets/` (the build maps the
+checkout's top-level `assets/` there); in a source checkout they are read from
+`assets/` directly.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+
+_PACKAGE_DIR = Path(__file__).resolve().parent
+ASSET_DIRS = (_PACKAGE_DIR / "assets", _PACKAGE_DIR.parent / "assets")
+
+
+def asset_path(name: str | os.PathLike) -> Path:
+    """Resolve a model file: an existing path as given, else a file name in the suite's assets."""
+    path = Path(name)
+    if path.is_file():
+        return path
+    for directory in ASSET_DIRS:
+        if (directory / path).is_file():
+            return directory / path
+    available = sorted({p.name for d in ASSET_DIRS if d.is_dir() for p in d.glob("*.xml")})
+    raise FileNotFoundError(f"MJCF file {str(name)!r} not found; the suite's assets are {available}")
+
+
+def load_model(name: str | os.PathLike) -> mujoco.MjModel:
+    """Load an MJCF model; a parse or compile error names the file and gives MuJoCo's reason."""
+    path = asset_path(name)
+    try:
+        return mujoco.MjModel.from_xml_path(str(path))
+    except ValueError as err:
+        raise ValueError(f"MuJoCo could not load {path}: {err}") from err

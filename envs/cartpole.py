@@ -1,0 +1,119 @@
+"""Gymnasium's CartPole-v1, written as its equations in JAX.
+
+The constants, reset distribution, reward and termination rule are those of
+`gymnasium.envs.classic_control.CartPoleEnv`; the 500-step truncation is added
+by the registry's time limit, as Gymnasium's `TimeLimit` does. Arithmetic runs
+in JAX's default float type: float32, or float64 with `jax_enable_x64`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from envs.core import Env, State
+
+INTEGRATORS = ("euler", "semi_implicit")
+
+
+@struct.dataclass
+class CartPolePhysics:
+    """Physical constants. A pytree of floats, so it can be vmapped for domain randomisation."""
+
+    gravity: float = 9.8
+    masscart: float = 1.0
+    masspole: float = 0.1
+    length: float = 0.5  # half the pole's length: the pole is a uniform rod 2 * length long
+    force_mag: float = 10.0
+    tau: float = 0.02  # seconds between state updates
+
+
+@struct.dataclass
+class CartPoleRules:
+    """Reset and termination rules, shared by the analytic and the MJX CartPole."""
+
+    x_threshold: float = 2.4
+    theta_threshold: float = 12 * 2 * math.pi / 360  # 12 degrees, Gymnasium's exact expression
+    reset_bound: float = 0.05  # reset state ~ U(-reset_bound, reset_bound)^4
+
+    def initial_state(self, key: jax.Array) -> jax.Array:
+        """(x, x_dot, theta, theta_dot), drawn as Gymnasium draws them."""
+        return jax.random.uniform(key, (4,), minval=-self.reset_bound, maxval=self.reset_bound)
+
+    def is_terminated(self, x: jax.Array, theta: jax.Array) -> jax.Array:
+        return (jnp.abs(x) > self.x_threshold) | (jnp.abs(theta) > self.theta_threshold)
+
+
+def dynamics(physics: CartPolePhysics, state: jax.Array, force: jax.Array):
+    """Cart and pole accelerations (Florian 2005, eqs. 23-24, as Gymnasium writes them)."""
+    _, _, theta, theta_dot = state
+    total_mass = physics.masspole + physics.masscart
+    polemass_length = physics.masspole * physics.length
+    costheta, sintheta = jnp.cos(theta), jnp.sin(theta)
+    temp = (force + polemass_length * theta_dot**2 * sintheta) / total_mass
+    thetaacc = (physics.gravity * sintheta - costheta * temp) / (
+        physics.length * (4.0 / 3.0 - physics.masspole * costheta**2 / total_mass)
+    )
+    xacc = temp - polemass_length * thetaacc * costheta / total_mass
+    return xacc, thetaacc
+
+
+def integrate(physics: CartPolePhysics, state: jax.Array, force: jax.Array, integrator: str) -> jax.Array:
+    """One step of length tau. "euler" (Gymnasium's default) advances positions with the
+    old velocities; "semi_implicit" updates velocities first, as MuJoCo's Euler does."""
+    x, x_dot, theta, theta_dot = state
+    xacc, thetaacc = dynamics(physics, state, force)
+    tau = physics.tau
+    if integrator == "euler":
+        x, theta = x + tau * x_dot, theta + tau * theta_dot
+        x_dot, theta_dot = x_dot + tau * xacc, theta_dot + tau * thetaacc
+    else:
+        x_dot, theta_dot = x_dot + tau * xacc, theta_dot + tau * thetaacc
+        x, theta = x + tau * x_dot, theta + tau * theta_dot
+    return jnp.stack([x, x_dot, theta, theta_dot])
+
+
+class CartPole(Env):
+    """Observation (x, x_dot, theta, theta_dot); actions 0 (push left) and 1 (push right).
+
+    Reward is 1 on every step, the terminating one included.
+    """
+
+    observation_size = 4
+    num_actions = 2
+
+    def __init__(
+        self,
+        integrator: str = "euler",
+        physics: CartPolePhysics = CartPolePhysics(),
+        rules: CartPoleRules = CartPoleRules(),
+    ):
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {integrator!r}; choose one of {INTEGRATORS}")
+        self.integrator = integrator
+        self.physics = physics
+        self.rules = rules
+
+    def replace(self, **changes) -> CartPole:
+        """A copy with other settings, e.g. `env.replace(physics=p)` inside a vmap over physics."""
+        fields = {"integrator": self.integrator, "physics": self.physics, "rules": self.rules}
+        return CartPole(**{**fields, **changes})
+
+    def reset(self, key: jax.Array) -> State:
+        state = self.rules.initial_state(key)
+        zero = jnp.zeros((), state.dtype)
+        return State(state, state, zero, zero, info={"truncation": zero})
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.check_action(action)
+        force = jnp.where(action == 1, self.physics.force_mag, -self.physics.force_mag)
+        x = integrate(self.physics, state.pipeline_state, force, self.integrator)
+        terminated = self.rules.is_terminated(x[0], x[2])
+        one = jnp.ones((), x.dtype)
+        return state.replace(pipeline_state=x, obs=x, reward=one, done=terminated.astype(x.dtype))
+
+    def __repr__(self) -> str:
+        return f"CartPole(integrator={self.integrator!r}, physics={self.physics}, rules={self.rules})"

@@ -1,0 +1,45 @@
+"""CartPole-v1 as an MJCF model (assets/cartpole.xml) stepped by MJX.
+
+Same observation, actions, reward, reset and termination as the analytic
+`envs.cartpole`. MuJoCo's Euler integrator is semi-implicit, so the physics
+matches the analytic CartPole with integrator="semi_implicit" (see README).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+from envs.cartpole import CartPoleRules
+from envs.mjx_env import MjxEnv
+
+
+class CartPoleMjx(MjxEnv):
+    xml = "cartpole.xml"
+    observation_size = 4
+    num_actions = 2
+
+    def __init__(self, rules: CartPoleRules = CartPoleRules(), xml: str | None = None):
+        super().__init__(xml)
+        self.rules = rules
+
+    def initial_qpos_qvel(self, key):
+        x, x_dot, theta, theta_dot = self.rules.initial_state(key)
+        return jnp.stack([x, theta]), jnp.stack([x_dot, theta_dot])
+
+    def observation(self, data: mjx.Data) -> jax.Array:
+        return jnp.stack([data.qpos[0], data.qvel[0], data.qpos[1], data.qvel[1]])
+
+    def reward(self, data, action):
+        return jnp.ones(())
+
+    def terminated(self, data):
+        return self.rules.is_terminated(data.qpos[0], data.qpos[1])
+
+    def action_to_ctrl(self, action):
+        # Action 1 pushes right, 0 pushes left; the motor's gear turns +-1 into +-10 N.
+        return jnp.where(action == 1, 1.0, -1.0)[None]
+
+    def __repr__(self) -> str:
+        return f"CartPoleMjx(rules={self.rules})"

@@ -1,0 +1,108 @@
+"""The functional environment API shared by every env in the suite.
+
+`State` keeps Brax's field layout so Brax's wrappers and trainers can drive our
+envs; `Env` is the interface (`reset(key)`, `step(state, action)`) and
+`Wrapper` forwards everything it does not override.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+
+@struct.dataclass
+class State:
+    """One environment state. All fields are arrays, so a State is a pytree.
+
+    `done` is terminated OR truncated; `info["truncation"]` is 1.0 when the
+    episode ended only because of the time limit. `obs` after an auto-reset is
+    the first observation of the new episode; the last observation of the
+    finished one is kept in `info["final_obs"]` (see `wrappers.AutoReset`).
+    """
+
+    pipeline_state: Any
+    obs: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    metrics: dict[str, jax.Array] = struct.field(default_factory=dict)
+    info: dict[str, Any] = struct.field(default_factory=dict)
+
+
+class Env(abc.ABC):
+    """A pure-functional environment: no Python side effects in reset/step.
+
+    Discrete envs set `num_actions` (actions are integer indices); continuous
+    envs set `action_size` (actions are float vectors in [-1, 1]).
+    """
+
+    observation_size: int
+    num_actions: int | None = None
+    action_size: int | None = None
+    backend: str = "jax"  # Brax's wrappers read this attribute.
+
+    @abc.abstractmethod
+    def reset(self, key: jax.Array) -> State:
+        """A fresh episode's first state, drawn with `key`."""
+
+    @abc.abstractmethod
+    def step(self, state: State, action: jax.Array) -> State:
+        """Advance one step. Unknown `info` entries must be carried through."""
+
+    @property
+    def unwrapped(self) -> Env:
+        return self
+
+    def check_action(self, action: Any) -> jax.Array:
+        """Reject a wrongly shaped or typed action while tracing, with a clear message."""
+        action = jnp.asarray(action)
+        name = type(self.unwrapped).__name__
+        if self.num_actions is not None:
+            if action.shape != () or not jnp.issubdtype(action.dtype, jnp.integer):
+                raise TypeError(
+                    f"{name} takes one integer action index in [0, {self.num_actions}); "
+                    f"got an array of shape {action.shape} and dtype {action.dtype}. "
+                    "Use jax.vmap (or envs.wrappers.VmapWrapper) for a batch of envs."
+                )
+        else:
+            if action.shape != (self.action_size,) or not jnp.issubdtype(action.dtype, jnp.floating):
+                raise TypeError(
+                    f"{name} takes a float action of shape ({self.action_size},); "
+                    f"got shape {action.shape} and dtype {action.dtype}."
+                )
+        return action
+
+
+class Wrapper(Env):
+    """Forwards reset, step and every attribute to the wrapped env."""
+
+    def __init__(self, env: Env):
+        self.env = env
+
+    def reset(self, key: jax.Array) -> State:
+        return self.env.reset(key)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.env.step(state, action)
+
+    @property
+    def unwrapped(self) -> Env:
+        return self.env.unwrapped
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "env":  # not yet set: avoid infinite recursion during unpickling
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+    # Class attributes of Env would shadow __getattr__; forward them explicitly.
+    observation_size = property(lambda self: self.env.observation_size)
+    num_actions = property(lambda self: self.env.num_actions)
+    action_size = property(lambda self: self.env.action_size)
+    backend = property(lambda self: self.env.backend)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.env!r})"
