@@ -9,12 +9,18 @@ substeps, and ending an episode cleanly when the physics produces NaNs.
 from __future__ import annotations
 
 import abc
+import contextlib
+import io
 import os
 
 import jax
 import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
+
+# MJX prints "Failed to import warp" when the optional warp-lang is absent; we use
+# the pure-JAX implementation, so keep that message off the user's console.
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
 
 from envs.assets import load_model
 from envs.core import Env, State

@@ -1,0 +1,118 @@
+"""The shared env API: registry, wrappers, jit/vmap/scan, bad input."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+
+NAMES = ["cartpole", "cartpole-mjx"]
+
+
+def test_names():
+    assert set(NAMES) <= set(envs.names())
+
+
+def test_unknown_env_lists_valid_names():
+    with pytest.raises(ValueError, match=r"unknown env 'cartpol'.*cartpole-mjx"):
+        envs.make("cartpol")
+
+
+def test_unknown_override_lists_valid_options():
+    with pytest.raises(ValueError, match=r"unknown option.*'gravty'.*valid options.*gravity"):
+        envs.make("cartpole", gravty=9.0)
+    with pytest.raises(ValueError, match="integrator"):
+        envs.make("cartpole", integrator="rk4")
+
+
+def test_overrides_reach_the_physics():
+    env = envs.make("cartpole", gravity=1.0, integrator="semi_implicit", episode_length=7)
+    assert env.unwrapped.physics.gravity == 1.0
+    assert env.unwrapped.integrator == "semi_implicit"
+    assert env.episode_length == 7
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_wrong_action_shape_or_dtype_fails_at_trace_time(name):
+    env = envs.make(name)
+    state = env.reset(jax.random.PRNGKey(0))
+    with pytest.raises(TypeError, match="one integer action index"):
+        jax.eval_shape(env.step, state, jnp.zeros((2,), jnp.int32))
+    with pytest.raises(TypeError, match="dtype float32"):
+        jax.eval_shape(env.step, state, jnp.float32(1.0))
+    batched = envs.wrap_for_training(env, 4)
+    with pytest.raises(TypeError, match="leading dimension 4"):
+        jax.eval_shape(batched.step, batched.reset(jax.random.PRNGKey(0)), jnp.zeros((3,), jnp.int32))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_jit_vmap_scan_1024_envs_500_steps_with_auto_reset(name):
+    num_envs, steps = 1024, 500
+    env = envs.wrap_for_training(envs.make(name), num_envs)
+
+    def body(carry, _):
+        state, key = carry
+        key, action_key = jax.random.split(key)
+        action = jax.random.randint(action_key, (num_envs,), 0, 2)
+        state = env.step(state, action)
+        return (state, key), (state.done, state.info["truncation"], state.obs, state.info["last_length"])
+
+    @jax.jit
+    def run(key):
+        return jax.lax.scan(body, (env.reset(key), key), None, steps)
+
+    (final, _), (done, truncation, obs, last_length) = run(jax.random.PRNGKey(0))
+    done, obs = np.asarray(done, bool), np.asarray(obs)
+    assert done.sum() > num_envs * 5  # random play ends episodes every ~20 steps
+    assert float(truncation.sum()) == 0.0  # none lasts 500 steps under random play
+    # After every done the next observation is a fresh start: inside the reset box.
+    t, i = np.nonzero(done)
+    assert np.abs(obs[t, i]).max() <= 0.05
+    # Fresh episodes differ from env to env and from episode to episode.
+    assert len(np.unique(obs[t, i], axis=0)) == len(t)
+    assert int(last_length.max()) < 500 and int(last_length[-1].min()) > 0
+
+
+def test_time_limit_reports_truncation_not_termination():
+    env = envs.make("cartpole", episode_length=5, x_threshold=100.0, theta_threshold=100.0)
+    state = env.reset(jax.random.PRNGKey(0))
+    for t in range(5):
+        state = env.step(state, 1)
+    assert float(state.done) == 1.0 and float(state.info["truncation"]) == 1.0
+
+
+def test_termination_on_the_last_step_is_termination():
+    env = envs.make("cartpole", episode_length=1, x_threshold=0.0)
+    state = env.step(env.reset(jax.random.PRNGKey(0)), 1)
+    assert float(state.done) == 1.0 and float(state.info["truncation"]) == 0.0
+
+
+def test_final_obs_is_kept_on_auto_reset():
+    env = envs.wrap_for_training(envs.make("cartpole", episode_length=3), 2)
+    state = env.reset(jax.random.PRNGKey(0))
+    for _ in range(3):
+        previous = state
+        state = env.step(state, jnp.array([1, 0]))
+    assert state.done.tolist() == [1.0, 1.0]
+    inner = envs.make("cartpole")
+    expected = jax.vmap(inner.step)(previous, jnp.array([1, 0])).obs
+    np.testing.assert_allclose(np.asarray(state.info["final_obs"]), np.asarray(expected), rtol=1e-6)
+    assert not np.allclose(np.asarray(state.obs), np.asarray(expected))
+    assert state.info["last_length"].tolist() == [3, 3] and state.info["last_return"].tolist() == [3.0, 3.0]
+
+
+def test_physics_can_be_vmapped_for_domain_randomisation():
+    env = envs.CartPole()
+    gravities = jnp.array([1.0, 9.8, 20.0])
+    physics = jax.vmap(lambda g: envs.CartPolePhysics(gravity=g))(gravities)
+    state = env.reset(jax.random.PRNGKey(0))
+    start = jnp.array([0.0, 0.0, 0.1, 0.0])
+    state = state.replace(pipeline_state=start, obs=start)
+
+    @jax.vmap
+    def step(p):
+        return env.replace(physics=p).step(state, 1).obs
+
+    theta_dot = np.asarray(step(physics))[:, 3]
+    assert theta_dot[0] < theta_dot[1] < theta_dot[2]  # stronger gravity, faster fall
