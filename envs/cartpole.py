@@ -105,15 +105,17 @@ class CartPole(Env):
     def reset(self, key: jax.Array) -> State:
         state = self.rules.initial_state(key)
         zero = jnp.zeros((), state.dtype)
-        return State(state, state, zero, zero, info={"truncation": zero})
+        return State(state, state, zero, zero, info={"truncation": zero, "nan": zero})
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.check_action(action)
         force = jnp.where(action == 1, self.physics.force_mag, -self.physics.force_mag)
         x = integrate(self.physics, state.pipeline_state, force, self.integrator)
-        terminated = self.rules.is_terminated(x[0], x[2])
+        nan = ~jnp.isfinite(x).all()  # e.g. absurd overridden constants
+        done = self.rules.is_terminated(x[0], x[2]) | nan
         one = jnp.ones((), x.dtype)
-        return state.replace(pipeline_state=x, obs=x, reward=one, done=terminated.astype(x.dtype))
+        info = {**state.info, "nan": nan.astype(x.dtype)}
+        return state.replace(pipeline_state=x, obs=x, reward=one, done=done.astype(x.dtype), info=info)
 
     def __repr__(self) -> str:
         return f"CartPole(integrator={self.integrator!r}, physics={self.physics}, rules={self.rules})"

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from mujoco import mjx
 
 from envs.cartpole import CartPoleRules
-from envs.mjx_env import MjxEnv
+from envs.mjx_env import MjxEnv, mjx
 
 
 class CartPoleMjx(MjxEnv):

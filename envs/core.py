@@ -20,7 +20,8 @@ class State:
     """One environment state. All fields are arrays, so a State is a pytree.
 
     `done` is terminated OR truncated; `info["truncation"]` is 1.0 when the
-    episode ended only because of the time limit. `obs` after an auto-reset is
+    episode ended only because of the time limit, and `info["nan"]` is 1.0 when
+    it ended because the physics became non-finite. `obs` after an auto-reset is
     the first observation of the new episode; the last observation of the
     finished one is kept in `info["final_obs"]` (see `wrappers.AutoReset`).
     """

@@ -36,7 +36,7 @@ def gym_step_from(gym_env, state, action):
 def our_step_batch(env, states, actions):
     def one(state, action):
         zero = jnp.zeros((), state.dtype)
-        start = envs.State(state, state, zero, zero, info={"truncation": zero})
+        start = envs.State(state, state, zero, zero, info={"truncation": zero, "nan": zero})
         out = env.step(start, action)
         return out.obs, out.reward, out.done
 
