@@ -119,11 +119,31 @@ def _read(data: Any, indices: jax.Array) -> Any:
     )
 
 
-def _advance(capacity: int, insert_pos, size, batch: Any):
-    b = _batch_size(batch)
-    new_pos = (insert_pos + b) % capacity
-    new_size = jnp.minimum(size + b, capacity)
+def _advance(capacity: int, insert_pos, size, count):
+    new_pos = (insert_pos + count) % capacity
+    new_size = jnp.minimum(size + count, capacity)
     return new_pos.astype(jnp.int32), new_size.astype(jnp.int32)
+
+
+def _drop_masked(data: Any, batch: Any, mask: jax.Array, capacity: int, insert_pos: jax.Array):
+    """Rewrites `batch` so that writing all of it stores exactly the items where `mask` is True.
+
+    Valid items move to the front (keeping their order); the other rows take what
+    their slots already hold, so they change nothing. Returns (batch, count, is_new).
+    """
+    b = _batch_size(batch)
+    mask = jnp.asarray(mask, bool).reshape(b)
+    count = mask.sum(dtype=jnp.int32)
+    is_new = jnp.arange(b) < count
+    order = jnp.argsort(~mask, stable=True) if b > 1 else jnp.zeros((1,), jnp.int32)
+    slots = _write_slots(capacity, insert_pos, b)
+
+    def merge(buf, x):
+        old = buf.at[slots].get(mode="promise_in_bounds")
+        keep = is_new.reshape((b,) + (1,) * (x.ndim - 1))
+        return jnp.where(keep, x[order].astype(buf.dtype), old)
+
+    return jax.tree.map(merge, data, batch), count, is_new
 
 
 def _uniform_indices(key: jax.Array, size: jax.Array, batch_size: int) -> jax.Array:
@@ -156,10 +176,13 @@ class UniformReplay:
             size=jnp.zeros((), jnp.int32),
         )
 
-    def add(self, state: ReplayState, batch: Any) -> ReplayState:
-        """`batch` has a static leading dim B <= capacity."""
+    def add(self, state: ReplayState, batch: Any, mask: jax.Array | None = None) -> ReplayState:
+        """`batch` has a static leading dim B <= capacity; items where `mask` is False are not stored."""
+        count = _batch_size(batch)
+        if mask is not None:
+            batch, count, _ = _drop_masked(state.data, batch, mask, self.capacity, state.insert_pos)
         data = _write(state.data, batch, self.capacity, state.insert_pos)
-        pos, size = _advance(self.capacity, state.insert_pos, state.size, batch)
+        pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
         return ReplayState(data=data, insert_pos=pos, size=size)
 
     def sample(self, state: ReplayState, key: jax.Array, batch_size: int):
@@ -244,14 +267,17 @@ class PrioritizedReplay:
             )
         return tree, min_tree
 
-    def add(self, state: PrioritizedState, batch: Any) -> PrioritizedState:
-        """New items get `max_priority` (leaf value `max_priority**alpha`)."""
-        b = _batch_size(batch)
-        data = _write(state.data, batch, self.capacity, state.insert_pos)
+    def add(self, state: PrioritizedState, batch: Any, mask: jax.Array | None = None) -> PrioritizedState:
+        """New items get `max_priority` (leaf value `max_priority**alpha`); items where `mask` is False are not stored."""
+        b = count = _batch_size(batch)
         slots = _write_slots(self.capacity, state.insert_pos, b)
         leaf = jnp.broadcast_to(state.max_priority**self.alpha, (b,))
+        if mask is not None:
+            batch, count, is_new = _drop_masked(state.data, batch, mask, self.capacity, state.insert_pos)
+            leaf = jnp.where(is_new, leaf, state.tree.at[slots + self.tree_capacity].get(mode="promise_in_bounds"))
+        data = _write(state.data, batch, self.capacity, state.insert_pos)
         tree, min_tree = self._set_leaves(state.tree, state.min_tree, slots, leaf)
-        pos, size = _advance(self.capacity, state.insert_pos, state.size, batch)
+        pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
         return state.replace(
             data=data, insert_pos=pos, size=size, tree=tree, min_tree=min_tree
         )

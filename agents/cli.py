@@ -1,0 +1,147 @@
+"""The `mjxsuite` command: train, eval."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import typing
+
+from agents.dqn import DQNConfig
+
+
+def _parse_value(field: dataclasses.Field, text: str):
+    kind = typing.get_type_hints(DQNConfig)[field.name]
+    if kind is bool:
+        if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+            raise ValueError(f"expected true/false, got {text!r}")
+        return text.lower() in ("true", "1", "yes")
+    if kind == tuple[int, ...]:
+        return tuple(int(v) for v in text.split(",") if v)
+    if kind == float | None:
+        return None if text.lower() == "none" else float(text)
+    return kind(text)
+
+
+def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
+    """Apply `--key value` pairs (dashes or underscores) to a DQNConfig, with clear errors."""
+    fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
+    changes = {}
+    i = 0
+    while i < len(pairs):
+        flag = pairs[i]
+        if not flag.startswith("--"):
+            raise SystemExit(f"mjxsuite: unexpected argument {flag!r}")
+        name, _, value = flag[2:].replace("-", "_").partition("=")
+        if name not in fields:
+            raise SystemExit(f"mjxsuite: unknown option --{name}; config fields: {', '.join(sorted(fields))}")
+        if not value:
+            if i + 1 >= len(pairs):
+                raise SystemExit(f"mjxsuite: --{name} needs a value")
+            value = pairs[i + 1]
+            i += 1
+        try:
+            changes[name] = _parse_value(fields[name], value)
+        except ValueError as err:
+            raise SystemExit(f"mjxsuite: bad value for --{name}: {err}")
+        i += 1
+    try:
+        return dataclasses.replace(base, **changes)
+    except ValueError as err:
+        raise SystemExit(f"mjxsuite: {err}")
+
+
+def cmd_train(args, extra: list[str]) -> int:
+    import envs
+    from agents.run import train_run
+
+    if args.env not in envs.names():
+        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())}")
+    if args.resume:
+        from agents import checkpoint
+
+        saved_env, saved_seeds, config, _ = checkpoint.load_config(args.out)
+        if extra or args.steps or args.replay or saved_env != args.env or saved_seeds != args.seeds:
+            raise SystemExit(f"mjxsuite: --resume continues the saved run ({saved_env}, {saved_seeds} seeds, "
+                             f"its own config); drop the other options or start a new --out")
+        result = train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, resume=True)
+        return _report(args, config, result)
+    config = config_from_args(DQNConfig(), extra)
+    overrides = {}
+    if args.steps is not None:
+        overrides["total_steps"] = args.steps
+    if args.replay is not None:
+        overrides["replay"] = args.replay
+    config = dataclasses.replace(config, **overrides)
+    result = train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out)
+    return _report(args, config, result)
+
+
+def _report(args, config: DQNConfig, result) -> int:
+    if result.interrupted:
+        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
+        return 130
+    for i, (ret, solve) in enumerate(zip(result.mean_return, result.solve_step)):
+        print(f"seed {i}: greedy mean return {ret:.1f} over {config.eval_episodes} episodes; "
+              f"first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
+    print(f"wall {result.wall_s:.1f}s (compile {result.compile_s:.1f}s)" + (f"; wrote {args.out}" if args.out else ""))
+    return 0
+
+
+def cmd_eval(args, extra: list[str]) -> int:
+    import jax
+    import numpy as np
+
+    import envs
+    from agents import checkpoint
+    from agents.dqn import DQN
+    from agents.run import seed_keys
+
+    if extra:
+        raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
+    env_name, seeds, config, env_options = checkpoint.load_config(args.checkpoint)
+    dqn = DQN(config, envs.make(env_name, **env_options))
+    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
+    params = checkpoint.load_best_params(args.checkpoint, template)
+    keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
+    returns = jax.jit(jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)))(params, keys)
+    means = np.asarray(returns.mean(axis=-1))
+    for i, mean in enumerate(means):
+        print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
+    print(json.dumps({"env": env_name, "episodes": args.episodes, "mean_return": means.tolist()}))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    train = sub.add_parser("train", help="train DQN; any DQNConfig field can be set with --FIELD VALUE",
+                           epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
+    train.add_argument("--env", required=True, help="registered env name, e.g. cartpole or cartpole-mjx")
+    train.add_argument("--seeds", type=int, default=1, help="agents trained at once (vmapped)")
+    train.add_argument("--seed", type=int, default=0)
+    train.add_argument("--steps", type=int, help="env steps per seed (DQNConfig.total_steps)")
+    train.add_argument("--replay", choices=["uniform", "prioritized"])
+    train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
+    train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
+
+    evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent")
+    evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
+    evaluate.add_argument("--episodes", type=int, default=64)
+    evaluate.add_argument("--seed", type=int, default=123)
+
+    args, extra = parser.parse_known_args(argv)
+    if args.command == "train" and args.resume and not args.out:
+        parser.error("--resume needs --out")
+    handler = {"train": cmd_train, "eval": cmd_eval}[args.command]
+    try:
+        return handler(args, extra)
+    except (ValueError, FileNotFoundError) as err:
+        print(f"mjxsuite: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,302 @@
+"""DQN with uniform or prioritized replay, the whole training loop inside `lax.scan`.
+
+Read top to bottom: config -> transition packing -> train state -> acting and
+collecting -> the Q-learning update -> greedy evaluation -> one training chunk ->
+`train`. `train(config, env, key)` is pure and jittable, and `jax.vmap`s over
+seeds; the CLI drives the same chunks from the host to show progress and write
+checkpoints between them.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agents.networks import QNetwork
+from agents.replay import PrioritizedReplay, UniformReplay
+from envs import Env, VmapWrapper, wrap_for_training
+
+
+@dataclasses.dataclass(frozen=True)
+class DQNConfig:
+    """Every hyperparameter of a run. The defaults solve CartPole-v1 on both backends."""
+
+    total_steps: int = 50_000  # env steps per seed, summed over its envs
+    num_envs: int = 1  # envs stepped in parallel by each agent
+    learning_starts: int = 1_000  # random-action steps that fill the buffer before learning
+    train_every: int = 1  # env steps (per env) between gradient phases
+    gradient_steps: int = 1  # updates per gradient phase
+    # Network and optimizer
+    hidden: tuple[int, ...] = (64, 64)
+    dueling: bool = False
+    learning_rate: float = 1e-3
+    max_grad_norm: float | None = 10.0  # None: no clipping
+    # Q-learning
+    gamma: float = 0.99
+    double_dqn: bool = True
+    loss: str = "mse"  # "mse" or "huber"
+    target_update: str = "polyak"  # "polyak" (every update) or "hard" (copy every target_period updates)
+    polyak_tau: float = 0.005
+    target_period: int = 500
+    # Exploration
+    epsilon_start: float = 1.0
+    epsilon_end: float = 0.05
+    exploration_steps: int = 10_000  # steps after learning_starts over which epsilon decays
+    # Replay
+    replay: str = "uniform"  # "uniform" or "prioritized"
+    buffer_size: int = 50_000
+    batch_size: int = 64
+    priority_alpha: float = 0.6
+    priority_beta_start: float = 0.4  # annealed linearly to 1 over the run
+    # Evaluation
+    eval_every: int = 1_000  # env steps between greedy evaluations (a training "chunk")
+    eval_episodes: int = 64
+    solve_return: float = 475.0  # greedy mean return that counts as solved
+
+    def __post_init__(self):
+        choices = {"loss": ("mse", "huber"), "target_update": ("polyak", "hard"), "replay": ("uniform", "prioritized")}
+        for field, valid in choices.items():
+            if getattr(self, field) not in valid:
+                raise ValueError(f"DQNConfig.{field} must be one of {valid}, got {getattr(self, field)!r}")
+        if self.learning_starts < self.batch_size:
+            raise ValueError("learning_starts must be at least batch_size so every sample is a real transition")
+        if self.eval_every % (self.num_envs * self.train_every):
+            raise ValueError("eval_every must be a multiple of num_envs * train_every")
+
+    @property
+    def iterations_per_chunk(self) -> int:
+        return self.eval_every // (self.num_envs * self.train_every)
+
+    @property
+    def num_chunks(self) -> int:
+        return max(1, math.ceil(self.total_steps / self.eval_every))
+
+
+# ---- transitions: one packed float row, so the buffer does one gather per sample ----
+class Transition(NamedTuple):
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    next_obs: jax.Array
+    terminated: jax.Array  # 1.0 only when the MDP ended; truncation still bootstraps
+
+
+def pack(t: Transition) -> jax.Array:
+    scalars = jnp.stack([t.action.astype(jnp.float32), t.reward, t.terminated], axis=-1)
+    return jnp.concatenate([t.obs, t.next_obs, scalars.astype(t.obs.dtype)], axis=-1)
+
+
+def unpack(rows: jax.Array, obs_size: int) -> Transition:
+    obs, next_obs = rows[:, :obs_size], rows[:, obs_size : 2 * obs_size]
+    action, reward, terminated = rows[:, 2 * obs_size], rows[:, 2 * obs_size + 1], rows[:, 2 * obs_size + 2]
+    return Transition(obs, action.astype(jnp.int32), reward, next_obs, terminated)
+
+
+@struct.dataclass
+class TrainState:
+    params: Any
+    target_params: Any
+    opt_state: Any
+    buffer: Any
+    env_state: Any
+    key: jax.Array
+    env_steps: jax.Array  # int32, env steps taken so far (all envs)
+    updates: jax.Array  # int32, gradient updates so far
+    best_params: Any  # parameters with the best greedy evaluation so far
+    best_return: jax.Array
+    solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+
+
+class DQN:
+    """The pieces of a DQN run for one env and config; all methods are pure."""
+
+    def __init__(self, config: DQNConfig, env: Env):
+        if env.num_actions is None:
+            raise ValueError(f"DQN needs a discrete-action env; {env!r} has continuous actions")
+        self.config = config
+        self.env = env
+        self.train_env = wrap_for_training(env, config.num_envs)
+        self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling)
+        clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
+        self.optimizer = optax.chain(*clip, optax.adam(config.learning_rate))
+        if config.replay == "uniform":
+            self.buffer = UniformReplay(config.buffer_size)
+        else:
+            self.buffer = PrioritizedReplay(config.buffer_size, alpha=config.priority_alpha)
+        self.epsilon = optax.linear_schedule(config.epsilon_start, config.epsilon_end, config.exploration_steps)
+        self.beta = optax.linear_schedule(config.priority_beta_start, 1.0, config.total_steps)
+
+    # ---- acting -------------------------------------------------------------
+    def q_values(self, params, obs):
+        return self.network.apply(params, obs)
+
+    def act(self, params, obs, key, epsilon):
+        """Epsilon-greedy actions for a batch of observations."""
+        explore_key, action_key = jax.random.split(key)
+        greedy = jnp.argmax(self.q_values(params, obs), axis=-1).astype(jnp.int32)
+        random = jax.random.randint(action_key, greedy.shape, 0, self.env.num_actions)
+        explore = jax.random.uniform(explore_key, greedy.shape) < epsilon
+        return jnp.where(explore, random, greedy)
+
+    def collect(self, ts: TrainState, epsilon) -> tuple[TrainState, dict]:
+        """One step of every env; the transitions go to the buffer (NaN steps never do)."""
+        key, act_key = jax.random.split(ts.key)
+        obs = ts.env_state.obs
+        action = self.act(ts.params, obs, act_key, epsilon)
+        env_state = self.train_env.step(ts.env_state, action)
+        info = env_state.info
+        terminated = env_state.done * (1.0 - info["truncation"])
+        rows = pack(Transition(obs, action, env_state.reward, info["final_obs"], terminated))
+        buffer = self.buffer.add(ts.buffer, rows, mask=info["nan"] == 0)
+        ts = ts.replace(buffer=buffer, env_state=env_state, key=key, env_steps=ts.env_steps + self.config.num_envs)
+        stats = {
+            "episodes": info["episode_done"].sum(),
+            "return_sum": (info["last_return"] * info["episode_done"]).sum(),
+            "nan_episodes": info["nan"].sum(),
+        }
+        return ts, stats
+
+    # ---- learning -----------------------------------------------------------
+    def td_targets(self, params, target_params, batch: Transition):
+        next_q_target = self.q_values(target_params, batch.next_obs)
+        if self.config.double_dqn:  # the online net picks, the target net evaluates
+            next_action = jnp.argmax(self.q_values(params, batch.next_obs), axis=-1)
+        else:
+            next_action = jnp.argmax(next_q_target, axis=-1)
+        next_q = jnp.take_along_axis(next_q_target, next_action[:, None], axis=-1)[:, 0]
+        return batch.reward + self.config.gamma * (1.0 - batch.terminated) * next_q
+
+    def loss(self, params, batch: Transition, targets, weights):
+        q = jnp.take_along_axis(self.q_values(params, batch.obs), batch.action[:, None], axis=-1)[:, 0]
+        td_error = q - targets
+        if self.config.loss == "huber":
+            per_item = optax.huber_loss(td_error)
+        else:
+            per_item = td_error**2
+        return jnp.mean(weights * per_item), (td_error, q)
+
+    def update(self, ts: TrainState) -> tuple[TrainState, dict]:
+        cfg = self.config
+        key, sample_key = jax.random.split(ts.key)
+        if cfg.replay == "uniform":
+            rows, indices = self.buffer.sample(ts.buffer, sample_key, cfg.batch_size)
+            weights = jnp.ones((cfg.batch_size,), jnp.float32)
+        else:
+            rows, indices, weights = self.buffer.sample(ts.buffer, sample_key, cfg.batch_size, self.beta(ts.env_steps))
+        batch = unpack(rows, self.env.observation_size)
+        targets = self.td_targets(ts.params, ts.target_params, batch)
+        grads, (td_error, q) = jax.grad(self.loss, has_aux=True)(ts.params, batch, targets, weights)
+        step, opt_state = self.optimizer.update(grads, ts.opt_state, ts.params)
+        params = optax.apply_updates(ts.params, step)
+        updates = ts.updates + 1
+        if cfg.target_update == "polyak":
+            target_params = optax.incremental_update(params, ts.target_params, cfg.polyak_tau)
+        else:
+            target_params = optax.periodic_update(params, ts.target_params, updates, cfg.target_period)
+        buffer = ts.buffer
+        if cfg.replay == "prioritized":
+            buffer = self.buffer.update_priorities(buffer, indices, jnp.abs(td_error))
+        ts = ts.replace(params=params, target_params=target_params, opt_state=opt_state, buffer=buffer, key=key, updates=updates)
+        return ts, {"loss": jnp.mean(weights * td_error**2), "q": q.mean()}
+
+    # ---- evaluation -----------------------------------------------------------
+    def evaluate(self, params, key, num_episodes: int | None = None) -> jax.Array:
+        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes."""
+        env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
+
+        def running(carry):
+            _, _, finished = carry
+            return ~finished.all()
+
+        def step(carry):
+            state, returns, finished = carry
+            action = jnp.argmax(self.q_values(params, state.obs), axis=-1).astype(jnp.int32)
+            state = env.step(state, action)
+            returns = returns + state.reward * ~finished
+            return state, returns, finished | (state.done > 0)
+
+        state = env.reset(key)
+        zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
+        _, returns, _ = jax.lax.while_loop(running, step, (state, zeros, zeros > 0))
+        return returns
+
+    # ---- a training run ---------------------------------------------------------
+    def init(self, key: jax.Array) -> TrainState:
+        """Fresh parameters, optimizer, buffer and envs."""
+        param_key, env_key, loop_key = jax.random.split(key, 3)
+        env_state = self.train_env.reset(env_key)
+        params = self.network.init(param_key, env_state.obs)
+        example = pack(Transition(env_state.obs[0], jnp.int32(0), env_state.reward[0], env_state.obs[0], env_state.reward[0]))
+        ts = TrainState(
+            params=params,
+            target_params=params,
+            opt_state=self.optimizer.init(params),
+            buffer=self.buffer.init(example),
+            env_state=env_state,
+            key=loop_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+            best_params=params,
+            best_return=jnp.full((), -jnp.inf),
+            solve_step=jnp.full((), -1, jnp.int32),
+        )
+        return ts
+
+    def chunk(self, ts: TrainState) -> tuple[TrainState, dict]:
+        """`eval_every` env steps of acting and learning, then a greedy evaluation."""
+        cfg = self.config
+
+        def learn(ts):
+            return jax.lax.scan(lambda ts, _: self.update(ts), ts, None, cfg.gradient_steps)
+
+        def wait(ts):  # before learning_starts: random actions fill the buffer, no updates
+            return ts, {"loss": jnp.zeros(cfg.gradient_steps), "q": jnp.zeros(cfg.gradient_steps)}
+
+        def iteration(ts, _):
+            epsilon = jnp.where(ts.env_steps < cfg.learning_starts, 1.0, self.epsilon(ts.env_steps - cfg.learning_starts))
+            ts, collected = jax.lax.scan(lambda ts, _: self.collect(ts, epsilon), ts, None, cfg.train_every)
+            ts, learned = jax.lax.cond(ts.env_steps >= cfg.learning_starts, learn, wait, ts)
+            return ts, (jax.tree.map(jnp.sum, collected), jax.tree.map(jnp.mean, learned), epsilon)
+
+        ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, None, cfg.iterations_per_chunk)
+        key, eval_key = jax.random.split(ts.key)
+        eval_return = self.evaluate(ts.params, eval_key).mean()
+        better = eval_return > ts.best_return
+        solved_now = (eval_return >= cfg.solve_return) & (ts.solve_step < 0)
+        ts = ts.replace(
+            key=key,
+            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
+            best_return=jnp.maximum(eval_return, ts.best_return),
+            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
+        )
+        episodes = collected["episodes"].sum()
+        metrics = {
+            "env_steps": ts.env_steps,
+            "eval_return": eval_return,
+            "best_return": ts.best_return,
+            "loss": learned["loss"].mean(),
+            "q": learned["q"].mean(),
+            "epsilon": epsilon[-1],
+            "episodes": episodes,
+            "train_return": collected["return_sum"].sum() / jnp.maximum(episodes, 1),
+            "nan_episodes": collected["nan_episodes"].sum(),
+        }
+        return ts, metrics
+
+
+def train(config: DQNConfig, env: Env, key: jax.Array):
+    """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.
+
+    `metrics` holds one entry per evaluation (leading axis: chunk) plus
+    `solve_step` (-1 if never solved) and `final_params`.
+    """
+    dqn = DQN(config, env)
+    ts = dqn.init(key)
+    ts, metrics = jax.lax.scan(lambda ts, _: dqn.chunk(ts), ts, None, config.num_chunks)
+    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}

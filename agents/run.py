@@ -1,0 +1,152 @@
+"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds, with a progress
+bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from tqdm.auto import tqdm
+
+import envs
+from agents import checkpoint
+from agents.dqn import DQN, DQNConfig
+
+
+@dataclass
+class RunResult:
+    params: Any  # best parameters per seed (leading seed axis)
+    train_state: Any
+    history: list[dict] = field(default_factory=list)  # one record per evaluation
+    mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
+    solve_step: list[int | None] = field(default_factory=list)
+    wall_s: float = 0.0
+    compile_s: float = 0.0
+    interrupted: bool = False  # Ctrl-C; like `stop_after_chunks`, leaves params None and a checkpoint
+
+
+def seed_keys(seed: int, seeds: int) -> jax.Array:
+    """Independent keys for `seeds` agents (split, never reused)."""
+    return jax.random.split(jax.random.PRNGKey(seed), seeds)
+
+
+def _host(tree) -> dict:
+    return {k: np.asarray(v).tolist() for k, v in tree.items()}
+
+
+def train_run(
+    env_name: str,
+    config: DQNConfig = DQNConfig(),
+    seeds: int = 1,
+    seed: int = 0,
+    out_dir: str | Path | None = None,
+    resume: bool = False,
+    progress: bool = True,
+    env_options: dict | None = None,
+    on_chunk: Callable[[int, Any, dict], None] | None = None,
+    stop_after_chunks: int | None = None,
+) -> RunResult:
+    """Train `seeds` DQN agents on `env_name` at once; see the README for the files written to `out_dir`."""
+    start = time.perf_counter()
+    out = checkpoint.check_writable(out_dir) if out_dir is not None else None
+    env = envs.make(env_name, **(env_options or {}))
+    dqn = DQN(config, env)
+    init = jax.jit(jax.vmap(dqn.init))
+    chunk = jax.jit(jax.vmap(dqn.chunk), donate_argnums=0)
+
+    keys = seed_keys(seed, seeds)
+    chunks_done = 0
+    if resume:
+        if out is None or not (out / checkpoint.STATE_FILE).is_file():
+            raise FileNotFoundError(f"nothing to resume in {out_dir}")
+        ts, chunks_done = checkpoint.load_state(out, jax.eval_shape(init, keys))
+    else:
+        ts = init(keys)
+        if out is not None:
+            checkpoint.save_config(out, env_name, seeds, config, env_options)
+            (out / "metrics.jsonl").write_text("")
+
+    compile_start = time.perf_counter()
+    chunk = chunk.lower(ts).compile()
+    compile_s = time.perf_counter() - compile_start
+
+    result = RunResult(params=None, train_state=ts, compile_s=compile_s)
+    bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
+               unit="step", disable=not progress, desc=env_name, dynamic_ncols=True)
+    last = chunks_done
+    try:
+        for index in range(chunks_done, config.num_chunks):
+            if stop_after_chunks is not None and index >= stop_after_chunks:
+                break
+            tick = time.perf_counter()
+            ts, metrics = chunk(ts)
+            record = _host(metrics)
+            elapsed = time.perf_counter() - tick
+            record["chunk"] = index
+            record["steps_per_s"] = config.eval_every * seeds / elapsed
+            result.history.append(record)
+            last = index + 1
+            if out is not None:
+                with open(out / "metrics.jsonl", "a") as f:
+                    f.write(json.dumps(record) + "\n")
+            if on_chunk is not None:
+                on_chunk(index, ts, record)
+            bar.update(config.eval_every)
+            bar.set_postfix(eval=f"{np.mean(record['eval_return']):.1f}", best=f"{np.mean(record['best_return']):.1f}",
+                            sps=f"{record['steps_per_s']:.0f}")
+    except KeyboardInterrupt:
+        result.interrupted = True
+        bar.write("interrupted: saving a checkpoint")
+    finally:
+        bar.close()
+        result.train_state = ts
+        if out is not None:
+            checkpoint.save_state(out, ts, last)
+    if last < config.num_chunks:  # interrupted or stopped early: the checkpoint is saved, no final evaluation
+        return result
+
+    result.params = ts.best_params
+    solve = np.asarray(ts.solve_step).tolist()
+    result.solve_step = [s if s >= 0 else None for s in solve]
+    eval_keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), seeds)
+    returns = jax.jit(jax.vmap(dqn.evaluate))(ts.best_params, eval_keys)
+    result.mean_return = np.asarray(returns.mean(axis=-1)).tolist()
+    result.wall_s = time.perf_counter() - start
+    if out is not None:
+        summary = {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
+                   "solve_step": result.solve_step, "wall_s": result.wall_s, "compile_s": compile_s}
+        (out / "eval.json").write_text(json.dumps(summary, indent=2))
+    return result
+
+
+def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
+    """A greedy policy from a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
+
+    Takes one observation or a batch (numpy or JAX), returns integer actions as numpy.
+    With several trained seeds it uses the one with the best greedy evaluation
+    unless `seed_index` picks one.
+    """
+    env_name, seeds, config, env_options = checkpoint.load_config(out_dir)
+    env = envs.make(env_name, **env_options)
+    dqn = DQN(config, env)
+    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
+    params = checkpoint.load_best_params(out_dir, template)
+    if seed_index is None:
+        seed_index = int(np.argmax(checkpoint.load_best_returns(out_dir)))
+    params = jax.tree.map(lambda x: x[seed_index], params)
+    greedy = jax.jit(lambda obs: jnp.argmax(dqn.q_values(params, obs), axis=-1))
+
+    def policy(obs):
+        obs = np.asarray(obs, np.float32)
+        if obs.shape[-1:] != (env.observation_size,):
+            raise ValueError(f"{env_name} observations have size {env.observation_size}; got shape {obs.shape}")
+        return np.asarray(greedy(obs)).astype(np.int64)
+
+    return policy

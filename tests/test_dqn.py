@@ -1,0 +1,136 @@
+"""DQN: targets, truncation handling, determinism, checkpoint/resume, policy loading, CLI errors."""
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from agents import DQN, DQNConfig, load_policy, train, train_run
+from agents.cli import main as cli_main
+from agents.dqn import Transition, unpack
+
+
+class Counter(envs.Env):
+    """obs = [steps taken]; reward 1; terminates at `terminate_at` steps if given."""
+
+    observation_size = 1
+    num_actions = 2
+
+    def __init__(self, terminate_at=None):
+        self.terminate_at = terminate_at
+
+    def reset(self, key):
+        zero = jnp.zeros(())
+        return envs.State(jnp.zeros(()), jnp.zeros((1,)), zero, zero, info={"truncation": zero, "nan": zero})
+
+    def step(self, state, action):
+        self.check_action(action)
+        t = state.pipeline_state + 1
+        done = jnp.zeros(()) if self.terminate_at is None else (t >= self.terminate_at).astype(jnp.float32)
+        return state.replace(pipeline_state=t, obs=t[None], reward=jnp.ones(()), done=done)
+
+
+SMALL = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                  eval_episodes=4, hidden=(16,))
+
+
+def collected_rows(env, steps=7):
+    dqn = DQN(SMALL, env)
+    ts = dqn.init(jax.random.PRNGKey(0))
+    for _ in range(steps):
+        ts, _ = dqn.collect(ts, 1.0)
+    rows = np.asarray(ts.buffer.data[:steps])
+    return dqn, ts, unpack(jnp.asarray(rows), 1)
+
+
+def test_truncation_bootstraps_from_the_true_final_observation():
+    dqn, ts, batch = collected_rows(envs.TimeLimit(Counter(), episode_length=3))
+    np.testing.assert_array_equal(np.asarray(batch.terminated), 0.0)  # only truncation ends episodes
+    # Episodes of 3 steps: next_obs is 1, 2, 3 then 1, 2, 3 ... never the reset observation 0.
+    np.testing.assert_array_equal(np.asarray(batch.next_obs[:, 0]), [1, 2, 3, 1, 2, 3, 1])
+    np.testing.assert_array_equal(np.asarray(batch.obs[:, 0]), [0, 1, 2, 0, 1, 2, 0])
+    targets = dqn.td_targets(ts.params, ts.params, batch)
+    next_q = dqn.q_values(ts.params, batch.next_obs).max(-1)  # double DQN picks argmax of the same net here
+    np.testing.assert_allclose(np.asarray(targets), np.asarray(1.0 + SMALL.gamma * next_q), rtol=1e-6)
+
+
+def test_termination_does_not_bootstrap():
+    dqn, ts, batch = collected_rows(envs.TimeLimit(Counter(terminate_at=3), episode_length=100))
+    np.testing.assert_array_equal(np.asarray(batch.terminated), [0, 0, 1, 0, 0, 1, 0])
+    targets = np.asarray(dqn.td_targets(ts.params, ts.params, batch))
+    np.testing.assert_allclose(targets[[2, 5]], 1.0)
+    assert np.all(np.abs(targets[[0, 1, 3, 4, 6]] - 1.0) > 1e-6)
+
+
+def test_train_is_deterministic_and_vmaps_over_seeds():
+    env = envs.make("cartpole")
+    run = jax.jit(jax.vmap(lambda k: train(SMALL, env, k)))
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    (params_a, metrics_a), (params_b, _) = run(keys), run(keys)
+    for a, b in zip(jax.tree.leaves(params_a), jax.tree.leaves(params_b)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    # Independent keys give different agents.
+    first = jax.tree.leaves(params_a)[0]
+    assert not np.allclose(np.asarray(first[0]), np.asarray(first[1]))
+    assert metrics_a["eval_return"].shape == (2, SMALL.num_chunks)
+
+
+@pytest.mark.parametrize("replay", ["uniform", "prioritized"])
+def test_resume_reproduces_the_uninterrupted_run(tmp_path, replay):
+    config = DQNConfig(**{**SMALL.__dict__, "replay": replay})
+    whole = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "whole", progress=False)
+    part = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2)
+    assert part.params is None  # stopped early
+    resumed = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
+    for a, b in zip(jax.tree.leaves(whole.train_state), jax.tree.leaves(resumed.train_state)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    summary = json.loads((tmp_path / "whole" / "eval.json").read_text())
+    assert summary["env"] == "cartpole" and summary["seeds"] == 2 and len(summary["mean_return"]) == 2
+    lines = (tmp_path / "whole" / "metrics.jsonl").read_text().splitlines()
+    assert len(lines) == config.num_chunks and "eval_return" in json.loads(lines[0])
+
+
+def test_load_policy_acts_greedily_on_one_or_many_observations(tmp_path):
+    train_run("cartpole", SMALL, seeds=1, out_dir=tmp_path, progress=False)
+    policy = load_policy(tmp_path)
+    one = policy(np.zeros(4))
+    many = policy(np.zeros((5, 4)))
+    assert one.shape == () and many.shape == (5,) and many.dtype == np.int64
+    assert set(np.unique(many)) <= {0, 1}
+    with pytest.raises(ValueError, match="size 4"):
+        policy(np.zeros(3))
+
+
+def test_cli_train_and_eval(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = cli_main(["train", "--env", "cartpole", "--steps", "200", "--out", str(out), "--eval_every", "100",
+                     "--learning_starts", "64", "--eval-episodes", "4", "--hidden", "16"])
+    assert code == 0
+    assert {p.name for p in out.iterdir()} >= {"config.json", "metrics.jsonl", "eval.json", "best_params.msgpack",
+                                                 "train_state.msgpack"}
+    assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "3"]) == 0
+    assert '"episodes": 3' in capsys.readouterr().out
+
+
+def test_cli_rejects_bad_input(tmp_path):
+    with pytest.raises(SystemExit, match="unknown env 'nope'"):
+        cli_main(["train", "--env", "nope"])
+    with pytest.raises(SystemExit, match="unknown option --lerning_rate"):
+        cli_main(["train", "--env", "cartpole", "--lerning_rate", "1"])
+    with pytest.raises(SystemExit, match="target_update must be one of"):
+        cli_main(["train", "--env", "cartpole", "--target_update", "soft"])
+    with pytest.raises(SystemExit, match="bad value for --batch_size"):
+        cli_main(["train", "--env", "cartpole", "--batch_size", "many"])
+
+
+def test_unwritable_output_fails_before_training(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ValueError, match="not a directory"):
+        train_run("cartpole", SMALL, out_dir=blocker, progress=False)
+    # /proc refuses new entries even to root.
+    with pytest.raises(ValueError, match="cannot write"):
+        train_run("cartpole", SMALL, out_dir="/proc/mjxsuite-test", progress=False)
