@@ -1,4 +1,4 @@
-"""The `mjxsuite` command: train, eval."""
+"""The `mjxsuite` command: train, eval, rollout."""
 
 from __future__ import annotations
 
@@ -54,7 +54,6 @@ def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
 
 def cmd_train(args, extra: list[str]) -> int:
     import envs
-    from agents.run import train_run
 
     if args.env not in envs.names():
         raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())}")
@@ -65,7 +64,7 @@ def cmd_train(args, extra: list[str]) -> int:
         if extra or args.steps or args.replay or saved_env != args.env or saved_seeds != args.seeds:
             raise SystemExit(f"mjxsuite: --resume continues the saved run ({saved_env}, {saved_seeds} seeds, "
                              f"its own config); drop the other options or start a new --out")
-        result = train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, resume=True)
+        result = _train(args, config, resume=True)
         return _report(args, config, result)
     config = config_from_args(DQNConfig(), extra)
     overrides = {}
@@ -74,8 +73,25 @@ def cmd_train(args, extra: list[str]) -> int:
     if args.replay is not None:
         overrides["replay"] = args.replay
     config = dataclasses.replace(config, **overrides)
-    result = train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out)
+    result = _train(args, config)
     return _report(args, config, result)
+
+
+def _train(args, config: DQNConfig, **kwargs):
+    """train_run, writing a Rerun file with --rerun (its path is checked before training starts)."""
+    from agents.run import train_run
+
+    if not args.rerun:
+        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, **kwargs)
+    from agents.recording import TrainingLogger
+
+    logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
+                            rollout_every=args.rerun_every, seed=args.seed)
+    try:
+        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger, **kwargs)
+    finally:
+        logger.close()
+        print(f"wrote Rerun recording {args.rerun}")
 
 
 def _report(args, config: DQNConfig, result) -> int:
@@ -113,6 +129,51 @@ def cmd_eval(args, extra: list[str]) -> int:
     return 0
 
 
+def cmd_rollout(args, extra: list[str]) -> int:
+    import jax
+    import numpy as np
+
+    import envs
+    from envs import recording
+
+    if extra:
+        raise SystemExit(f"mjxsuite rollout: unexpected arguments {extra}")
+    recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
+    if args.env is not None and args.env not in envs.names():
+        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())}")
+    if args.checkpoint:
+        from agents.recording import load_greedy
+
+        trained_on, env, policy, params = load_greedy(args.checkpoint)
+        if args.env is not None and args.env != trained_on:
+            other = envs.make(args.env)
+            if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
+                raise SystemExit(f"mjxsuite rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
+                                 f"whose observations/actions do not match {args.env}'s")
+            env = other
+    elif args.env is None:
+        raise SystemExit("mjxsuite rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
+    else:
+        env = envs.make(args.env)
+        policy, params = recording.random_policy(env), None
+    episodes = args.episodes or (None if args.steps else 1)
+    steps = args.steps or episodes * getattr(env, "episode_length", 1000)
+    rollout = recording.collect_rollout(env, policy, jax.random.PRNGKey(args.seed), num_envs=args.num_envs,
+                                        steps=steps, params=params, scene_envs=args.scene_envs)
+    if episodes:
+        rollout = recording.trim_to_episodes(rollout, episodes)
+    rec = recording.open_recording(args.rerun, args.overwrite, blueprint=recording.rollout_blueprint())
+    try:
+        recording.log_rollout(rec, env, rollout, plot_envs=args.plot_envs)
+    finally:
+        recording.close_recording(rec)
+    done = np.asarray(rollout.done) > 0
+    returns = np.asarray(rollout.episode_return)[done]
+    mean = f"mean return {returns.mean():.1f}" if done.any() else "no episode finished"
+    print(f"logged {done.shape[0]} steps of {done.shape[1]} envs ({done.sum()} episodes, {mean}) to {args.rerun}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -126,16 +187,32 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--replay", choices=["uniform", "prioritized"])
     train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
     train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
+    train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
+    train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
+    train.add_argument("--rerun-every", type=int, default=1, metavar="N",
+                       help="chunks between logged evaluation rollouts (0: none)")
 
     evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent")
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=int, default=64)
     evaluate.add_argument("--seed", type=int, default=123)
 
+    rollout = sub.add_parser("rollout", help="log a rollout (random, or greedy from a checkpoint) to a Rerun file")
+    rollout.add_argument("--env", help="registered env name (default: the checkpoint's)")
+    rollout.add_argument("--checkpoint", help="a directory written by `mjxsuite train --out`; random actions without")
+    rollout.add_argument("--episodes", type=int, help="stop once every env finished this many episodes (default 1)")
+    rollout.add_argument("--num-envs", type=int, default=1)
+    rollout.add_argument("--steps", type=int, help="steps to run (default: episodes x the time limit)")
+    rollout.add_argument("--scene-envs", type=int, default=1, help="envs drawn in 3D")
+    rollout.add_argument("--plot-envs", type=int, default=16, help="envs whose observations etc. are plotted")
+    rollout.add_argument("--seed", type=int, default=0)
+    rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
+    rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
+
     args, extra = parser.parse_known_args(argv)
     if args.command == "train" and args.resume and not args.out:
         parser.error("--resume needs --out")
-    handler = {"train": cmd_train, "eval": cmd_eval}[args.command]
+    handler = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout}[args.command]
     try:
         return handler(args, extra)
     except (ValueError, FileNotFoundError) as err:

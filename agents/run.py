@@ -27,6 +27,7 @@ class RunResult:
     history: list[dict] = field(default_factory=list)  # one record per evaluation
     mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
     solve_step: list[int | None] = field(default_factory=list)
+    solve_wall_s: list[float | None] = field(default_factory=list)  # seconds from the start (compile included)
     wall_s: float = 0.0
     compile_s: float = 0.0
     interrupted: bool = False  # Ctrl-C; like `stop_after_chunks`, leaves params None and a checkpoint
@@ -52,6 +53,7 @@ def train_run(
     env_options: dict | None = None,
     on_chunk: Callable[[int, Any, dict], None] | None = None,
     stop_after_chunks: int | None = None,
+    stop_when_solved: bool = False,
 ) -> RunResult:
     """Train `seeds` DQN agents on `env_name` at once; see the README for the files written to `out_dir`."""
     start = time.perf_counter()
@@ -77,10 +79,11 @@ def train_run(
     chunk = chunk.lower(ts).compile()
     compile_s = time.perf_counter() - compile_start
 
-    result = RunResult(params=None, train_state=ts, compile_s=compile_s)
+    result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * seeds)
     bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
                unit="step", disable=not progress, desc=env_name, dynamic_ncols=True)
     last = chunks_done
+    solved_early = False
     try:
         for index in range(chunks_done, config.num_chunks):
             if stop_after_chunks is not None and index >= stop_after_chunks:
@@ -93,6 +96,10 @@ def train_run(
             record["steps_per_s"] = config.eval_every * seeds / elapsed
             result.history.append(record)
             last = index + 1
+            now = time.perf_counter() - start
+            for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
+                if solve >= config.solve_return and result.solve_wall_s[i] is None:
+                    result.solve_wall_s[i] = now
             if out is not None:
                 with open(out / "metrics.jsonl", "a") as f:
                     f.write(json.dumps(record) + "\n")
@@ -101,6 +108,9 @@ def train_run(
             bar.update(config.eval_every)
             bar.set_postfix(eval=f"{np.mean(record['eval_return']):.1f}", best=f"{np.mean(record['best_return']):.1f}",
                             sps=f"{record['steps_per_s']:.0f}")
+            if stop_when_solved and None not in result.solve_wall_s:
+                solved_early = True
+                break
     except KeyboardInterrupt:
         result.interrupted = True
         bar.write("interrupted: saving a checkpoint")
@@ -109,7 +119,7 @@ def train_run(
         result.train_state = ts
         if out is not None:
             checkpoint.save_state(out, ts, last)
-    if last < config.num_chunks:  # interrupted or stopped early: the checkpoint is saved, no final evaluation
+    if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
         return result
 
     result.params = ts.best_params
@@ -121,7 +131,8 @@ def train_run(
     result.wall_s = time.perf_counter() - start
     if out is not None:
         summary = {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
-                   "solve_step": result.solve_step, "wall_s": result.wall_s, "compile_s": compile_s}
+                   "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
+                   "wall_s": result.wall_s, "compile_s": compile_s}
         (out / "eval.json").write_text(json.dumps(summary, indent=2))
     return result
 

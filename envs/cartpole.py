@@ -84,6 +84,7 @@ class CartPole(Env):
 
     observation_size = 4
     num_actions = 2
+    observation_names = ("x", "x_dot", "theta", "theta_dot")
 
     def __init__(
         self,
@@ -116,6 +117,16 @@ class CartPole(Env):
         one = jnp.ones((), x.dtype)
         info = {**state.info, "nan": nan.astype(x.dtype)}
         return state.replace(pipeline_state=x, obs=x, reward=one, done=done.astype(x.dtype), info=info)
+
+    def scene_model(self):
+        """The MJX CartPole's model, so `envs.recording` draws both backends alike."""
+        from envs.assets import load_model
+
+        return load_model("cartpole.xml")
+
+    def scene_qpos(self, pipeline_state: jax.Array) -> jax.Array:
+        """qpos (x, theta) of `scene_model()` for the state (x, x_dot, theta, theta_dot)."""
+        return pipeline_state[..., jnp.array([0, 2])]
 
     def __repr__(self) -> str:
         return f"CartPole(integrator={self.integrator!r}, physics={self.physics}, rules={self.rules})"

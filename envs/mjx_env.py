@@ -52,6 +52,13 @@ class MjxEnv(Env):
     def dt(self) -> float:
         return float(self.mj_model.opt.timestep) * self.n_substeps
 
+    def scene_model(self) -> mujoco.MjModel:
+        """The model `envs.recording` draws."""
+        return self.mj_model
+
+    def scene_qpos(self, pipeline_state: mjx.Data) -> jax.Array:
+        return pipeline_state.qpos
+
     # ---- task hooks -------------------------------------------------------
     @abc.abstractmethod
     def initial_qpos_qvel(self, key: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -1,0 +1,23 @@
+"""A non-editable install finds its MJCF assets inside the package, not in the checkout."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_non_editable_install_ships_the_assets(tmp_path):
+    target = tmp_path / "site"
+    subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(ROOT)],
+                   check=True, capture_output=True, text=True)
+    assert (target / "envs" / "assets" / "cartpole.xml").is_file()
+    script = (
+        "import envs, envs.assets as a, jax; "
+        "assert envs.__file__.startswith(%r), envs.__file__; "
+        "print(a.asset_path('cartpole.xml')); "
+        "env = envs.make('cartpole-mjx'); env.step(env.reset(jax.random.PRNGKey(0)), 1)"
+    ) % str(target)
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": ""},
+                         check=True, capture_output=True, text=True).stdout
+    assert out.strip() == str(target / "envs" / "assets" / "cartpole.xml")

@@ -1,0 +1,287 @@
+"""Rerun logging: files read back with Rerun's own reader, pose correctness, CLI behaviour."""
+
+import shutil
+import subprocess
+from collections import defaultdict
+from pathlib import Path
+
+import jax
+import mujoco
+import numpy as np
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+
+import envs
+from agents import recording as agent_recording
+from agents.cli import main as cli_main
+from envs import recording
+
+STEPS = 300
+TINY = ["--steps", "200", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "4", "--hidden", "16"]
+
+
+# ---- reading files back ---------------------------------------------------------
+class Contents:
+    """What a .rrd holds, per entity: static columns (one list per static chunk) and temporal rows."""
+
+    def __init__(self, path):
+        self.static = defaultdict(list)
+        self.rows = defaultdict(int)
+        self.timelines = defaultdict(set)
+        self.chunks = defaultdict(list)
+        for chunk in RrdReader(path).store().stream():
+            entity = chunk.entity_path.lstrip("/")
+            if chunk.is_static:
+                self.static[entity].append(set(chunk.to_record_batch().schema.names))
+            else:
+                self.rows[entity] += chunk.num_rows
+                self.timelines[entity] |= set(chunk.timeline_names)
+                self.chunks[entity].append(chunk.to_record_batch())
+
+    @property
+    def entities(self):
+        return set(self.static) | set(self.rows)
+
+    def column(self, entity, name):
+        """A temporal component column as an array (rows, ...), sorted by `step`."""
+        batches = self.chunks[entity]
+        step = np.concatenate([b.column("step").to_numpy() for b in batches])
+        values = np.concatenate([np.stack(b.column(name).to_pylist())[:, 0] for b in batches])
+        return values[np.argsort(step, kind="stable")]
+
+
+def verify_with_rerun_cli(path):
+    binary = shutil.which("rerun") or str(Path(__import__("sys").executable).with_name("rerun"))
+    try:
+        done = subprocess.run([binary, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
+    except OSError as err:
+        pytest.skip(f"the rerun binary cannot run here ({err}); skipping `rerun rrd verify`")
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+def write_rollout(path, env, num_envs=3, scene_envs=2, steps=STEPS, seed=0):
+    rollout = recording.collect_rollout(env, recording.random_policy(env), jax.random.PRNGKey(seed),
+                                        num_envs=num_envs, steps=steps, scene_envs=scene_envs)
+    rec = recording.open_recording(path)
+    try:
+        recording.log_rollout(rec, env, rollout)
+    finally:
+        recording.close_recording(rec)
+    return jax.device_get(rollout)
+
+
+@pytest.fixture(scope="module")
+def analytic_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rrd") / "cartpole.rrd"
+    rollout = write_rollout(path, envs.make("cartpole"))
+    return path, rollout, Contents(path)
+
+
+# ---- the scene builder ------------------------------------------------------------
+ALL_GEOMS = """
+<mujoco>
+  <asset>
+    <material name="red" rgba="1 0 0 1"/>
+    <mesh name="tetra" vertex="0 0 0  1 0 0  0 1 0  0 0 1"/>
+    <hfield name="terrain" nrow="3" ncol="3" size="1 1 0.2 0.1"/>
+  </asset>
+  <worldbody>
+    <geom name="ground" type="plane" size="0 0 1"/>
+    <geom name="terrain" type="hfield" hfield="terrain" pos="5 0 0"/>
+    <geom name="hidden" type="box" size=".1 .1 .1" group="3"/>
+    <body name="thing" pos="0 0 1">
+      <freejoint/>
+      <geom name="box" type="box" size=".1 .2 .3" material="red"/>
+      <geom name="ball" type="sphere" size=".1" pos="1 0 0" rgba="0 1 0 1"/>
+      <geom name="pill" type="capsule" size=".1 .2" pos="2 0 0"/>
+      <geom name="can" type="cylinder" size=".1 .2" pos="3 0 0"/>
+      <geom name="egg" type="ellipsoid" size=".1 .2 .3" pos="4 0 0"/>
+      <geom type="mesh" mesh="tetra" pos="5 0 0"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_scene_from_any_mjcf_one_entity_per_geom():
+    model = mujoco.MjModel.from_xml_string(ALL_GEOMS)
+    with pytest.warns(UserWarning, match="terrain.*HFIELD"):
+        geoms = recording.scene_from_model(model)
+    kinds = {g.name: type(g.shape) for g in geoms}
+    assert kinds == {"ground": rr.Boxes3D, "box": rr.Boxes3D, "ball": rr.Ellipsoids3D, "pill": rr.Capsules3D,
+                     "can": rr.Cylinders3D, "egg": rr.Ellipsoids3D, "geom_8": rr.Mesh3D}
+    fixed = {g.name for g in geoms if g.fixed}
+    assert fixed == {"ground"}
+    box = model.geom("box").id
+    np.testing.assert_array_equal(recording.geom_color(model, box), [255, 0, 0, 255])  # the material's
+    np.testing.assert_array_equal(recording.geom_color(model, model.geom("ball").id), [0, 255, 0, 255])
+
+
+def test_geom_poses_match_mujoco():
+    model = mujoco.MjModel.from_xml_string(ALL_GEOMS)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    qpos = np.tile(model.qpos0, (5, 1))
+    qpos[:, :3] += rng.normal(size=(5, 3))
+    quat = rng.normal(size=(5, 4))
+    qpos[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    ids = [model.geom("pill").id, model.geom("egg").id]
+    positions, rotations = recording.geom_poses(model, qpos, ids)
+    for t in range(5):
+        data.qpos[:] = qpos[t]
+        mujoco.mj_forward(model, data)
+        np.testing.assert_allclose(positions[t], data.geom_xpos[ids])
+        np.testing.assert_allclose(rotations[t], data.geom_xmat[ids])
+
+
+# ---- rollout files --------------------------------------------------------------------
+def test_rollout_file_has_plots_scene_and_timelines(analytic_file):
+    path, rollout, contents = analytic_file
+    verify_with_rerun_cli(path)
+    geoms = {"floor", "rail", "cart", "pole"}
+    for i in range(3):
+        for name in ("obs/x", "obs/x_dot", "obs/theta", "obs/theta_dot", "action", "reward"):
+            assert contents.rows[f"env/{i}/{name}"] == STEPS, name
+            assert contents.timelines[f"env/{i}/{name}"] == {"step", "sim_time"}
+        ends = int((rollout.done[:, i] > 0).sum())
+        assert ends > 0  # random actions end CartPole episodes within ~20 steps
+        for name in ("episode_done", "episode/return", "episode/length"):
+            assert contents.rows[f"env/{i}/{name}"] == ends
+    # The 3D scene only for the first two envs: static shapes exactly once, moving geoms every step.
+    for i in range(2):
+        for geom in geoms:
+            entity = f"world/env_{i}/{geom}"
+            shapes = [cols for cols in contents.static[entity] if not any("Transform3D" in c for c in cols)]
+            assert len(shapes) == 1, (entity, contents.static[entity])
+        assert contents.rows[f"world/env_{i}/cart"] == contents.rows[f"world/env_{i}/pole"] == STEPS
+        assert contents.rows[f"world/env_{i}/floor"] == contents.rows[f"world/env_{i}/rail"] == 0  # fixed: static pose
+    assert not any(e.startswith("world/env_2") for e in contents.entities)
+
+
+def test_episode_returns_are_logged_where_episodes_end(analytic_file):
+    _, rollout, contents = analytic_file
+    ends = rollout.done[:, 0] > 0
+    batches = contents.chunks["env/0/episode/return"]
+    logged_steps = np.concatenate([b.column("step").to_numpy() for b in batches])
+    np.testing.assert_array_equal(np.sort(logged_steps), np.flatnonzero(ends))
+    returns = contents.column("env/0/episode/return", "Scalars:scalars")
+    np.testing.assert_allclose(returns, rollout.episode_return[ends, 0])
+    np.testing.assert_allclose(contents.column("env/0/episode/length", "Scalars:scalars"), returns)  # reward 1/step
+
+
+def pole_pose_from_theta(model, x, theta):
+    """The pole geom's pose by hand: a rotation about +y by theta at the cart, centre R (0, 0, 0.5) above it."""
+    c, s = np.cos(theta), np.sin(theta)
+    zero, one = np.zeros_like(theta), np.ones_like(theta)
+    rotation = np.stack([np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)], -2)
+    cart = np.stack([x, zero, zero], -1)
+    centre = cart + rotation @ np.array([0.0, 0.0, 0.5])
+    geom_frame = np.zeros(9)
+    mujoco.mju_quat2Mat(geom_frame, model.geom_quat[model.geom("pole").id])  # the capsule's frame in its body
+    return centre, rotation @ geom_frame.reshape(3, 3)
+
+
+def test_logged_pole_pose_follows_theta(analytic_file):
+    _, _, contents = analytic_file
+    x = contents.column("env/0/obs/x", "Scalars:scalars")
+    theta = contents.column("env/0/obs/theta", "Scalars:scalars")
+    translation = contents.column("world/env_0/pole", "Transform3D:translation")
+    flat_columns = contents.column("world/env_0/pole", "Transform3D:mat3x3")  # Rerun stores column-major
+    rotation = flat_columns.reshape(-1, 3, 3).transpose(0, 2, 1)
+    centre, expected_rotation = pole_pose_from_theta(envs.CartPole().scene_model(), x, theta)
+    assert np.abs(theta).max() > 0.1  # the pole actually swings in this rollout
+    np.testing.assert_allclose(translation, centre, atol=1e-5)
+    np.testing.assert_allclose(rotation, expected_rotation, atol=1e-5)
+
+
+def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
+    _, _, analytic = analytic_file
+    write_rollout(tmp_path / "mjx.rrd", envs.make("cartpole-mjx"), num_envs=2, steps=50)
+    mjx = Contents(tmp_path / "mjx.rrd")
+    scene = lambda c: {e: sorted(map(sorted, c.static[e])) for e in c.entities if e.startswith("world/")}  # noqa: E731
+    assert scene(mjx) == scene(analytic)
+    assert mjx.rows["world/env_0/pole"] == 50
+
+
+# ---- training and the command line ---------------------------------------------------
+def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
+    out, train_file, rollout_file = tmp_path / "run", tmp_path / "train.rrd", tmp_path / "rollout.rrd"
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), *TINY]) == 0
+    contents = Contents(train_file)
+    for name in ("loss", "mean_q", "epsilon", "eval_return", "env_steps_per_s"):
+        assert contents.rows[f"train/seed_0/{name}"] == 2  # one row per chunk
+        assert contents.timelines[f"train/seed_0/{name}"] == {"train_step"}
+    assert contents.rows["eval/seed_0/train_step"] == 2  # an evaluation rollout after every chunk
+    assert contents.rows["eval/seed_0/world/env_0/pole"] == contents.rows["eval/seed_0/env/0/reward"] > 0
+    assert len(contents.static["eval/seed_0/world/env_0/pole"]) == 1  # shapes once, not per evaluation
+    verify_with_rerun_cli(train_file)
+
+    assert cli_main(["rollout", "--checkpoint", str(out), "--env", "cartpole-mjx", "--num-envs", "2",
+                     "--episodes", "1", "--rerun", str(rollout_file)]) == 0
+    assert f"to {rollout_file}" in capsys.readouterr().out
+    contents = Contents(rollout_file)
+    assert {"env/0/reward", "env/1/reward", "world/env_0/pole"} <= contents.entities
+    assert not any(e.startswith("world/env_1") for e in contents.entities)  # --scene-envs 1
+    assert contents.rows["env/0/episode/return"] >= 1 and contents.rows["env/1/episode/return"] >= 1
+
+
+def test_cli_rollout_with_random_policy_and_fixed_steps(tmp_path):
+    path = tmp_path / "random.rrd"
+    assert cli_main(["rollout", "--env", "cartpole", "--steps", "40", "--scene-envs", "2", "--num-envs", "2",
+                     "--rerun", str(path)]) == 0
+    contents = Contents(path)
+    assert contents.rows["env/1/obs/theta"] == contents.rows["world/env_1/pole"] == 40
+
+
+@pytest.fixture
+def no_training(monkeypatch):
+    """Fail the test if training or a rollout starts."""
+    import agents.run
+
+    def boom(*args, **kwargs):
+        raise AssertionError("training started before the output path was checked")
+
+    monkeypatch.setattr(agents.run, "train_run", boom)
+    monkeypatch.setattr(recording, "collect_rollout", boom)
+
+
+def test_bad_rerun_paths_fail_before_training(tmp_path, capsys, no_training):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    existing = tmp_path / "old.rrd"
+    existing.write_bytes(b"keep me")
+    cases = {
+        str(tmp_path): "is a directory",
+        str(blocker / "run.rrd"): "cannot write",  # parent is a file
+        "/proc/mjxsuite-test.rrd": "cannot write",  # /proc refuses new entries even to root
+        str(existing): "already exists; pass --overwrite",
+    }
+    for path, message in cases.items():
+        for command in (["train", "--env", "cartpole", *TINY], ["rollout", "--env", "cartpole"]):
+            assert cli_main([*command, "--rerun", path]) == 2, (command, path)
+            assert message in capsys.readouterr().err, (command, path)
+    assert existing.read_bytes() == b"keep me"
+
+
+def test_overwrite_replaces_an_existing_file(tmp_path):
+    path = tmp_path / "old.rrd"
+    path.write_bytes(b"old")
+    assert cli_main(["rollout", "--env", "cartpole", "--steps", "20", "--rerun", str(path), "--overwrite"]) == 0
+    assert Contents(path).rows["env/0/reward"] == 20
+
+
+def test_interrupted_training_leaves_a_readable_file(tmp_path, monkeypatch):
+    path = tmp_path / "interrupted.rrd"
+    log_chunk = agent_recording.TrainingLogger.__call__
+
+    def interrupt_after_first_chunk(self, index, train_state, record):
+        log_chunk(self, index, train_state, record)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(agent_recording.TrainingLogger, "__call__", interrupt_after_first_chunk)
+    assert cli_main(["train", "--env", "cartpole", "--rerun", str(path), *TINY]) == 130
+    contents = Contents(path)
+    assert contents.rows["train/seed_0/loss"] == 1
+    assert contents.rows["eval/seed_0/env/0/reward"] > 0
+    verify_with_rerun_cli(path)
