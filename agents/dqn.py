@@ -35,19 +35,19 @@ class DQNConfig:
     # Network and optimizer
     hidden: tuple[int, ...] = (64, 64)
     dueling: bool = False
-    learning_rate: float = 1e-3
+    learning_rate: float = 2e-3
     max_grad_norm: float | None = 10.0  # None: no clipping
     # Q-learning
     gamma: float = 0.99
     double_dqn: bool = True
     loss: str = "mse"  # "mse" or "huber"
     target_update: str = "polyak"  # "polyak" (every update) or "hard" (copy every target_period updates)
-    polyak_tau: float = 0.005
+    polyak_tau: float = 0.01
     target_period: int = 500
     # Exploration
     epsilon_start: float = 1.0
     epsilon_end: float = 0.05
-    exploration_steps: int = 10_000  # steps after learning_starts over which epsilon decays
+    exploration_steps: int = 5_000  # steps after learning_starts over which epsilon decays
     # Replay
     replay: str = "uniform"  # "uniform" or "prioritized"
     buffer_size: int = 50_000

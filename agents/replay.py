@@ -18,7 +18,7 @@ Why the code looks the way it does (all measured on XLA:CPU, 2 cores, inside a
   - writes (`add`) copy rows one at a time with `dynamic_update_slice` in a
     `fori_loop` (faster than a scatter for every batch size we tried, <= 64);
   - reads of large leaves use a `fori_loop` of `dynamic_slice`s; small leaves
-    (< 512 KiB) use an ordinary gather, which is cheaper for them;
+    (< 512 KiB) use an ordinary gather, which measured cheaper for them;
   - sum-tree writes walk each touched leaf's path with scalar slices;
   - the sum-tree descent gathers from a `dynamic_slice` window of
     `tree_capacity` nodes rather than from the whole `2 * tree_capacity` tree,
@@ -96,20 +96,30 @@ def _batch_size(batch: Any, capacity: int) -> int:
     return b
 
 
-def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array) -> Any:
-    """Writes row i of `batch` to slot (insert_pos + i) % capacity."""
-    b = _batch_size(batch, capacity)
+def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, keep=None) -> Any:
+    """Writes the k-th stored row to slot (insert_pos + k) % capacity.
 
-    def put_row(i, data):
-        slot = (insert_pos + i) % capacity
+    Without `keep` every row of `batch` is stored in order. With `keep =
+    (rows, count)` only `batch[rows[:count]]` is stored; the loop simply stops
+    after `count` rows, so dropped items never touch (or need to read) the
+    buffer.
+    """
+    b = _batch_size(batch, capacity)
+    rows, count = keep if keep is not None else (None, None)
+
+    def put_row(k, data):
+        slot = (insert_pos + k) % capacity
+        src = k if rows is None else rows[k]
         return jax.tree.map(
             lambda buf, x: jax.lax.dynamic_update_index_in_dim(
-                buf, x[i].astype(buf.dtype), slot, 0
+                buf, jax.lax.dynamic_index_in_dim(x, src, 0, False).astype(buf.dtype), slot, 0
             ),
             data,
             batch,
         )
 
+    if count is not None:
+        return jax.lax.fori_loop(0, count, put_row, data)
     if b == 1:
         return put_row(0, data)
     return jax.lax.fori_loop(0, b, put_row, data)
@@ -121,27 +131,16 @@ def _advance(capacity: int, insert_pos, size, count):
     return new_pos, new_size
 
 
-def _drop_masked(data: Any, batch: Any, mask: jax.Array, capacity: int, insert_pos: jax.Array):
-    """Rewrites `batch` so that writing all of it stores exactly the items where `mask` is True.
+def _kept_rows(mask: jax.Array):
+    """(rows, count): indices of the rows where `mask` is True, in order, then the others.
 
-    Valid items move to the front (keeping their order); the other rows take what
-    their slots already hold, so writing them changes nothing. Used to keep
-    transitions with non-finite physics out of the buffer.
-    Returns (batch, count, is_new).
+    Used to keep transitions with non-finite physics out of the buffer.
     """
-    b = mask.shape[0]
-    mask = jnp.asarray(mask, bool)
+    mask = jnp.asarray(mask, bool).reshape(-1)
     count = mask.sum(dtype=jnp.int32)
-    is_new = jnp.arange(b) < count
-    order = jnp.argsort(~mask, stable=True) if b > 1 else jnp.zeros((1,), jnp.int32)
-    slots = (insert_pos + jnp.arange(b, dtype=jnp.int32)) % capacity
-
-    def merge(buf, x):
-        old = buf.at[slots].get(mode="promise_in_bounds")
-        keep = is_new.reshape((b,) + (1,) * (x.ndim - 1))
-        return jnp.where(keep, x[order].astype(buf.dtype), old)
-
-    return jax.tree.map(merge, data, batch), count, is_new
+    if mask.shape[0] == 1:
+        return jnp.zeros((1,), jnp.int32), count
+    return jnp.argsort(~mask, stable=True).astype(jnp.int32), count
 
 
 def _read(data: Any, indices: jax.Array) -> Any:
@@ -201,10 +200,12 @@ class UniformReplay:
 
     def add(self, state: ReplayState, batch: Any, mask: jax.Array | None = None) -> ReplayState:
         """`batch` has a static leading dim B <= capacity; items where `mask` is False are not stored."""
-        b = count = _batch_size(batch, self.capacity)
+        count = _batch_size(batch, self.capacity)
+        keep = None
         if mask is not None:
-            batch, count, _ = _drop_masked(state.data, batch, mask, self.capacity, state.insert_pos)
-        data = _write(state.data, batch, self.capacity, state.insert_pos)
+            keep = _kept_rows(mask)
+            count = keep[1]
+        data = _write(state.data, batch, self.capacity, state.insert_pos, keep)
         pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
         return ReplayState(data=data, insert_pos=pos, size=size)
 
@@ -265,11 +266,12 @@ class PrioritizedReplay:
             min_tree=jnp.full((2 * t,), jnp.inf, jnp.float32),
         )
 
-    def _set_leaves(self, tree, min_tree, indices, values):
+    def _set_leaves(self, tree, min_tree, indices, values, count=None):
         """Sets leaves one by one and rebuilds each one's ancestors from their children.
 
         Going item by item makes duplicate indices trivially consistent (the
         last write wins in both trees and every ancestor sees final children).
+        With `count`, only the first `count` (traced) items are set.
         """
 
         def set_leaf(k, trees):
@@ -290,25 +292,29 @@ class PrioritizedReplay:
                 return node, tree, min_tree
 
             _, tree, min_tree = jax.lax.fori_loop(
-                0, self.depth, fix_parent, (node, tree, min_tree), unroll=True
+                0, self.depth, fix_parent, (node, tree, min_tree)
             )
             return tree, min_tree
 
-        n = indices.shape[0]
-        if n == 1:
-            return set_leaf(0, (tree, min_tree))
-        return jax.lax.fori_loop(0, n, set_leaf, (tree, min_tree))
+        if count is None:
+            if indices.shape[0] == 1:
+                return set_leaf(0, (tree, min_tree))
+            count = indices.shape[0]
+        return jax.lax.fori_loop(0, count, set_leaf, (tree, min_tree))
 
     def add(self, state: PrioritizedState, batch: Any, mask: jax.Array | None = None) -> PrioritizedState:
         """New items get `max_priority` (leaf `max_priority**alpha`); items where `mask` is False are not stored."""
         b = count = _batch_size(batch, self.capacity)
+        keep = None
+        if mask is not None:
+            keep = _kept_rows(mask)
+            count = keep[1]
+        data = _write(state.data, batch, self.capacity, state.insert_pos, keep)
         slots = (state.insert_pos + jnp.arange(b, dtype=jnp.int32)) % self.capacity
         leaf = jnp.broadcast_to(state.max_priority**self.alpha, (b,))
-        if mask is not None:
-            batch, count, is_new = _drop_masked(state.data, batch, mask, self.capacity, state.insert_pos)
-            leaf = jnp.where(is_new, leaf, state.tree.at[slots + self.tree_capacity].get(mode="promise_in_bounds"))
-        data = _write(state.data, batch, self.capacity, state.insert_pos)
-        tree, min_tree = self._set_leaves(state.tree, state.min_tree, slots, leaf)
+        tree, min_tree = self._set_leaves(
+            state.tree, state.min_tree, slots, leaf, None if mask is None else count
+        )
         pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
         return state.replace(
             data=data, insert_pos=pos, size=size, tree=tree, min_tree=min_tree

@@ -393,3 +393,55 @@ def test_masked_add_stores_only_valid_items(kind):
     if kind == "prioritized":  # every stored item is sampleable, nothing else
         _, idx, _ = buf.sample(state, jax.random.PRNGKey(0), 1000, 0.4)
         assert set(np.unique(np.asarray(idx))) == {0, 1, 2, 3, 4}
+
+
+@pytest.mark.parametrize("kind", ["uniform", "prioritized"])
+def test_masked_add_matches_reference_through_wraparound(kind):
+    """Dropped items neither take a slot nor clobber old items, also once the ring is full."""
+    cap = 7
+    buf = UniformReplay(cap) if kind == "uniform" else PrioritizedReplay(cap)
+    add = jax.jit(buf.add)
+    state = buf.init(_item())
+    rng = np.random.default_rng(4)
+    ref, n = np.full(cap, -1), 0
+    for step in range(12):
+        b = int(rng.integers(1, 5))
+        ids = np.arange(100 * step, 100 * step + b)
+        mask = rng.random(b) < 0.6
+        state = add(state, _batch(ids), mask=jnp.asarray(mask))
+        for i in ids[mask]:
+            ref[n % cap] = i
+            n += 1
+        assert int(state.size) == min(n, cap) and int(state.insert_pos) == n % cap
+        written = ref >= 0
+        _assert_rows_match_ids(jax.tree.map(lambda x: x[written], state.data), ref[written])
+        if kind == "prioritized":
+            _assert_tree_consistent(buf, state)
+    if kind == "prioritized":
+        _, idx, w = buf.sample(state, jax.random.key(1), 64, 0.5)
+        assert (np.asarray(idx) < int(state.size)).all()
+        w = np.asarray(w)
+        assert np.isfinite(w).all() and (w > 0).all() and (w <= 1 + 1e-6).all()
+
+
+@pytest.mark.parametrize("kind", ["uniform", "prioritized"])
+def test_masked_add_under_vmap_and_scan(kind):
+    cap, steps, seeds = 5, 9, 3
+    buf = UniformReplay(cap) if kind == "uniform" else PrioritizedReplay(cap)
+    masks = np.random.default_rng(5).random((seeds, steps)) < 0.5
+
+    def run(mask):
+        def step(state, xs):
+            t, m = xs
+            return buf.add(state, _batch_traced(t), mask=m[None]), None
+
+        state = buf.init(jax.tree.map(lambda x: x[0], _batch(np.arange(1))))
+        return jax.lax.scan(step, state, (jnp.arange(steps), mask))[0]
+
+    states = jax.jit(jax.vmap(run))(jnp.asarray(masks))
+    for s in range(seeds):
+        kept = np.arange(steps)[masks[s]]
+        assert int(states.size[s]) == min(len(kept), cap)
+        ref = np.full(cap, -1)
+        ref[np.arange(len(kept)) % cap] = kept
+        np.testing.assert_array_equal(np.asarray(states.data["action"][s])[ref >= 0], ref[ref >= 0])
