@@ -253,15 +253,21 @@ class DQN:
         cfg = self.config
 
         def learn(ts):
-            return jax.lax.scan(lambda ts, _: self.update(ts), ts, None, cfg.gradient_steps)
-
-        def wait(ts):  # before learning_starts: random actions fill the buffer, no updates
-            return ts, {"loss": jnp.zeros(cfg.gradient_steps), "q": jnp.zeros(cfg.gradient_steps)}
+            """`gradient_steps` updates. Before `learning_starts` they run but are thrown away:
+            a select costs far less than a `lax.cond` on XLA:CPU, and the same under vmap."""
+            new, learned = repeat(self.update, ts, cfg.gradient_steps)
+            started = ts.env_steps >= cfg.learning_starts
+            learned_fields = ["params", "target_params", "opt_state", "updates"]
+            if cfg.replay == "prioritized":
+                learned_fields.append("buffer")
+            keep = {f: jax.tree.map(lambda a, b: jnp.where(started, a, b), getattr(new, f), getattr(ts, f))
+                    for f in learned_fields}
+            return new.replace(**keep), learned
 
         def iteration(ts, _):
             epsilon = jnp.where(ts.env_steps < cfg.learning_starts, 1.0, self.epsilon(ts.env_steps - cfg.learning_starts))
-            ts, collected = jax.lax.scan(lambda ts, _: self.collect(ts, epsilon), ts, None, cfg.train_every)
-            ts, learned = jax.lax.cond(ts.env_steps >= cfg.learning_starts, learn, wait, ts)
+            ts, collected = repeat(lambda ts: self.collect(ts, epsilon), ts, cfg.train_every)
+            ts, learned = learn(ts)
             return ts, (jax.tree.map(jnp.sum, collected), jax.tree.map(jnp.mean, learned), epsilon)
 
         ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, None, cfg.iterations_per_chunk)
@@ -288,6 +294,14 @@ class DQN:
             "nan_episodes": collected["nan_episodes"].sum(),
         }
         return ts, metrics
+
+
+def repeat(step, ts, times: int):
+    """`times` applications of `step: ts -> (ts, stats)`; stats stacked. No loop for one."""
+    if times == 1:
+        ts, stats = step(ts)
+        return ts, jax.tree.map(lambda x: x[None], stats)
+    return jax.lax.scan(lambda ts, _: step(ts), ts, None, times)
 
 
 def train(config: DQNConfig, env: Env, key: jax.Array):
