@@ -7,11 +7,14 @@ Rows:
   the host copy, the geom poses (C MuJoCo `mj_kinematics`), `send_columns` and the
   file save (stream closed, footer written); collecting the rollout is excluded.
   The alternative for the poses, a vmapped `mjx.kinematics`, is timed beside it.
-- `train-rerun`: `train_run` on cartpole with and without a `TrainingLogger`
-  (curves + a greedy evaluation rollout after every chunk), same config and seed,
-  runs alternated; `slowdown` is the ratio of the median wall times minus 1, and
-  `logger_share` the fraction of the run spent inside the callback (a steadier
-  figure on a shared machine, but it misses the overlapped compile of the rollout).
+- `train-rerun`: `train_run` on cartpole (default config, one seed) without Rerun, with
+  the training curves only (`--rerun-every 0`), and with curves plus a greedy
+  evaluation rollout after every chunk (the default); the three runs alternate,
+  repeated. `slowdown` is the median over repeats of (with / without) - 1, and
+  `cpu_overhead` the same for the process's CPU time; `logger_share` is the part
+  of the run spent inside the callback and `close()` on the training thread, and
+  `worker_busy_s` the rollout thread's busy time (its compile included), which
+  overlaps training.
 """
 
 from __future__ import annotations
@@ -39,6 +42,13 @@ def _timed(fn) -> float:
     start = time.perf_counter()
     fn()
     return time.perf_counter() - start
+
+
+def _wall_and_cpu(fn) -> tuple[float, float]:
+    """Wall seconds and CPU seconds of this process (all threads)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - wall, time.process_time() - cpu
 
 
 def log_rollout_record(steps: int = 100_000, repeats: int = 5) -> dict:
@@ -89,44 +99,59 @@ def _mjx_kinematics_times(model, qpos: np.ndarray) -> tuple[float, float]:
     return first, warm
 
 
-def train_record(steps: int = 20_000, pairs: int = 3) -> dict:
+def _train_once(config: DQNConfig, path: Path, rollout_every: int | None) -> dict:
+    """One training run; `rollout_every` None trains without a logger."""
+    logger = None if rollout_every is None else TrainingLogger(path, "cartpole", config, overwrite=True,
+                                                                rollout_every=rollout_every)
+    in_logger = []
+
+    def on_chunk(index, train_state, record):
+        in_logger.append(_timed(lambda: logger(index, train_state, record)))
+
+    def run():
+        try:
+            train_run("cartpole", config, progress=False, on_chunk=on_chunk if logger else None)
+        finally:
+            if logger is not None:
+                in_logger.append(_timed(logger.close))
+
+    wall, cpu = _wall_and_cpu(run)
+    return {"wall_s": wall, "cpu_s": cpu, "logger_s": sum(in_logger),
+            "worker_busy_s": logger.worker_busy_s if logger else 0.0}
+
+
+def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
     config = DQNConfig(total_steps=steps)
-    plain, logged, in_callback = [], [], []
+    variants = {"none": None, "curves": 0, "curves+rollouts": 1}  # rollout_every
+    runs = {name: [] for name in variants}
     with tempfile.TemporaryDirectory() as tmp:
-        def without():
-            train_run("cartpole", config, progress=False)
-
-        def with_rerun():
-            logger = TrainingLogger(Path(tmp) / "train.rrd", "cartpole", config, overwrite=True)
-            spent = []
-
-            def on_chunk(index, train_state, record):
-                spent.append(_timed(lambda: logger(index, train_state, record)))
-
-            try:
-                train_run("cartpole", config, progress=False, on_chunk=on_chunk)
-            finally:
-                spent.append(_timed(logger.close))
-                in_callback.append(sum(spent))
-
-        for _ in range(pairs):  # alternate, so load from elsewhere on the machine hits both alike
-            plain.append(_timed(without))
-            logged.append(_timed(with_rerun))
-    base, with_log = statistics.median(plain), statistics.median(logged)
-    return {
-        "kind": "train-rerun", "env": "cartpole", "steps": steps, "seeds": 1, "pairs": pairs,
-        "rollout_every_chunks": 1, "chunks": config.num_chunks,
-        "wall_s_without": plain, "wall_s_with": logged,
-        "median_without_s": base, "median_with_s": with_log, "slowdown": with_log / base - 1.0,
-        "logger_s": in_callback,  # time inside the callback and close(): what logging adds on the main thread
-        "logger_share": statistics.median(c / w for c, w in zip(in_callback, logged)),
-    }
+        _train_once(config, Path(tmp) / "train.rrd", None)  # warm-up: a process's first run pays one-off costs
+        for _ in range(repeats):  # interleaved, so load from elsewhere on the machine hits all alike
+            for name, rollout_every in variants.items():
+                runs[name].append(_train_once(config, Path(tmp) / "train.rrd", rollout_every))
+    median = statistics.median
+    base = runs["none"]
+    rows = []
+    for name in ("curves", "curves+rollouts"):
+        logged = runs[name]
+        rows.append({
+            "kind": "train-rerun", "logging": name, "env": "cartpole", "steps": steps, "seeds": 1,
+            "chunks": config.num_chunks, "repeats": repeats,
+            "wall_s_without": [r["wall_s"] for r in base], "wall_s_with": [r["wall_s"] for r in logged],
+            "median_without_s": median(r["wall_s"] for r in base), "median_with_s": median(r["wall_s"] for r in logged),
+            "slowdown": median(w["wall_s"] / b["wall_s"] for w, b in zip(logged, base)) - 1.0,
+            "cpu_overhead": median(w["cpu_s"] / b["cpu_s"] for w, b in zip(logged, base)) - 1.0,
+            "logger_s": median(r["logger_s"] for r in logged),
+            "logger_share": median(r["logger_s"] / r["wall_s"] for r in logged),
+            "worker_busy_s": median(r["worker_busy_s"] for r in logged),
+        })
+    return rows
 
 
 def bench_logging(quick: bool = False) -> list[dict]:
     device = jax.devices()[0].device_kind
-    rows = [log_rollout_record(repeats=3 if quick else 5), train_record(steps=5_000 if quick else 20_000,
-                                                                      pairs=1 if quick else 5)]
+    rows = [log_rollout_record(repeats=3 if quick else 5),
+            *train_records(steps=5_000 if quick else 20_000, repeats=1 if quick else 5)]
     return [{**row, "device": device} for row in rows]
 
 
@@ -136,14 +161,17 @@ def main(argv=None) -> None:
     parser.add_argument("--json", help="also write the rows to this file")
     args = parser.parse_args(argv)
     rows = bench_logging(args.quick)
-    log, train = rows
+    log, *trains = rows
     print(f"log a {log['steps']:,}-step rollout: {log['total_s_min']:.3f} s best, {log['total_s_median']:.3f} s median "
-          f"(host copy {log['host_copy_s']:.3f} s, poses {log['poses_mj_kinematics_s']:.3f} s with mj_kinematics vs "
-          f"{log['poses_mjx_kinematics_warm_s']:.3f} s warm / {log['poses_mjx_kinematics_first_call_s']:.2f} s first call "
-          f"with vmapped mjx.kinematics; file {log['file_mb']:.1f} MB)")
-    print(f"train cartpole {train['steps']:,} steps: {train['median_without_s']:.2f} s without Rerun, "
-          f"{train['median_with_s']:.2f} s with (median of {train['pairs']}); slowdown {100 * train['slowdown']:+.1f}%; "
-          f"time in the logger {statistics.median(train['logger_s']):.2f} s = {100 * train['logger_share']:.1f}% of the run")
+          f"(host copy {log['host_copy_s']:.3f} s; poses {log['poses_mj_kinematics_s']:.3f} s with mj_kinematics, "
+          f"{log['poses_mjx_kinematics_warm_s']:.3f} s warm / {log['poses_mjx_kinematics_first_call_s']:.2f} s "
+          f"first call with vmapped mjx.kinematics; file {log['file_mb']:.1f} MB)")
+    for t in trains:
+        print(f"train cartpole {t['steps']:,} steps, Rerun {t['logging']}: {t['median_with_s']:.2f} s vs "
+              f"{t['median_without_s']:.2f} s without (medians of {t['repeats']}); "
+              f"slowdown {100 * t['slowdown']:+.1f}%, "
+              f"CPU time {100 * t['cpu_overhead']:+.1f}%; on the training thread {t['logger_s']:.2f} s "
+              f"({100 * t['logger_share']:.1f}%), rollout thread busy {t['worker_busy_s']:.2f} s")
     for row in rows:
         print(json.dumps(row))
     if args.json:

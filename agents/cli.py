@@ -88,7 +88,8 @@ def _train(args, config: DQNConfig, **kwargs):
     logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
                             rollout_every=args.rerun_every, seed=args.seed)
     try:
-        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger, **kwargs)
+        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger,
+                         **kwargs)
     finally:
         logger.close()
         print(f"wrote Rerun recording {args.rerun}")

@@ -17,6 +17,8 @@ from __future__ import annotations
 import os
 import queue
 import threading
+import time
+import warnings
 from typing import Any
 
 import jax
@@ -28,7 +30,7 @@ import envs
 from agents.dqn import DQN, DQNConfig
 from envs import recording
 
-MAX_PENDING_ROLLOUTS = 4  # evaluations queued for the worker before training waits for it
+MAX_PENDING_ROLLOUTS = 8  # evaluations queued for the worker; later ones are skipped until it catches up
 SEED_CURVES = {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", "eval_return": "eval_return",
                "train_return": "train_return"}
 
@@ -62,7 +64,10 @@ class TrainingLogger:
     """Writes a training run to `path` (checked before any training starts; see module docstring).
 
     Use as `train_run(..., on_chunk=logger)` and call `logger.close()` in a `finally`,
-    so an interrupted run still leaves a readable file.
+    so an interrupted run still leaves a readable file. The curves are sent from the
+    callback; evaluation rollouts are compiled, collected and logged on a worker thread
+    (`background=False`: in the callback), and skipped, with a warning at `close()`,
+    when more than MAX_PENDING_ROLLOUTS are waiting.
     """
 
     def __init__(self, path: str | os.PathLike, env_name: str, config: DQNConfig, *, seeds: int = 1,
@@ -75,7 +80,8 @@ class TrainingLogger:
         self.seeds = seeds
         self.rollout_every = rollout_every
         self.env = envs.make(env_name, **(env_options or {}))
-        self.policy = greedy_policy(DQN(config, self.env))
+        dqn = DQN(config, self.env)
+        self.policy = greedy_policy(dqn)
         self.rollout_steps = rollout_steps or getattr(self.env, "episode_length", 500)
         self.key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
         self.rollouts_logged = 0
@@ -84,12 +90,15 @@ class TrainingLogger:
             for s in range(seeds):
                 self.rec.log(f"train/seed_{s}/{name}", rr.SeriesLines(names=f"{name} (seed {s})"), static=True)
         # Evaluation rollouts (compile, collect, log) run on a worker thread, so training
-        # only waits for the host copy of the parameters.
+        # only waits for the host copy of the parameters. The worker compiles the rollout
+        # right away, while train_run compiles its own chunk.
         self._jobs: queue.Queue = queue.Queue(maxsize=MAX_PENDING_ROLLOUTS)
         self._error: BaseException | None = None
+        self.rollouts_skipped = 0
+        self.worker_busy_s = 0.0  # time the worker spent compiling and logging rollouts
         self._worker = None
         if rollout_every and background:
-            self._worker = threading.Thread(target=self._work, name="rerun-eval-rollouts", daemon=True)
+            self._worker = threading.Thread(target=self._work, args=(dqn,), name="rerun-eval-rollouts", daemon=True)
             self._worker.start()
 
     def __call__(self, index: int, train_state: Any, record: dict) -> None:
@@ -100,16 +109,31 @@ class TrainingLogger:
             job = (index, train_step, jax.device_get(train_state.params))
             if self._worker is None:
                 self._log_rollouts(*job)
-            else:
-                self._jobs.put(job)  # blocks only while MAX_PENDING_ROLLOUTS are waiting
+                return
+            try:
+                self._jobs.put_nowait(job)
+            except queue.Full:  # logging fell behind: skip this evaluation rather than stall training
+                self.rollouts_skipped += 1
 
-    def _work(self) -> None:
+    def _work(self, dqn: DQN) -> None:
+        start = time.perf_counter()
+        try:
+            # Zeros shaped like the parameters: an eager `network.init` would compile op by op.
+            shapes = jax.eval_shape(dqn.network.init, jax.random.PRNGKey(0), jnp.zeros((1, self.env.observation_size)))
+            params = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
+            jax.block_until_ready(recording.collect_rollout(self.env, self.policy, self.key, steps=self.rollout_steps,
+                                                            params=params, fast_compile=True))
+        except Exception:  # noqa: BLE001 - the first real evaluation fails the same way, and reports it
+            pass
+        self.worker_busy_s += time.perf_counter() - start
         while (job := self._jobs.get()) is not None:
+            start = time.perf_counter()
             if self._error is None:
                 try:
                     self._log_rollouts(*job)
                 except BaseException as err:  # noqa: BLE001 - reported by close()
                     self._error = err
+            self.worker_busy_s += time.perf_counter() - start
 
     def _send(self, path: str, train_step: int, value: float) -> None:
         self.rec.send_columns(path, indexes=[rr.TimeColumn("train_step", sequence=[train_step])],
@@ -130,7 +154,7 @@ class TrainingLogger:
             root = f"eval/seed_{s}"
             rollout = recording.collect_rollout(
                 self.env, self.policy, jax.random.fold_in(self.key, index), num_envs=1,
-                steps=self.rollout_steps, params=jax.tree.map(lambda x: x[s], params))
+                steps=self.rollout_steps, params=jax.tree.map(lambda x: x[s], params), fast_compile=True)
             recording.log_rollout(self.rec, self.env, rollout, root=root, step_offset=step_offset,
                                   static=self.rollouts_logged == 0, scene=self.scene)
             self.rec.send_columns(f"{root}/train_step", indexes=[rr.TimeColumn("step", sequence=[step_offset])],
@@ -143,6 +167,10 @@ class TrainingLogger:
             self._jobs.put(None)
             self._worker.join()
             self._worker = None
+        if self.rollouts_skipped:
+            warnings.warn(f"Rerun log: skipped {self.rollouts_skipped} evaluation rollouts that fell behind "
+                          "training; log them less often with a larger --rerun-every", stacklevel=2)
+            self.rollouts_skipped = 0
         if self.rec is not None:
             recording.close_recording(self.rec)
             self.rec = None

@@ -17,6 +17,7 @@ from envs.mjx_env import MjxEnv, mjx
 class CartPoleMjx(MjxEnv):
     xml = "cartpole.xml"
     observation_size = 4
+    observation_names = ("x", "x_dot", "theta", "theta_dot")
     num_actions = 2
 
     def __init__(self, rules: CartPoleRules = CartPoleRules(), xml: str | None = None):

@@ -223,7 +223,8 @@ def log_scene(rec: rr.RecordingStream, model: mujoco.MjModel, root: str, qpos: n
         fixed = [g for g in geoms if g.fixed]
         positions, rotations = geom_poses(model, model.qpos0, [g.geom_id for g in fixed])
         for k, g in enumerate(fixed):
-            rec.log(f"{root}/{g.name}", rr.Transform3D(translation=positions[0, k], mat3x3=rotations[0, k]), static=True)
+            pose = rr.Transform3D(translation=positions[0, k], mat3x3=rotations[0, k])
+            rec.log(f"{root}/{g.name}", pose, static=True)
         for g in geoms:
             rec.log(f"{root}/{g.name}", g.shape, static=True)
     if not moving:
@@ -296,7 +297,7 @@ def random_policy(env: Env) -> PolicyFn:
 
 
 @functools.lru_cache(maxsize=32)
-def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_envs: int):
+def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_envs: int, fast_compile: bool):
     """A jitted `(key, params) -> Rollout`, cached so repeated rollouts compile once."""
     batch = wrap_for_training(env, num_envs)
     scene_qpos = jax.vmap(env.scene_qpos) if has_scene(env) and scene_envs > 0 else None
@@ -315,22 +316,29 @@ def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_e
                       nxt.info["last_length"], qpos)
         return (nxt, key, params), row
 
-    @jax.jit
     def collect(key, params):
         reset_key, loop_key = jax.random.split(key)
         _, rollout = jax.lax.scan(step, (batch.reset(reset_key), loop_key, params), None, steps)
         return rollout
 
-    return collect
+    # Without XLA's backend optimisations a CPU compile takes about half the time
+    # (measured 0.67 s vs 1.18 s of CPU) while each step runs ~1.4x slower.
+    options = {"xla_backend_optimization_level": 0} if fast_compile and jax.default_backend() == "cpu" else None
+    return jax.jit(collect, compiler_options=options)
 
 
 def collect_rollout(env: Env, policy_fn: PolicyFn, key: jax.Array, num_envs: int = 1, steps: int = 500,
-                    params: Any = None, scene_envs: int = 1) -> Rollout:
+                    params: Any = None, scene_envs: int = 1, fast_compile: bool = False) -> Rollout:
     """`steps` steps of `num_envs` auto-resetting copies of `env` (a registered env, time limit
-    included) under `policy_fn(params, obs, key)`, in one jitted scan; arrays stay on the device."""
+    included) under `policy_fn(params, obs, key)`, in one jitted scan; arrays stay on the device.
+
+    `fast_compile` trades step speed for compile time on CPU: for short rollouts
+    whose compile dominates, such as the evaluations logged during training.
+    """
     if steps < 1 or num_envs < 1:
         raise ValueError(f"need steps >= 1 and num_envs >= 1, got steps={steps}, num_envs={num_envs}")
-    return _collector(env, policy_fn, num_envs, steps, min(scene_envs, num_envs))(key, params)
+    collect = _collector(env, policy_fn, num_envs, steps, min(scene_envs, num_envs), fast_compile)
+    return collect(key, params)
 
 
 def trim_to_episodes(rollout: Rollout, episodes: int) -> Rollout:

@@ -4,8 +4,10 @@ import shutil
 import subprocess
 from collections import defaultdict
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 import envs
+from agents import DQN, DQNConfig
 from agents import recording as agent_recording
 from agents.cli import main as cli_main
 from envs import recording
@@ -43,10 +46,10 @@ class Contents:
     def entities(self):
         return set(self.static) | set(self.rows)
 
-    def column(self, entity, name):
-        """A temporal component column as an array (rows, ...), sorted by `step`."""
+    def column(self, entity, name, index="step"):
+        """A temporal component column as an array (rows, ...), sorted by the `index` timeline."""
         batches = self.chunks[entity]
-        step = np.concatenate([b.column("step").to_numpy() for b in batches])
+        step = np.concatenate([b.column(index).to_numpy() for b in batches])
         values = np.concatenate([np.stack(b.column(name).to_pylist())[:, 0] for b in batches])
         return values[np.argsort(step, kind="stable")]
 
@@ -116,6 +119,24 @@ def test_scene_from_any_mjcf_one_entity_per_geom():
     box = model.geom("box").id
     np.testing.assert_array_equal(recording.geom_color(model, box), [255, 0, 0, 255])  # the material's
     np.testing.assert_array_equal(recording.geom_color(model, model.geom("ball").id), [0, 255, 0, 255])
+
+
+def test_every_geom_type_makes_a_valid_file(tmp_path):
+    model = mujoco.MjModel.from_xml_string(ALL_GEOMS)
+    with pytest.warns(UserWarning):
+        geoms = recording.scene_from_model(model)
+    path = tmp_path / "geoms.rrd"
+    rec = recording.open_recording(path)
+    steps = np.arange(3)
+    qpos = np.tile(model.qpos0, (3, 1))
+    qpos[:, 2] += [0.0, 0.5, 1.0]  # the free body rises
+    recording.log_scene(rec, model, "world", qpos, [rr.TimeColumn("step", sequence=steps)], geoms)
+    recording.close_recording(rec)
+    contents = Contents(path)
+    assert {f"world/{g.name}" for g in geoms} <= contents.entities
+    assert contents.rows["world/egg"] == 3 and contents.rows["world/ground"] == 0
+    np.testing.assert_allclose(contents.column("world/egg", "Transform3D:translation")[:, 2], [1.0, 1.5, 2.0])
+    verify_with_rerun_cli(path)
 
 
 def test_geom_poses_match_mujoco():
@@ -224,6 +245,32 @@ def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     assert {"env/0/reward", "env/1/reward", "world/env_0/pole"} <= contents.entities
     assert not any(e.startswith("world/env_1") for e in contents.entities)  # --scene-envs 1
     assert contents.rows["env/0/episode/return"] >= 1 and contents.rows["env/1/episode/return"] >= 1
+
+
+@pytest.mark.parametrize("background", [True, False])
+def test_training_logger_curves_per_seed_and_rollouts_every_n_chunks(tmp_path, background):
+    config = DQNConfig(hidden=(16,))
+    network = DQN(config, envs.make("cartpole")).network
+    params = jax.vmap(lambda k: network.init(k, jnp.zeros((1, 4))))(jax.random.split(jax.random.PRNGKey(0), 2))
+    path = tmp_path / "train.rrd"
+    logger = agent_recording.TrainingLogger(path, "cartpole", config, seeds=2, rollout_every=2, rollout_steps=50,
+                                            background=background)
+    try:
+        for index in range(3):
+            record = {"env_steps": [1000 * (index + 1)] * 2, "loss": [1.0, 2.0], "q": [3.0, 4.0], "epsilon": [0.5, 0.5],
+                      "eval_return": [10.0, 20.0], "train_return": [9.0, 19.0], "steps_per_s": 5000.0}
+            logger(index, SimpleNamespace(params=params), record)
+    finally:
+        logger.close()
+    contents = Contents(path)
+    for seed in (0, 1):
+        assert contents.rows[f"train/seed_{seed}/loss"] == 3
+        returns = contents.column(f"train/seed_{seed}/eval_return", "Scalars:scalars", index="train_step")
+        np.testing.assert_allclose(returns, [10.0 * (seed + 1)] * 3)
+        assert contents.rows[f"eval/seed_{seed}/train_step"] == 2  # chunks 0 and 2
+        root = f"eval/seed_{seed}"
+        assert contents.rows[f"{root}/env/0/reward"] == contents.rows[f"{root}/world/env_0/pole"] == 100
+    assert contents.rows["train/env_steps_per_s"] == 3
 
 
 def test_cli_rollout_with_random_policy_and_fixed_steps(tmp_path):
