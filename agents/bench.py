@@ -6,7 +6,8 @@ Rows:
 - `solve`: one seed and 16 vmapped seeds on each backend, default config, training
   stops once every seed's greedy evaluation reached 475; wall time includes compile.
 - `article`: the seed-article setup (1 env, MLP 64-64-64, batch 32, buffer 512,
-  gamma 0.9, hard target copy every 10 updates, lr 1e-3, 20,000 steps) on our agent,
+  gamma 0.9, hard target copy every 10 updates, lr 1e-3, 20,000 steps; plain DQN: no
+  double Q, no gradient clipping, as published) on our agent,
   steps/s with compile excluded.
 - replay add/sample latency against flashbax, when flashbax is installed.
 """
@@ -26,7 +27,8 @@ from agents.run import train_run
 
 ARTICLE = DQNConfig(
     total_steps=20_000, num_envs=1, hidden=(64, 64, 64), batch_size=32, buffer_size=512, gamma=0.9,
-    target_update="hard", target_period=10, learning_rate=1e-3, max_grad_norm=None, eval_every=20_000,
+    target_update="hard", target_period=10, learning_rate=1e-3, max_grad_norm=None, double_dqn=False,
+    eval_every=20_000,
 )
 
 
