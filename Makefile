@@ -12,8 +12,8 @@ $(BIN)/.installed: pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[test]"
 	touch $@
 
-train: $(BIN)/.installed  ## train DQN on the MJX CartPole, write runs/cartpole-mjx
-	$(BIN)/mjxsuite train --env cartpole-mjx --out runs/cartpole-mjx
+train: $(BIN)/.installed  ## train DQN on the MJX CartPole: checkpoint + Rerun recording in runs/cartpole-mjx
+	$(BIN)/mjxsuite train --env cartpole-mjx --out runs/cartpole-mjx --rerun runs/cartpole-mjx/train.rrd --overwrite
 
 test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 	$(BIN)/python -m pytest -q
@@ -22,8 +22,10 @@ test-slow: $(BIN)/.installed  ## long training tests: 16 seeds to 50k steps on b
 	$(BIN)/python -m pytest -q -m slow
 
 bench: $(BIN)/.installed  ## env throughput and DQN speed figures
+	$(BIN)/python -m pip install -q -e ".[bench]"
 	$(BIN)/python -m envs.bench
 	$(BIN)/python -m agents.bench
+	$(BIN)/python -m agents.bench_logging
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

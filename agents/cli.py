@@ -110,17 +110,12 @@ def cmd_eval(args, extra: list[str]) -> int:
     import jax
     import numpy as np
 
-    import envs
-    from agents import checkpoint
-    from agents.dqn import DQN
-    from agents.run import seed_keys
+    from agents.run import load_agent
 
     if extra:
         raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
-    env_name, seeds, config, env_options = checkpoint.load_config(args.checkpoint)
-    dqn = DQN(config, envs.make(env_name, **env_options))
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
-    params = checkpoint.load_best_params(args.checkpoint, template)
+    env_name, _, dqn, params = load_agent(args.checkpoint)
+    seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
     returns = jax.jit(jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)))(params, keys)
     means = np.asarray(returns.mean(axis=-1))

@@ -45,19 +45,10 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):
 
     With several trained seeds it takes the one with the best greedy evaluation unless `seed_index` picks one.
     """
-    from agents import checkpoint
-    from agents.run import seed_keys
+    from agents.run import load_agent, pick_seed
 
-    env_name, seeds, config, env_options = checkpoint.load_config(out_dir)
-    env = envs.make(env_name, **env_options)
-    dqn = DQN(config, env)
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
-    params = checkpoint.load_best_params(out_dir, template)
-    if seed_index is None:
-        seed_index = int(np.argmax(checkpoint.load_best_returns(out_dir)))
-    if not 0 <= seed_index < seeds:
-        raise ValueError(f"{out_dir} holds {seeds} seeds; seed index {seed_index} is out of range")
-    return env_name, env, greedy_policy(dqn), jax.tree.map(lambda x: x[seed_index], params)
+    env_name, env, dqn, params = load_agent(out_dir)
+    return env_name, env, greedy_policy(dqn), pick_seed(out_dir, params, seed_index)
 
 
 class TrainingLogger:

@@ -150,6 +150,26 @@ def train_run(
     return result
 
 
+def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, DQN, Any]:
+    """`(env_name, env, dqn, best_params)` from a `mjxsuite train --out` directory;
+    `best_params` has a leading seed axis."""
+    env_name, seeds, config, env_options = checkpoint.load_config(out_dir)
+    env = envs.make(env_name, **env_options)
+    dqn = DQN(config, env)
+    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
+    return env_name, env, dqn, checkpoint.load_best_params(out_dir, template)
+
+
+def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -> Any:
+    """One seed's parameters: `seed_index`, or the seed with the best greedy evaluation."""
+    best_returns = checkpoint.load_best_returns(out_dir)
+    if seed_index is None:
+        seed_index = int(np.argmax(best_returns))
+    if not 0 <= seed_index < len(best_returns):
+        raise ValueError(f"{out_dir} holds {len(best_returns)} seeds; seed index {seed_index} is out of range")
+    return jax.tree.map(lambda x: x[seed_index], params)
+
+
 def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
     """A greedy policy from a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
 
@@ -157,14 +177,8 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     With several trained seeds it uses the one with the best greedy evaluation
     unless `seed_index` picks one.
     """
-    env_name, seeds, config, env_options = checkpoint.load_config(out_dir)
-    env = envs.make(env_name, **env_options)
-    dqn = DQN(config, env)
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
-    params = checkpoint.load_best_params(out_dir, template)
-    if seed_index is None:
-        seed_index = int(np.argmax(checkpoint.load_best_returns(out_dir)))
-    params = jax.tree.map(lambda x: x[seed_index], params)
+    env_name, env, dqn, params = load_agent(out_dir)
+    params = pick_seed(out_dir, params, seed_index)
     greedy = jax.jit(lambda obs: jnp.argmax(dqn.q_values(params, obs), axis=-1))
 
     def policy(obs):
