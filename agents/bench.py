@@ -22,7 +22,7 @@ import time
 import jax
 import numpy as np
 
-from agents.bench_replay import bench_replay
+from agents.bench_replay import bench_replay, format_table
 from agents.dqn import DQNConfig
 from agents.run import train_run
 
@@ -77,7 +77,10 @@ def main(argv=None) -> None:
                   f"(compile {r['compile_s']:.1f}s included); median solve step {r['median_solve_step']}; "
                   f"{r['steps_per_s']:,.0f} env-steps/s, {r['updates_per_s']:,.0f} updates/s", flush=True)
     try:
-        records.extend(bench_replay())
+        replay_rows = bench_replay()
+        records.extend(replay_rows)
+        print("replay buffers, µs per op; ratio = flashbax / ours (> 1: we are faster)")
+        print(format_table(replay_rows))
     except SystemExit as missing:  # flashbax is an optional benchmark dependency
         print(missing)
     if args.json:

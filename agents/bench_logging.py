@@ -9,7 +9,7 @@ Rows:
   The alternative for the poses, a vmapped `mjx.kinematics`, is timed beside it.
 - `train-rerun`: `train_run` on cartpole (default config, one seed) without Rerun, with
   the training curves only (`--rerun-every 0`), and with curves plus a greedy
-  evaluation rollout after every chunk (the default); the three runs alternate,
+  evaluation rollout every 5 chunks (the CLI default) and after every chunk; the runs alternate,
   repeated. `slowdown` is the median over repeats of (with / without) - 1, and
   `cpu_overhead` the same for the process's CPU time; `logger_share` is the part
   of the run spent inside the callback and `close()` on the training thread, and
@@ -122,7 +122,7 @@ def _train_once(config: DQNConfig, path: Path, rollout_every: int | None) -> dic
 
 def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
     config = DQNConfig(total_steps=steps)
-    variants = {"none": None, "curves": 0, "curves+rollouts": 1}  # rollout_every
+    variants = {"none": None, "curves": 0, "curves+rollouts every 5": 5, "curves+rollouts every 1": 1}  # rollout_every
     runs = {name: [] for name in variants}
     with tempfile.TemporaryDirectory() as tmp:
         _train_once(config, Path(tmp) / "train.rrd", None)  # warm-up: a process's first run pays one-off costs

@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
-    train.add_argument("--rerun-every", type=int, default=1, metavar="N",
+    train.add_argument("--rerun-every", type=int, default=5, metavar="N",
                        help="chunks between logged evaluation rollouts (0: none)")
 
     evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent")

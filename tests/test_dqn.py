@@ -134,3 +134,14 @@ def test_unwritable_output_fails_before_training(tmp_path):
     # /proc refuses new entries even to root.
     with pytest.raises(ValueError, match="cannot write"):
         train_run("cartpole", SMALL, out_dir="/proc/mjxsuite-test", progress=False)
+
+
+def test_every_option_trains_with_finite_losses():
+    """Dueling head, prioritized replay, Huber loss, hard target copies, 4 envs, 2 updates every 2 steps."""
+    config = DQNConfig(**{**SMALL.__dict__, "dueling": True, "replay": "prioritized", "loss": "huber",
+                          "target_update": "hard", "target_period": 10, "num_envs": 4, "train_every": 2,
+                          "gradient_steps": 2, "double_dqn": False, "max_grad_norm": None, "eval_every": 96})
+    _, metrics = jax.jit(lambda k: train(config, envs.make("cartpole-mjx"), k))(jax.random.PRNGKey(0))
+    assert np.isfinite(np.asarray(metrics["loss"])).all()
+    assert np.asarray(metrics["loss"])[-1] > 0
+    assert int(metrics["env_steps"][-1]) == config.num_chunks * config.eval_every

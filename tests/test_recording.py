@@ -228,7 +228,8 @@ def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
 # ---- training and the command line ---------------------------------------------------
 def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     out, train_file, rollout_file = tmp_path / "run", tmp_path / "train.rrd", tmp_path / "rollout.rrd"
-    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), *TINY]) == 0
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), "--rerun-every", "1",
+                     *TINY]) == 0
     contents = Contents(train_file)
     for name in ("loss", "mean_q", "epsilon", "eval_return", "env_steps_per_s"):
         assert contents.rows[f"train/seed_0/{name}"] == 2  # one row per chunk
