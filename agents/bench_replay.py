@@ -98,6 +98,16 @@ def _time_scan(step, carry, n: int, repeats: int) -> float:
     return _median_time(lambda: jax.block_until_ready(f(carry)), repeats) / n * 1e6
 
 
+def _filled(add_batch_fn, state, capacity: int):
+    """`state` with min(capacity, _FILL) items added, 1000 at a time."""
+    fill = min(capacity, _FILL)
+    chunk = min(fill, 1000)
+    add_chunk = jax.jit(lambda s, i: add_batch_fn(s, _items(chunk, i)))
+    for i in range(0, fill, chunk):
+        state = add_chunk(state, i)
+    return state
+
+
 def _ours(kind, capacity, batch, add_batch):
     """(add, sample, update or None, filled state) as functions of a state."""
     if kind == "uniform":
@@ -109,12 +119,7 @@ def _ours(kind, capacity, batch, add_batch):
         sample = lambda s, k: buf.sample(s, k, batch, 0.4)
         update = buf.update_priorities
     add = buf.add
-    state = buf.init(_example_item())
-    fill = min(capacity, _FILL)
-    chunk = min(fill, 1000)
-    add_chunk = jax.jit(lambda s, i: buf.add(s, _items(chunk, i)))
-    for i in range(0, fill, chunk):
-        state = add_chunk(state, i)
+    state = _filled(buf.add, buf.init(_example_item()), capacity)
     return add, sample, update, state
 
 
@@ -129,12 +134,7 @@ def _flashbax(fbx, kind, capacity, batch, add_batch):
         )
     buf = make(**kw, add_batches=add_batch > 1)
     filler = make(**kw, add_batches=True)
-    state = buf.init(_example_item())
-    fill = min(capacity, _FILL)
-    chunk = min(fill, 1000)
-    add_chunk = jax.jit(lambda s, i: filler.add(s, _items(chunk, i)))
-    for i in range(0, fill, chunk):
-        state = add_chunk(state, i)
+    state = _filled(filler.add, buf.init(_example_item()), capacity)
 
     if add_batch > 1:
         add = buf.add
