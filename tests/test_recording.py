@@ -1,5 +1,6 @@
 """Rerun logging: files read back with Rerun's own reader, pose correctness, CLI behaviour."""
 
+import json
 import shutil
 import subprocess
 from collections import defaultdict
@@ -328,7 +329,11 @@ def test_interrupted_training_leaves_a_readable_file(tmp_path, monkeypatch):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(agent_recording.TrainingLogger, "__call__", interrupt_after_first_chunk)
-    assert cli_main(["train", "--env", "cartpole", "--rerun", str(path), *TINY]) == 130
+    out = tmp_path / "run"
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(path), *TINY]) == 130
+    # Ctrl-C keeps the checkpoint too: one chunk done, resumable.
+    assert json.loads((out / "progress.json").read_text())["chunks_done"] == 1
+    assert (out / "train_state.msgpack").is_file()
     contents = Contents(path)
     assert contents.rows["train/seed_0/loss"] == 1
     assert contents.rows["eval/seed_0/env/0/reward"] > 0
