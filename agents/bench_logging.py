@@ -132,7 +132,7 @@ def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
     median = statistics.median
     base = runs["none"]
     rows = []
-    for name in ("curves", "curves+rollouts"):
+    for name in [v for v in variants if v != "none"]:
         logged = runs[name]
         rows.append({
             "kind": "train-rerun", "logging": name, "env": "cartpole", "steps": steps, "seeds": 1,
