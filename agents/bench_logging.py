@@ -8,13 +8,11 @@ Rows:
   file save (stream closed, footer written); collecting the rollout is excluded.
   The alternative for the poses, a vmapped `mjx.kinematics`, is timed beside it.
 - `train-rerun`: `train_run` on cartpole (default config, one seed) without Rerun, with
-  the training curves only (`--rerun-every 0`), and with curves plus a greedy
-  evaluation rollout every 5 chunks (the CLI default) and after every chunk; the runs alternate,
+  the training curves only (`--rerun-every 0`), and with curves plus the greedy
+  evaluation episode of every chunk (the CLI default); the runs alternate,
   repeated. `slowdown` is the median over repeats of (with / without) - 1, and
   `cpu_overhead` the same for the process's CPU time; `logger_share` is the part
-  of the run spent inside the callback and `close()` on the training thread, and
-  `worker_busy_s` the rollout thread's busy time (its compile included), which
-  overlaps training.
+  of the run spent inside the callback and `close()`.
 """
 
 from __future__ import annotations
@@ -116,13 +114,12 @@ def _train_once(config: DQNConfig, path: Path, rollout_every: int | None) -> dic
                 in_logger.append(_timed(logger.close))
 
     wall, cpu = _wall_and_cpu(run)
-    return {"wall_s": wall, "cpu_s": cpu, "logger_s": sum(in_logger),
-            "worker_busy_s": logger.worker_busy_s if logger else 0.0}
+    return {"wall_s": wall, "cpu_s": cpu, "logger_s": sum(in_logger)}
 
 
 def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
     config = DQNConfig(total_steps=steps)
-    variants = {"none": None, "curves": 0, "curves+rollouts every 5": 5, "curves+rollouts every 1": 1}  # rollout_every
+    variants = {"none": None, "curves": 0, "curves+rollouts": 1}  # rollout_every
     runs = {name: [] for name in variants}
     with tempfile.TemporaryDirectory() as tmp:
         _train_once(config, Path(tmp) / "train.rrd", None)  # warm-up: a process's first run pays one-off costs
@@ -143,7 +140,6 @@ def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
             "cpu_overhead": median(w["cpu_s"] / b["cpu_s"] for w, b in zip(logged, base)) - 1.0,
             "logger_s": median(r["logger_s"] for r in logged),
             "logger_share": median(r["logger_s"] / r["wall_s"] for r in logged),
-            "worker_busy_s": median(r["worker_busy_s"] for r in logged),
         })
     return rows
 
@@ -171,7 +167,7 @@ def main(argv=None) -> None:
               f"{t['median_without_s']:.2f} s without (medians of {t['repeats']}); "
               f"slowdown {100 * t['slowdown']:+.1f}%, "
               f"CPU time {100 * t['cpu_overhead']:+.1f}%; on the training thread {t['logger_s']:.2f} s "
-              f"({100 * t['logger_share']:.1f}%), rollout thread busy {t['worker_busy_s']:.2f} s")
+              f"({100 * t['logger_share']:.1f}%)")
     for row in rows:
         print(json.dumps(row))
     if args.json:

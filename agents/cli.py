@@ -86,7 +86,7 @@ def _train(args, config: DQNConfig, **kwargs):
     from agents.recording import TrainingLogger
 
     logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
-                            rollout_every=args.rerun_every, seed=args.seed)
+                            rollout_every=args.rerun_every)
     try:
         return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger,
                          **kwargs)
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
-    train.add_argument("--rerun-every", type=int, default=5, metavar="N",
+    train.add_argument("--rerun-every", type=int, default=1, metavar="N",
                        help="chunks between logged evaluation rollouts (0: none)")
 
     evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent")

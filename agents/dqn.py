@@ -98,6 +98,17 @@ def unpack(rows: jax.Array, obs_size: int) -> Transition:
     return Transition(obs, action.astype(jnp.int32), reward, next_obs, terminated)
 
 
+class EvalEpisode(NamedTuple):
+    """One greedy evaluation episode; row t: the observation seen, the action taken, the
+    reward it earned and the pose (`env.scene_qpos`) shown. Rows from `length` on are padding."""
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    scene_qpos: jax.Array | None
+    length: jax.Array
+
+
 @struct.dataclass
 class TrainState:
     params: Any
@@ -206,25 +217,51 @@ class DQN:
         return ts, {"loss": jnp.mean(weights * td_error**2), "q": q.mean()}
 
     # ---- evaluation -----------------------------------------------------------
-    def evaluate(self, params, key, num_episodes: int | None = None) -> jax.Array:
-        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes."""
+    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
+        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes.
+
+        With `record`, also returns the first episode step by step as an `EvalEpisode`
+        (rows past its `length` are padding), so a logger can show it without running
+        (and compiling) a rollout of its own.
+        """
         env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
+        horizon = getattr(self.env, "episode_length", 1000)
+        scene_qpos = getattr(self.env, "scene_qpos", None)
 
         def running(carry):
-            _, _, finished = carry
-            return ~finished.all()
+            return ~carry[2].all()
 
         def step(carry):
-            state, returns, finished = carry
+            state, returns, finished, episode = carry
             action = jnp.argmax(self.q_values(params, state.obs), axis=-1).astype(jnp.int32)
-            state = env.step(state, action)
-            returns = returns + state.reward * ~finished
-            return state, returns, finished | (state.done > 0)
+            next_state = env.step(state, action)
+            if record:
+                t = episode.length
+                first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+                episode = EvalEpisode(
+                    obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
+                    action=episode.action.at[t].set(action[0], mode="drop"),
+                    reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
+                    scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
+                    length=t + (~finished[0]).astype(jnp.int32),
+                )
+            returns = returns + next_state.reward * ~finished
+            return next_state, returns, finished | (next_state.done > 0), episode
 
         state = env.reset(key)
         zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
-        _, returns, _ = jax.lax.while_loop(running, step, (state, zeros, zeros > 0))
-        return returns
+        episode = None
+        if record:
+            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+            episode = EvalEpisode(
+                obs=jnp.zeros((horizon, self.env.observation_size), state.obs.dtype),
+                action=jnp.zeros((horizon,), jnp.int32),
+                reward=jnp.zeros((horizon,), state.reward.dtype),
+                scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
+                length=jnp.zeros((), jnp.int32),
+            )
+        _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
+        return (returns, episode) if record else returns
 
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array) -> TrainState:
@@ -272,7 +309,8 @@ class DQN:
 
         ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, None, cfg.iterations_per_chunk)
         key, eval_key = jax.random.split(ts.key)
-        eval_return = self.evaluate(ts.params, eval_key).mean()
+        eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        eval_return = eval_returns.mean()
         better = eval_return > ts.best_return
         solved_now = (eval_return >= cfg.solve_return) & (ts.solve_step < 0)
         ts = ts.replace(
@@ -292,6 +330,7 @@ class DQN:
             "episodes": episodes,
             "train_return": collected["return_sum"].sum() / jnp.maximum(episodes, 1),
             "nan_episodes": collected["nan_episodes"].sum(),
+            "eval_episode": eval_episode,  # for loggers; not a scalar metric
         }
         return ts, metrics
 
@@ -313,4 +352,5 @@ def train(config: DQNConfig, env: Env, key: jax.Array):
     dqn = DQN(config, env)
     ts = dqn.init(key)
     ts, metrics = jax.lax.scan(lambda ts, _: dqn.chunk(ts), ts, None, config.num_chunks)
+    metrics.pop("eval_episode")
     return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}

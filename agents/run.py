@@ -64,7 +64,7 @@ def train_run(
     resume: bool = False,
     progress: bool = True,
     env_options: dict | None = None,
-    on_chunk: Callable[[int, Any, dict], None] | None = None,
+    on_chunk: Callable[[int, Any, dict], None] | None = None,  # (chunk index, train state, record + "eval_episode")
     stop_after_chunks: int | None = None,
     stop_when_solved: bool = False,
 ) -> RunResult:
@@ -103,6 +103,7 @@ def train_run(
                 break
             tick = time.perf_counter()
             ts, metrics = chunk(ts)
+            eval_episode = metrics.pop("eval_episode")
             record = _host(metrics)
             elapsed = time.perf_counter() - tick
             record["chunk"] = index
@@ -117,7 +118,7 @@ def train_run(
                 with open(out / "metrics.jsonl", "a") as f:
                     f.write(json.dumps(record) + "\n")
             if on_chunk is not None:
-                on_chunk(index, ts, record)
+                on_chunk(index, ts, {**record, "eval_episode": eval_episode})
             bar.update(config.eval_every)
             bar.set_postfix(eval=f"{np.mean(record['eval_return']):.1f}", best=f"{np.mean(record['best_return']):.1f}",
                             sps=f"{record['steps_per_s']:.0f}")

@@ -249,19 +249,22 @@ def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     assert contents.rows["env/0/episode/return"] >= 1 and contents.rows["env/1/episode/return"] >= 1
 
 
-@pytest.mark.parametrize("background", [True, False])
-def test_training_logger_curves_per_seed_and_rollouts_every_n_chunks(tmp_path, background):
+def test_training_logger_curves_per_seed_and_eval_episodes_every_n_chunks(tmp_path):
     config = DQNConfig(hidden=(16,))
-    network = DQN(config, envs.make("cartpole")).network
-    params = jax.vmap(lambda k: network.init(k, jnp.zeros((1, 4))))(jax.random.split(jax.random.PRNGKey(0), 2))
+    dqn = DQN(config, envs.make("cartpole"))
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    params = jax.vmap(lambda k: dqn.network.init(k, jnp.zeros((1, 4))))(keys)
+    _, episode = jax.vmap(lambda p, k: dqn.evaluate(p, k, 4, record=True))(params, keys)
+    lengths = np.asarray(episode.length)
+    assert (lengths > 0).all()
     path = tmp_path / "train.rrd"
-    logger = agent_recording.TrainingLogger(path, "cartpole", config, seeds=2, rollout_every=2, rollout_steps=50,
-                                            background=background)
+    logger = agent_recording.TrainingLogger(path, "cartpole", config, seeds=2, rollout_every=2)
     try:
         for index in range(3):
             record = {"env_steps": [1000 * (index + 1)] * 2, "loss": [1.0, 2.0], "q": [3.0, 4.0], "epsilon": [0.5, 0.5],
-                      "eval_return": [10.0, 20.0], "train_return": [9.0, 19.0], "steps_per_s": 5000.0}
-            logger(index, SimpleNamespace(params=params), record)
+                      "eval_return": [10.0, 20.0], "train_return": [9.0, 19.0], "steps_per_s": 5000.0,
+                      "eval_episode": episode}
+            logger(index, None, record)
     finally:
         logger.close()
     contents = Contents(path)
@@ -271,8 +274,30 @@ def test_training_logger_curves_per_seed_and_rollouts_every_n_chunks(tmp_path, b
         np.testing.assert_allclose(returns, [10.0 * (seed + 1)] * 3)
         assert contents.rows[f"eval/seed_{seed}/train_step"] == 2  # chunks 0 and 2
         root = f"eval/seed_{seed}"
-        assert contents.rows[f"{root}/env/0/reward"] == contents.rows[f"{root}/world/env_0/pole"] == 100
+        # The recorded episode, padding cut off, logged twice; its return at its last step.
+        assert contents.rows[f"{root}/env/0/reward"] == contents.rows[f"{root}/world/env_0/pole"] == 2 * lengths[seed]
+        np.testing.assert_allclose(contents.column(f"{root}/env/0/episode/return", "Scalars:scalars"),
+                                   [float(lengths[seed])] * 2)  # CartPole: reward 1 per step
     assert contents.rows["train/env_steps_per_s"] == 3
+
+
+def test_recorded_eval_episode_replays_the_greedy_policy():
+    """The episode `evaluate(record=True)` returns is the first env's trajectory, step for step."""
+    env = envs.make("cartpole-mjx")
+    dqn = DQN(DQNConfig(hidden=(16,)), env)
+    params = dqn.network.init(jax.random.PRNGKey(1), jnp.zeros((1, 4)))
+    returns, episode = dqn.evaluate(params, jax.random.PRNGKey(2), 3, record=True)
+    length = int(episode.length)
+    assert length == int(returns[0])  # reward 1 per step
+    state = envs.VmapWrapper(env, 3).reset(jax.random.PRNGKey(2))
+    state = jax.tree.map(lambda x: x[0], state)
+    for t in range(length):
+        np.testing.assert_allclose(np.asarray(episode.obs[t]), np.asarray(state.obs), atol=1e-6)
+        np.testing.assert_allclose(np.asarray(episode.scene_qpos[t]), np.asarray(state.pipeline_state.qpos), atol=1e-6)
+        action = int(jnp.argmax(dqn.q_values(params, state.obs)))
+        assert int(episode.action[t]) == action
+        state = env.step(state, action)
+    assert float(state.done) == 1.0
 
 
 def test_cli_rollout_with_random_policy_and_fixed_steps(tmp_path):
