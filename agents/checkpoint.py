@@ -8,6 +8,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import jax
+import numpy as np
 from flax import serialization
 
 from agents.dqn import DQNConfig
@@ -55,17 +57,33 @@ def load_config(out_dir: str | os.PathLike) -> tuple[str, int, DQNConfig, dict]:
     return record["env"], record["seeds"], DQNConfig(**fields), record.get("env_options", {})
 
 
+def _to_bytes(tree: Any) -> bytes:
+    """Any pytree (an `mjx.Data` env state included) as msgpack of its leaves, in order."""
+    return serialization.msgpack_serialize({str(i): np.asarray(x) for i, x in enumerate(jax.tree.leaves(tree))})
+
+
+def _from_bytes(template: Any, data: bytes) -> Any:
+    """The inverse of `_to_bytes`, shaped like `template` (arrays or ShapeDtypeStructs)."""
+    leaves = serialization.msgpack_restore(data)
+    expected = jax.tree.leaves(template)
+    if len(leaves) != len(expected) or any(
+        np.shape(leaves[str(i)]) != tuple(t.shape) for i, t in enumerate(expected)
+    ):
+        raise ValueError("checkpoint does not match this config and env (different network, buffer or env?)")
+    return jax.tree.unflatten(jax.tree.structure(template), [leaves[str(i)] for i in range(len(expected))])
+
+
 def save_state(out_dir: Path, train_state: Any, chunks_done: int) -> None:
     """The whole (seed-batched) train state, buffer included, so a resumed run continues exactly."""
-    _atomic_write(out_dir / STATE_FILE, serialization.to_bytes(train_state))
-    _atomic_write(out_dir / POLICY_FILE, serialization.to_bytes(train_state.best_params))
+    _atomic_write(out_dir / STATE_FILE, _to_bytes(train_state))
+    _atomic_write(out_dir / POLICY_FILE, _to_bytes(train_state.best_params))
     progress = {"chunks_done": chunks_done, "best_return": [float(r) for r in train_state.best_return]}
     _atomic_write(out_dir / PROGRESS_FILE, json.dumps(progress).encode())
 
 
 def load_state(out_dir: str | os.PathLike, template: Any) -> tuple[Any, int]:
     out = Path(out_dir)
-    state = serialization.from_bytes(template, (out / STATE_FILE).read_bytes())
+    state = _from_bytes(template, (out / STATE_FILE).read_bytes())
     chunks_done = json.loads((out / PROGRESS_FILE).read_text())["chunks_done"]
     return state, chunks_done
 
@@ -78,4 +96,4 @@ def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:
     path = Path(out_dir) / POLICY_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: no checkpoint in {out_dir}")
-    return serialization.from_bytes(template, path.read_bytes())
+    return _from_bytes(template, path.read_bytes())

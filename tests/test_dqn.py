@@ -78,17 +78,18 @@ def test_train_is_deterministic_and_vmaps_over_seeds():
     assert metrics_a["eval_return"].shape == (2, SMALL.num_chunks)
 
 
-@pytest.mark.parametrize("replay", ["uniform", "prioritized"])
-def test_resume_reproduces_the_uninterrupted_run(tmp_path, replay):
+@pytest.mark.parametrize("name,replay", [("cartpole", "uniform"), ("cartpole", "prioritized"),
+                                         ("cartpole-mjx", "uniform")])
+def test_resume_reproduces_the_uninterrupted_run(tmp_path, name, replay):
     config = DQNConfig(**{**SMALL.__dict__, "replay": replay})
-    whole = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "whole", progress=False)
-    part = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2)
+    whole = train_run(name, config, seeds=2, out_dir=tmp_path / "whole", progress=False)
+    part = train_run(name, config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2)
     assert part.params is None  # stopped early
-    resumed = train_run("cartpole", config, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
+    resumed = train_run(name, config, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
     for a, b in zip(jax.tree.leaves(whole.train_state), jax.tree.leaves(resumed.train_state)):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     summary = json.loads((tmp_path / "whole" / "eval.json").read_text())
-    assert summary["env"] == "cartpole" and summary["seeds"] == 2 and len(summary["mean_return"]) == 2
+    assert summary["env"] == name and summary["seeds"] == 2 and len(summary["mean_return"]) == 2
     lines = (tmp_path / "whole" / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == config.num_chunks and "eval_return" in json.loads(lines[0])
 
