@@ -15,9 +15,7 @@ Rows:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import time
 
 import jax
 import numpy as np

@@ -4,7 +4,6 @@ bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

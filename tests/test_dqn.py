@@ -10,7 +10,7 @@ import pytest
 import envs
 from agents import DQN, DQNConfig, load_policy, train, train_run
 from agents.cli import main as cli_main
-from agents.dqn import Transition, unpack
+from agents.dqn import unpack
 
 
 class Counter(envs.Env):

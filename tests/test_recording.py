@@ -5,7 +5,6 @@ import shutil
 import subprocess
 from collections import defaultdict
 from pathlib import Path
-from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp

@@ -1,7 +1,6 @@
 """Tests for agents/replay.py: ring-buffer contents, sampling distributions,
 sum-tree invariants, and jit/vmap/scan compatibility."""
 
-import functools
 
 import jax
 import jax.numpy as jnp
