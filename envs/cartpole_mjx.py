@@ -18,7 +18,8 @@ class CartPoleMjx(MjxEnv):
     xml = "cartpole.xml"
     observation_size = 4
     observation_names = ("x", "x_dot", "theta", "theta_dot")
-    num_actions = 2
+    # The motor's gear turns ctrl +-1 into Gymnasium's +-10 N push.
+    action_bins = {"push_left": (-1.0,), "push_right": (1.0,)}
 
     def __init__(self, rules: CartPoleRules = CartPoleRules(), xml: str | None = None):
         super().__init__(xml)
@@ -31,15 +32,11 @@ class CartPoleMjx(MjxEnv):
     def observation(self, data: mjx.Data) -> jax.Array:
         return jnp.stack([data.qpos[0], data.qvel[0], data.qpos[1], data.qvel[1]])
 
-    def reward(self, data, action):
+    def reward(self, data, action, prev):
         return jnp.ones(())
 
     def terminated(self, data):
         return self.rules.is_terminated(data.qpos[0], data.qpos[1])
-
-    def action_to_ctrl(self, action):
-        # Action 1 pushes right, 0 pushes left; the motor's gear turns +-1 into +-10 N.
-        return jnp.where(action == 1, 1.0, -1.0)[None]
 
     def __repr__(self) -> str:
         return f"CartPoleMjx(rules={self.rules})"

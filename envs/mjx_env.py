@@ -1,9 +1,12 @@
 """Base class for tasks defined by an MJCF model and stepped by `mjx.step`.
 
-A task names its XML and fills in five small hooks (reset distribution,
-observation, reward, termination, action -> ctrl); this class does the
-MuJoCo plumbing: loading the file, `put_model`, the initial `mjx.Data`,
-substeps, and ending an episode cleanly when the physics produces NaNs.
+A task is an MJCF file plus a short subclass: it names the XML, sets
+`observation_size`, fills in four hooks (reset distribution, observation, reward,
+termination) and either lists its discrete actions as named `action_bins` or
+leaves actions continuous. This class does the MuJoCo plumbing: loading the file,
+`put_model`, the initial `mjx.Data`, substeps, the action -> `ctrl` mapping,
+ending an episode cleanly when the physics produces NaNs, and checking that the
+hooks return what the env API promises (errors name the task).
 """
 
 from __future__ import annotations
@@ -12,10 +15,12 @@ import abc
 import contextlib
 import io
 import os
+from typing import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
 
 # MJX prints "Failed to import warp" when the optional warp-lang is absent; we use
 # the pure-JAX implementation, so keep that message off the user's console.
@@ -25,9 +30,18 @@ with contextlib.redirect_stdout(io.StringIO()):
 from envs.assets import load_model
 from envs.core import Env, State
 
+ActionBins = Mapping[str, Sequence[float]]
+
 
 class MjxEnv(Env):
-    """An MJX-stepped environment. Subclasses set `xml` and implement the hooks below.
+    """An MJX-stepped environment. Subclasses set `xml` and `observation_size` and
+    implement `initial_qpos_qvel`, `observation`, `reward` and `terminated`.
+
+    Actions: with `action_bins` (a mapping from action name to a `ctrl` vector,
+    in action-index order) the task is discrete and `num_actions = len(action_bins)`;
+    without, it is continuous with `action_size = model.nu` and actions in [-1, 1]
+    are scaled to each actuator's `ctrlrange`. Override `action_to_ctrl` for
+    anything else.
 
     `info["nan"]` is 1.0 on the step where the physics became non-finite: that step
     terminates the episode, its reward is 0 and its observation is the previous
@@ -35,18 +49,42 @@ class MjxEnv(Env):
     """
 
     xml: str | os.PathLike  # a file in the suite's assets/ or a path
+    observation_size: int
+    action_bins: ActionBins | None = None
     n_substeps: int = 1  # mjx.step calls per env step (env dt = n_substeps * timestep)
     # Reset only sets qpos/qvel; mjx.step recomputes everything else before it
     # integrates. Tasks whose observation or reward at reset needs derived
     # quantities (site positions, sensors...) set this to run mjx.forward there.
     forward_on_reset: bool = False
 
-    def __init__(self, xml: str | os.PathLike | None = None):
-        self.mj_model: mujoco.MjModel = load_model(xml if xml is not None else self.xml)
+    def __init__(self, xml: str | os.PathLike | None = None, action_bins: ActionBins | int | None = None):
+        xml = xml if xml is not None else getattr(self, "xml", None)
+        if xml is None:
+            raise TypeError(f"task {self.name}: set the class attribute `xml` to an MJCF file (or pass xml=...)")
+        try:
+            self.mj_model: mujoco.MjModel = load_model(xml)
+        except (ValueError, FileNotFoundError) as err:
+            raise type(err)(f"task {self.name}: {err}") from err
+        if not isinstance(getattr(self, "observation_size", None), int):
+            raise TypeError(f"task {self.name}: set the class attribute `observation_size` (an int)")
         self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl="jax")
         data = mjx.make_data(self.mjx_model, impl="jax")
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype.
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, jnp.float32))
+
+        if action_bins is not None:
+            self.action_bins = action_bins
+        if isinstance(self.action_bins, int):
+            self.action_bins = uniform_bins(self.mj_model, self.action_bins, self.name)
+        if self.action_bins is not None:
+            self._bin_table = self._check_bins(self.action_bins)
+            self.num_actions, self.action_size = len(self.action_bins), None
+        else:
+            self.num_actions, self.action_size = None, self.mj_model.nu
+
+    @property
+    def name(self) -> str:
+        return type(self).__name__
 
     @property
     def dt(self) -> float:
@@ -65,40 +103,108 @@ class MjxEnv(Env):
         """Draw the start of an episode."""
 
     @abc.abstractmethod
-    def observation(self, data: mjx.Data) -> jax.Array: ...
+    def observation(self, data: mjx.Data) -> jax.Array:
+        """A vector of shape (observation_size,)."""
 
     @abc.abstractmethod
-    def reward(self, data: mjx.Data, action: jax.Array) -> jax.Array: ...
+    def reward(self, data: mjx.Data, action: jax.Array, prev: mjx.Data) -> jax.Array:
+        """The reward for the transition prev --action--> data (a scalar)."""
 
     @abc.abstractmethod
-    def terminated(self, data: mjx.Data) -> jax.Array: ...
+    def terminated(self, data: mjx.Data) -> jax.Array:
+        """True when `data` ends the episode (a scalar bool)."""
 
-    @abc.abstractmethod
+    def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
+        """Adjust the state after the physics step (e.g. clip velocities as a reference
+        implementation does). The default changes nothing."""
+        return data
+
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
-        """Map an action (index or vector) to the model's `ctrl` vector."""
+        """Map an action to the model's `ctrl` vector (see the class docstring)."""
+        if self.action_bins is not None:
+            return self._bin_table[action]
+        low, high = self.mjx_model.actuator_ctrlrange.T
+        limited = jnp.asarray(self.mj_model.actuator_ctrllimited, bool)
+        scaled = low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
+        return jnp.where(limited, scaled, action)
 
     # ---- the env API --------------------------------------------------------
     def reset(self, key: jax.Array) -> State:
         qpos, qvel = self.initial_qpos_qvel(key)
         data = self._initial_data.replace(
-            qpos=qpos.astype(self._initial_data.qpos.dtype), qvel=qvel.astype(self._initial_data.qvel.dtype)
+            qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
+            qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
         if self.forward_on_reset:
             data = mjx.forward(self.mjx_model, data)
         obs = self.observation(data)
+        if obs.shape != (self.observation_size,):
+            raise ValueError(
+                f"task {self.name}: observation() returned shape {obs.shape} at reset, "
+                f"but observation_size is {self.observation_size}"
+            )
         zero = jnp.zeros((), obs.dtype)
         return State(data, obs, zero, zero, info={"truncation": zero, "nan": zero})
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.check_action(action)
-        data = state.pipeline_state.replace(ctrl=self.action_to_ctrl(action))
+        prev = state.pipeline_state
+        data = prev.replace(ctrl=self.action_to_ctrl(action))
         if self.n_substeps == 1:
             data = mjx.step(self.mjx_model, data)
         else:
             data = jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(self.mjx_model, d), data)
+        data = self.post_step(prev, data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
-        obs = jnp.where(finite, self.observation(data), state.obs)
-        reward = jnp.where(finite, self.reward(data, action), 0.0).astype(obs.dtype)
-        done = (self.terminated(data) | ~finite).astype(obs.dtype)
+        obs, reward, terminated = self.observation(data), self.reward(data, action, prev), self.terminated(data)
+        self._check_step_shapes(state.obs, obs, reward, terminated)
+        obs = jnp.where(finite, obs, state.obs)
+        reward = jnp.where(finite, reward, 0.0).astype(obs.dtype)
+        done = (terminated | ~finite).astype(obs.dtype)
         info = {**state.info, "nan": (~finite).astype(obs.dtype)}
         return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, info=info)
+
+    # ---- checks (run once, while tracing) ------------------------------------
+    def _check_step_shapes(self, reset_obs, obs, reward, terminated) -> None:
+        if obs.shape != reset_obs.shape:
+            raise ValueError(
+                f"task {self.name}: observation() returned shape {obs.shape} after a step "
+                f"but {reset_obs.shape} at reset; it must always be ({self.observation_size},)"
+            )
+        for hook, value in (("reward", reward), ("terminated", terminated)):
+            if jnp.shape(value) != ():
+                raise ValueError(f"task {self.name}: {hook}() must return a scalar, got shape {jnp.shape(value)}")
+
+    def _check_bins(self, bins: ActionBins) -> jax.Array:
+        """The bins as a (num_actions, nu) table, after checking each against ctrlrange."""
+        model = self.mj_model
+        if not isinstance(bins, Mapping) or not bins:
+            raise TypeError(f"task {self.name}: action_bins must be a non-empty mapping name -> ctrl vector")
+        table = []
+        for bin_name, ctrl in bins.items():
+            ctrl = np.atleast_1d(np.asarray(ctrl, np.float64))
+            if ctrl.shape != (model.nu,):
+                raise ValueError(
+                    f"task {self.name}: action bin {bin_name!r} has {ctrl.size} ctrl values, "
+                    f"but the model has {model.nu} actuator(s)"
+                )
+            for i, value in enumerate(ctrl):
+                low, high = model.actuator_ctrlrange[i]
+                if model.actuator_ctrllimited[i] and not low <= value <= high:
+                    actuator = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or f"#{i}"
+                    raise ValueError(
+                        f"task {self.name}: action bin {bin_name!r} sets actuator {actuator!r} to {value}, "
+                        f"outside its ctrlrange [{low}, {high}]"
+                    )
+            table.append(ctrl)
+        return jnp.asarray(np.stack(table), jnp.float32)
+
+
+def uniform_bins(model: mujoco.MjModel, count: int, task: str = "task") -> dict[str, tuple[float]]:
+    """`count` evenly spaced ctrl values over the single actuator's ctrlrange, named by value."""
+    if model.nu != 1 or not model.actuator_ctrllimited[0]:
+        raise ValueError(f"task {task}: action_bins=<int> needs exactly one actuator with a ctrlrange")
+    if count < 2:
+        raise ValueError(f"task {task}: action_bins needs at least 2 bins, got {count}")
+    low, high = model.actuator_ctrlrange[0]
+    return {f"{v:+.3g}": (float(v),) for v in np.linspace(low, high, count)}

@@ -93,10 +93,12 @@ def test_same_reset_as_analytic():
 class NaNCartPole(envs.CartPoleMjx):
     """Feeds a NaN force on the third step."""
 
+    def __init__(self):
+        super().__init__()
+        self.num_actions = 3  # action 2 is the NaN force
+
     def action_to_ctrl(self, action):
         return jnp.where(action == 2, jnp.nan, super().action_to_ctrl(action))
-
-    num_actions = 3
 
 
 def test_nan_physics_ends_the_episode_with_a_flag():
