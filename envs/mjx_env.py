@@ -67,7 +67,13 @@ class MjxEnv(Env):
             raise type(err)(f"task {self.name}: {err}") from err
         if not isinstance(getattr(self, "observation_size", None), int):
             raise TypeError(f"task {self.name}: set the class attribute `observation_size` (an int)")
-        self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl="jax")
+        try:
+            self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl="jax")
+        except NotImplementedError as err:
+            raise NotImplementedError(
+                f"task {self.name}: MJX cannot run this model: {err} (geoms that never touch should have "
+                'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
+            ) from err
         data = mjx.make_data(self.mjx_model, impl="jax")
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype.
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, jnp.float32))
