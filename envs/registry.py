@@ -63,5 +63,8 @@ def make(name: str, **overrides: Any) -> Env:
 
 def _lookup(name: str) -> tuple[Callable[..., Env], int]:
     if name not in _REGISTRY:
-        raise ValueError(f"unknown env {name!r}; registered envs: {names()}")
+        raise ValueError(
+            f"unknown env {name!r}; registered envs: {names()} (a task of your own registers when its "
+            "module is imported: `mjxsuite ... --import MODULE`)"
+        )
     return _REGISTRY[name]
