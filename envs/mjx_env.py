@@ -75,8 +75,9 @@ class MjxEnv(Env):
                 'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
             ) from err
         data = mjx.make_data(self.mjx_model, impl="jax")
-        # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype.
-        self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, jnp.float32))
+        # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
+        # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
+        self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
 
         if action_bins is not None:
             self.action_bins = action_bins
@@ -131,7 +132,8 @@ class MjxEnv(Env):
             return self._bin_table[action]
         low, high = self.mjx_model.actuator_ctrlrange.T
         limited = jnp.asarray(self.mj_model.actuator_ctrllimited, bool)
-        scaled = low + (jnp.clip(action, -1.0, 1.0) + 1.0) * 0.5 * (high - low)
+        # centre + a * half-range: exact for symmetric ranges (no rounding of a + 1)
+        scaled = 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
         return jnp.where(limited, scaled, action)
 
     # ---- the env API --------------------------------------------------------
@@ -155,7 +157,8 @@ class MjxEnv(Env):
     def step(self, state: State, action: jax.Array) -> State:
         action = self.check_action(action)
         prev = state.pipeline_state
-        data = prev.replace(ctrl=self.action_to_ctrl(action))
+        # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
+        data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
         if self.n_substeps == 1:
             data = mjx.step(self.mjx_model, data)
         else:
