@@ -21,11 +21,15 @@ test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 test-slow: $(BIN)/.installed  ## long training tests: 16 seeds to 50k steps on both backends
 	$(BIN)/python -m pytest -q -m slow
 
-bench: $(BIN)/.installed  ## env throughput and DQN speed figures
+# `make bench BENCH_TAG=gpu` on a GPU machine
+BENCH_TAG ?= cpu
+
+bench: $(BIN)/.installed  ## every benchmark figure of the README -> docs/bench-$(BENCH_TAG).json, docs/throughput-$(BENCH_TAG).png
 	$(BIN)/python -m pip install -q -e ".[bench]"
-	$(BIN)/python -m envs.bench
-	$(BIN)/python -m agents.bench
-	$(BIN)/python -m agents.bench_logging
+	$(BIN)/python -m pip install -q --no-deps gymnax==1.0.1 playground==0.2.0
+	$(BIN)/mjxsuite bench --json docs/bench-$(BENCH_TAG).json
+	$(BIN)/mjxsuite bench --table docs/bench-$(BENCH_TAG).json
+	$(BIN)/mjxsuite bench --plot docs/bench-$(BENCH_TAG).json --out docs/throughput-$(BENCH_TAG).png
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

@@ -71,7 +71,7 @@ def log_rollout_record(steps: int = 100_000, repeats: int = 5) -> dict:
     poses = [_timed(lambda: recording.geom_poses(model, qpos, moving)) for _ in range(repeats)]
     mjx_compile, mjx_warm = _mjx_kinematics_times(env.unwrapped.scene_model(), qpos)
     return {
-        "kind": "log-rollout", "steps": steps, "envs": 1, "repeats": repeats,
+        "kind": "log-rollout", "env": "cartpole", "steps": steps, "envs": 1, "repeats": repeats,
         "total_s_min": min(total), "total_s_median": statistics.median(total),
         "host_copy_s": min(host_copy), "poses_mj_kinematics_s": min(poses),
         "poses_mjx_kinematics_first_call_s": mjx_compile, "poses_mjx_kinematics_warm_s": mjx_warm,
@@ -144,11 +144,13 @@ def train_records(steps: int = 20_000, repeats: int = 5) -> list[dict]:
     return rows
 
 
-def bench_logging(quick: bool = False) -> list[dict]:
+def bench_logging(quick: bool = False, train: bool = True) -> list[dict]:
+    """The rows above; `train=False` leaves out the (slow) training comparison."""
     device = jax.devices()[0].device_kind
-    rows = [log_rollout_record(repeats=3 if quick else 5),
-            *train_records(steps=5_000 if quick else 20_000, repeats=1 if quick else 5)]
-    return [{**row, "device": device} for row in rows]
+    rows = [log_rollout_record(repeats=3 if quick else 5)]
+    if train:
+        rows += train_records(steps=5_000 if quick else 20_000, repeats=1 if quick else 5)
+    return [{"lib": "mjxsuite", **row, "device": device} for row in rows]
 
 
 def main(argv=None) -> None:

@@ -1,4 +1,9 @@
-"""The `mjxsuite` command: train, eval, rollout."""
+"""The `mjxsuite` command: train, eval, rollout, bench.
+
+train, eval and rollout use JAX's persistent compilation cache (see
+`agents.compile_cache`): a second run loads its compiled programs from disk.
+`--no-compile-cache` or `MJXSUITE_COMPILE_CACHE=0` turns it off.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,7 @@ import dataclasses
 import json
 import sys
 import typing
+from pathlib import Path
 
 from agents.dqn import DQNConfig
 
@@ -33,7 +39,8 @@ def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
         flag = pairs[i]
         if not flag.startswith("--"):
             raise SystemExit(f"mjxsuite: unexpected argument {flag!r}")
-        name, _, value = flag[2:].replace("-", "_").partition("=")
+        name, _, value = flag[2:].partition("=")
+        name = name.replace("-", "_")
         if name not in fields:
             raise SystemExit(f"mjxsuite: unknown option --{name}; config fields: {', '.join(sorted(fields))}")
         if not value:
@@ -56,7 +63,8 @@ def cmd_train(args, extra: list[str]) -> int:
     import envs
 
     if args.env not in envs.names():
-        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())}")
+        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())} "
+                         "(your own task? --import the module that registers it)")
     if args.resume:
         from agents import checkpoint
 
@@ -136,7 +144,8 @@ def cmd_rollout(args, extra: list[str]) -> int:
         raise SystemExit(f"mjxsuite rollout: unexpected arguments {extra}")
     recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
     if args.env is not None and args.env not in envs.names():
-        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())}")
+        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())} "
+                         "(your own task? --import the module that registers it)")
     if args.checkpoint:
         from agents.recording import load_greedy
 
@@ -170,11 +179,76 @@ def cmd_rollout(args, extra: list[str]) -> int:
     return 0
 
 
+def cmd_bench(args, extra: list[str]) -> int:
+    from agents import benchmark
+
+    if extra:
+        raise SystemExit(f"mjxsuite bench: unexpected arguments {extra}")
+    if args.table:
+        print(benchmark.tables(benchmark.load_records(args.table)))
+    if args.plot:
+        print(f"wrote {benchmark.plot(benchmark.load_records(args.plot), args.out)}")
+    if args.plot or args.table:
+        return 0
+    if args.json:  # fail before an hour of benchmarking, not after
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).touch()
+    records = benchmark.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
+                                  repeats=args.repeats)
+    if args.json:
+        Path(args.json).write_text(json.dumps(records, indent=2))
+        print(f"wrote {len(records)} records to {args.json}")
+    return 0
+
+
+def _use_compile_cache(args) -> None:
+    from agents import compile_cache
+
+    if getattr(args, "no_compile_cache", False):
+        compile_cache.disable()
+    else:
+        compile_cache.enable()
+
+
+def import_tasks(modules: list[str]) -> None:
+    """Import the user's task modules (`--import`), so their `envs.register` calls run."""
+    import importlib
+    import importlib.util
+    import os
+
+    for module in modules:
+        try:
+            if module.endswith(".py"):
+                spec = importlib.util.spec_from_file_location(Path(module).stem, module)
+                if spec is None or not Path(module).is_file():
+                    raise FileNotFoundError(f"no such file {module!r}")
+                loaded = importlib.util.module_from_spec(spec)
+                sys.modules[spec.name] = loaded
+                spec.loader.exec_module(loaded)
+            else:
+                if os.getcwd() not in sys.path:
+                    sys.path.insert(0, os.getcwd())
+                importlib.import_module(module)
+        except Exception as err:
+            raise SystemExit(f"mjxsuite: --import {module}: {type(err).__name__}: {err}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
     sub = parser.add_subparsers(dest="command", required=True)
+    cached = argparse.ArgumentParser(add_help=False)
+    cached.add_argument("--no-compile-cache", action="store_true",
+                        help="do not use JAX's persistent compilation cache (default: on, in "
+                             "$XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, "
+                             "a path moves it)")
+
+    tasks = argparse.ArgumentParser(add_help=False)
+    tasks.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",
+                       help="import a module (a name importable from the current directory, or a .py file) "
+                            "that registers your own tasks; repeatable")
 
     train = sub.add_parser("train", help="train DQN; any DQNConfig field can be set with --FIELD VALUE",
+                           parents=[cached, tasks],
                            epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
     train.add_argument("--env", required=True, help="registered env name, e.g. cartpole or cartpole-mjx")
     train.add_argument("--seeds", type=int, default=1, help="agents trained at once (vmapped)")
@@ -188,12 +262,13 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--rerun-every", type=int, default=1, metavar="N",
                        help="chunks between logged evaluation rollouts (0: none)")
 
-    evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent")
+    evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=int, default=64)
     evaluate.add_argument("--seed", type=int, default=123)
 
-    rollout = sub.add_parser("rollout", help="log a rollout (random, or greedy from a checkpoint) to a Rerun file")
+    rollout = sub.add_parser("rollout", help="log a rollout (random, or greedy from a checkpoint) to a Rerun file",
+                             parents=[cached, tasks])
     rollout.add_argument("--env", help="registered env name (default: the checkpoint's)")
     rollout.add_argument("--checkpoint", help="a directory written by `mjxsuite train --out`; random actions without")
     rollout.add_argument("--episodes", type=int, help="stop once every env finished this many episodes (default 1)")
@@ -205,10 +280,30 @@ def main(argv: list[str] | None = None) -> int:
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
 
+    bench = sub.add_parser("bench", help="benchmark env throughput (vs gymnax and MuJoCo Playground), DQN, logging",
+                           description="Runs every benchmark figure of the README (see agents/benchmark.py). "
+                                       "Peers come from the bench extra; a missing one is recorded as skipped.")
+    bench.add_argument("--quick", action="store_true", help="fewer batch sizes, repeats and DQN runs (minutes on a CPU)")
+    bench.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
+    bench.add_argument("--sections", nargs="+", default=["env", "dqn", "logging", "startup"],
+                       choices=["env", "dqn", "logging", "startup"], help="what to run (default: all)")
+    bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=["cartpole", "cartpole-mjx"],
+                       help="our envs in the env section (default: both)")
+    bench.add_argument("--batch", nargs="+", type=int, metavar="N", help="env batch sizes (default: by device)")
+    bench.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=["gymnax", "playground"],
+                       help="peer libraries in the env section (none: ours only)")
+    bench.add_argument("--repeats", type=int, help="timed runs per env figure (default 5, 3 with --quick)")
+    bench.add_argument("--plot", metavar="FILE.json", help="plot throughput against batch size from saved records")
+    bench.add_argument("--out", default="docs/throughput.png", help="where --plot writes (default %(default)s)")
+    bench.add_argument("--table", metavar="FILE.json", help="print markdown tables from saved records")
+
     args, extra = parser.parse_known_args(argv)
     if args.command == "train" and args.resume and not args.out:
         parser.error("--resume needs --out")
-    handler = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout}[args.command]
+    if args.command in ("train", "eval", "rollout"):
+        _use_compile_cache(args)
+        import_tasks(args.imports)
+    handler = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout, "bench": cmd_bench}[args.command]
     try:
         return handler(args, extra)
     except (ValueError, FileNotFoundError) as err:

@@ -1,0 +1,274 @@
+"""`mjxsuite bench`: every figure in the README's benchmark section, from one command.
+
+Sections (all by default; pick with `--sections`):
+
+- `env`: env-steps/s of `cartpole` and `cartpole-mjx` at batch sizes from 1 up, beside
+  gymnax `CartPole-v1` and MuJoCo Playground `CartpoleBalance` (impl="jax"), and the
+  ratios (`envs.bench`, `envs.bench_peers`);
+- `dqn`: DQN env-steps/s and updates/s with 1 and 16 vmapped seeds, time-to-solve
+  CartPole-v1 on both backends with and without compile (`agents.bench`);
+- `logging`: writing a 100,000-step rollout to a Rerun file (`agents.bench_logging`);
+- `startup`: `mjxsuite train --env cartpole-mjx --steps 2000` run twice in fresh
+  processes sharing a fresh persistent compilation cache: compile_s of each.
+
+Records are a JSON list; every record has `kind`, `lib`, `device`; env-throughput records
+also `env`, `num_envs`, `steps_per_s`, `compile_s`. A peer or section that cannot run
+is recorded with `skipped` and the reason. The first record (`kind: meta`) says what
+ran where. The bench itself does not use the persistent cache: its compile times are
+cold compiles.
+
+    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup]
+    mjxsuite bench --plot FILE.json [--out docs/throughput.png]   # the plot, from saved records
+    mjxsuite bench --table FILE.json                               # markdown tables, from saved records
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform as host_platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SECTIONS = ("env", "dqn", "logging", "startup")
+
+
+def _cpu_model() -> str | None:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return host_platform.processor() or None
+
+
+def meta_record(quick: bool, sections) -> dict:
+    import jax
+
+    from envs import bench_peers
+
+    device = jax.devices()[0]
+    return {
+        "kind": "meta", "lib": "mjxsuite", "device": device.device_kind, "platform": device.platform,
+        "device_count": jax.device_count(), "cpu_count": len(os.sched_getaffinity(0)), "cpu": _cpu_model(),
+        "python": host_platform.python_version(), "jax": jax.__version__,
+        "versions": {p: bench_peers.version(p) for p in ("mujoco", "mujoco-mjx", "brax", "gymnax", "playground")},
+        "quick": quick, "sections": list(sections), "compile_cache": "off (cold compiles)",
+        "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
+
+
+def env_section(quick: bool, batch=None, ours=("cartpole", "cartpole-mjx"), peers=("gymnax", "playground"),
+                repeats=None) -> list[dict]:
+    from envs import bench
+
+    print("== env throughput: env-steps/s (random actions, auto-reset, median of runs; compile excluded) ==")
+    records = bench.throughput_records(ours=ours, peers=peers, batch=batch, quick=quick, repeats=repeats)
+    ratios = bench.ratio_records(records)
+    for r in ratios:
+        print(f"   {r['env']} / {r['peer']} {r['peer_env']} at {r['num_envs']:,} envs: {r['ratio']:.2f}x")
+    return records + ratios
+
+
+def dqn_section(quick: bool) -> list[dict]:
+    from agents.bench import dqn_records
+
+    print("== DQN: env-steps/s, updates/s, time-to-solve CartPole-v1 (greedy mean return >= 475) ==")
+    records = dqn_records(quick)
+    for r in records:
+        if r["kind"] == "dqn-seed-scaling":
+            print(f"   {r['env']}: {r['seeds']} vmapped seeds: {r['ratio']:.1f}x the env-steps/s of one seed")
+    return records
+
+
+def logging_section(quick: bool) -> list[dict]:
+    from agents.bench_logging import bench_logging
+
+    print("== Rerun logging ==")
+    records = bench_logging(quick, train=not quick)
+    for r in records:
+        if r["kind"] == "log-rollout":
+            print(f"   log a {r['steps']:,}-step rollout to .rrd: {r['total_s_median']:.3f} s median "
+                  f"({r['total_s_min']:.3f} s best; {r['file_mb']:.1f} MB)")
+        else:
+            print(f"   train {r['steps']:,} steps with Rerun {r['logging']}: slowdown {100 * r['slowdown']:+.1f}%")
+    return records
+
+
+def startup_section(env: str = "cartpole-mjx", steps: int = 2000) -> list[dict]:
+    """Two `mjxsuite train` processes in a row sharing a fresh compilation cache."""
+    import jax
+
+    print(f"== startup: `mjxsuite train --env {env} --steps {steps}` twice, fresh compile cache ==")
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "jax-cache"
+        for run in (1, 2):
+            out = Path(tmp) / f"run{run}"
+            command = [sys.executable, "-m", "agents.cli", "train", "--env", env, "--steps", str(steps),
+                       "--out", str(out)]
+            environ = {**os.environ, "MJXSUITE_COMPILE_CACHE": str(cache)}
+            environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+            start = time.perf_counter()
+            done = subprocess.run(command, env=environ, capture_output=True, text=True, check=False)
+            wall = time.perf_counter() - start
+            if done.returncode != 0:
+                raise RuntimeError(f"startup run {run} failed ({done.returncode}): {done.stderr[-2000:]}")
+            summary = json.loads((out / "eval.json").read_text())
+            records.append({
+                "kind": "startup", "lib": "mjxsuite", "env": env, "steps": steps, "run": run,
+                "cache": "cold" if run == 1 else "warm", "compile_s": summary["compile_s"],
+                "train_wall_s": summary["wall_s"], "process_wall_s": wall, "device": jax.devices()[0].device_kind,
+            })
+            r = records[-1]
+            print(f"   run {run} ({r['cache']} cache): compile_s {r['compile_s']:.2f} (eval.json), "
+                  f"train_run wall {r['train_wall_s']:.1f} s, process {r['process_wall_s']:.1f} s", flush=True)
+    return records
+
+
+def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
+              peers=("gymnax", "playground"), repeats=None) -> list[dict]:
+    """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
+    from agents import compile_cache
+
+    compile_cache.disable()  # report cold compile times
+    records = [meta_record(quick, sections)]
+    m = records[0]
+    print(f"mjxsuite bench on {m['device']} ({m['platform']}, {m['cpu_count']} CPU cores), jax {m['jax']}, "
+          f"python {m['python']}{' --quick' if quick else ''}", flush=True)
+    runners = {
+        "env": lambda: env_section(quick, batch, ours, peers, repeats),
+        "dqn": lambda: dqn_section(quick),
+        "logging": lambda: logging_section(quick),
+        "startup": startup_section,
+    }
+    for section in sections:
+        start = time.perf_counter()
+        try:
+            records += runners[section]()
+        except ImportError as err:  # e.g. rerun-sdk missing on a benchmark-only install
+            print(f"   skipped: {err}")
+            records.append({"kind": section, "lib": "mjxsuite", "device": m["device"],
+                            "skipped": f"{type(err).__name__}: {err}"})
+        print(f"   ({section}: {time.perf_counter() - start:.0f} s)", flush=True)
+    return records
+
+
+# ---- reading saved records back ------------------------------------------------------
+def load_records(path: str | os.PathLike) -> list[dict]:
+    records = json.loads(Path(path).read_text())
+    if not isinstance(records, list) or not all(isinstance(r, dict) and "kind" in r for r in records):
+        raise ValueError(f"{path}: not a list of mjxsuite bench records")
+    return records
+
+
+def throughput_table(records: list[dict]) -> str:
+    """Markdown: env-steps/s by batch size, ours beside each peer, with the ratio."""
+    speed = {(r["lib"], r["env"], r["num_envs"]): r["steps_per_s"] for r in records
+             if r["kind"] == "env-throughput" and r.get("steps_per_s")}
+    columns = [("mjxsuite", "cartpole"), ("gymnax", "CartPole-v1"), None,
+               ("mjxsuite", "cartpole-mjx"), ("playground", "CartpoleBalance"), None]
+    sizes = sorted({n for (_, _, n) in speed})
+    if not sizes:
+        return ""
+    head = ["num_envs", "cartpole", "gymnax CartPole-v1", "ratio", "cartpole-mjx", "Playground CartpoleBalance",
+            "ratio"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---:|" * len(head)]
+    for n in sizes:
+        cells = [f"{n:,}"]
+        for i, column in enumerate(columns):
+            if column is None:
+                ours, theirs = speed.get((*columns[i - 2], n)), speed.get((*columns[i - 1], n))
+                cells.append(f"{ours / theirs:.2f}x" if ours and theirs else "–")
+            else:
+                value = speed.get((*column, n))
+                cells.append(f"{value:,.0f}" if value else "–")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def dqn_table(records: list[dict]) -> str:
+    rows = [r for r in records if r["kind"] in ("dqn-solve", "dqn-throughput")]
+    if not rows:
+        return ""
+    head = ["env", "seeds", "env-steps/s", "updates/s", "compile s", "solved", "time-to-solve (with compile)",
+            "time-to-solve (without)"]
+    lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
+    for r in rows:
+        solve = r.get("time_to_solve_s")
+        lines.append("| " + " | ".join([
+            r["env"], str(r["seeds"]), f"{r['steps_per_s']:,.0f}", f"{r['updates_per_s']:,.0f}", f"{r['compile_s']:.1f}",
+            r.get("solved", "–"), f"{solve:.1f} s" if solve is not None else "–",
+            f"{r['time_to_solve_excl_compile_s']:.1f} s" if solve is not None else "–",
+        ]) + " |")
+    return "\n".join(lines)
+
+
+def tables(records: list[dict]) -> str:
+    """All the markdown tables the saved records make, with the run's hardware line."""
+    meta = next((r for r in records if r["kind"] == "meta"), {})
+    hardware = (f"Measured on {meta.get('device', '?')} ({meta.get('cpu_count', '?')} cores of "
+                f"{meta.get('cpu') or 'a CPU'}), jax {meta.get('jax', '?')}, python {meta.get('python', '?')}, "
+                f"{meta.get('date', '')}{' (--quick)' if meta.get('quick') else ''}.")
+    parts = [hardware]
+    throughput = throughput_table(records)
+    if throughput:
+        parts += ["", throughput]
+    for r in records:
+        if r["kind"] == "env-throughput" and r.get("skipped"):
+            parts.append(f"\n{r['lib']} {r['env']} skipped at {r['num_envs']:,} envs: {r['skipped']}")
+    dqn = dqn_table(records)
+    if dqn:
+        parts += ["", dqn]
+    for r in records:
+        if r["kind"] == "dqn-seed-scaling":
+            parts.append(f"\n{r['env']}: {r['seeds']} vmapped seeds give {r['ratio']:.1f}x the env-steps/s of one seed.")
+        elif r["kind"] == "log-rollout":
+            parts.append(f"\nLogging a {r['steps']:,}-step rollout to a Rerun file: {r['total_s_median']:.2f} s "
+                         f"(median; {r['file_mb']:.1f} MB).")
+        elif r["kind"] == "startup":
+            parts.append(f"\n`mjxsuite train --env {r['env']} --steps {r['steps']}`, run {r['run']} ({r['cache']} "
+                         f"compile cache): compile_s {r['compile_s']:.2f}.")
+    return "\n".join(parts)
+
+
+def plot(records: list[dict], out: str | os.PathLike) -> Path:
+    """Env-steps/s against batch size, log-log, one line per library and env."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as err:
+        raise SystemExit(f"mjxsuite bench --plot needs matplotlib (pip install 'mjxsuite[bench]'): {err}")
+    meta = next((r for r in records if r["kind"] == "meta"), {})
+    lines: dict[tuple[str, str], list[tuple[int, float]]] = {}
+    for r in records:
+        if r["kind"] == "env-throughput" and r.get("steps_per_s"):
+            lines.setdefault((r["lib"], r["env"]), []).append((r["num_envs"], r["steps_per_s"]))
+    if not lines:
+        raise ValueError("no env-throughput records to plot")
+    styles = {"mjxsuite": "-", "gymnax": "--", "playground": "--"}
+    colors = {"cartpole": "C0", "CartPole-v1": "C0", "cartpole-mjx": "C1", "CartpoleBalance": "C1"}
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for (lib, env), points in sorted(lines.items()):
+        points.sort()
+        ax.plot([n for n, _ in points], [s for _, s in points], styles.get(lib, ":"), marker="o",
+                color=colors.get(env), label=f"{lib} {env}")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("parallel envs (batch size)")
+    ax.set_ylabel("env steps / s")
+    ax.set_title(f"Env throughput on {meta.get('device', '?')} (random actions, auto-reset)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
