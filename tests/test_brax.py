@@ -113,12 +113,12 @@ def test_brax_ppo_trains_on_our_env():
         num_minibatches=2,
         unroll_length=10,
         num_updates_per_batch=1,
-        num_evals=2,
+        num_evals=1,  # one evaluation, at the end (a second would compile Brax's evaluator again)
         num_eval_envs=8,
         network_factory=small_networks(),
         progress_fn=lambda step, m: reported.append((step, m)),
     )
-    assert [step for step, _ in reported] == [0, 480]
+    assert [step for step, _ in reported] == [480]
     for key in ("eval/episode_reward", "training/policy_loss", "training/v_loss", "training/entropy_loss"):
         assert np.isfinite(float(metrics[key])), (key, metrics[key])
     # A pendulum step costs at most pi^2 + 0.1 * 8^2 + 0.001 * 2^2 = 16.27.
