@@ -17,9 +17,10 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.flatten_util import ravel_pytree
 
 from agents.networks import QNetwork
-from agents.replay import PrioritizedReplay, UniformReplay
+from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, VmapWrapper, wrap_for_training
 
 
@@ -109,11 +110,23 @@ class EvalEpisode(NamedTuple):
     length: jax.Array
 
 
+class StepNoise(NamedTuple):
+    """Random bits (uint32) for one iteration of the training loop.
+
+    A chunk draws them for all its iterations in one `jax.random.bits` call before its
+    scan: XLA:CPU runs each `jax.random` call as a loop of tiny kernels, so drawing
+    inside the loop cost ~10% of a training step.
+    """
+
+    act: jax.Array  # (train_every, 2, num_envs): explore-or-not coin, random action
+    sample: jax.Array  # (gradient_steps, batch_size): one per replayed transition
+
+
 @struct.dataclass
 class TrainState:
     params: Any
     target_params: Any
-    opt_state: Any
+    opt_state: Any  # of the parameters flattened into one vector (`ravel_pytree`)
     buffer: Any
     env_state: Any
     key: jax.Array
@@ -147,19 +160,24 @@ class DQN:
     def q_values(self, params, obs):
         return self.network.apply(params, obs)
 
-    def act(self, params, obs, key, epsilon):
-        """Epsilon-greedy actions for a batch of observations."""
-        explore_key, action_key = jax.random.split(key)
+    def act(self, params, obs, epsilon, bits):
+        """Epsilon-greedy actions for a batch of observations; `bits` (uint32, shape
+        `(2, batch)`): the first row decides whether to explore, the second picks the
+        random action (modulo bias <= num_actions / 2**32)."""
         greedy = jnp.argmax(self.q_values(params, obs), axis=-1).astype(jnp.int32)
-        random = jax.random.randint(action_key, greedy.shape, 0, self.env.num_actions)
-        explore = jax.random.uniform(explore_key, greedy.shape) < epsilon
+        explore = uniform_from_bits(bits[0]) < epsilon
+        random = (bits[1] % self.env.num_actions).astype(jnp.int32)
         return jnp.where(explore, random, greedy)
 
-    def collect(self, ts: TrainState, epsilon) -> tuple[TrainState, dict]:
-        """One step of every env; the transitions go to the buffer (NaN steps never do)."""
-        key, act_key = jax.random.split(ts.key)
+    def collect(self, ts: TrainState, epsilon, bits=None) -> tuple[TrainState, dict]:
+        """One step of every env; the transitions go to the buffer (NaN steps never do).
+        `bits`: `StepNoise.act` for one step, drawn from `ts.key` when not given."""
+        key = ts.key
+        if bits is None:
+            key, act_key = jax.random.split(key)
+            bits = jax.random.bits(act_key, (2, self.config.num_envs), jnp.uint32)
         obs = ts.env_state.obs
-        action = self.act(ts.params, obs, act_key, epsilon)
+        action = self.act(ts.params, obs, epsilon, bits)
         env_state = self.train_env.step(ts.env_state, action)
         info = env_state.info
         terminated = env_state.done * (1.0 - info["truncation"])
@@ -180,11 +198,16 @@ class DQN:
             next_action = jnp.argmax(self.q_values(params, batch.next_obs), axis=-1)
         else:
             next_action = jnp.argmax(next_q_target, axis=-1)
-        next_q = jnp.take_along_axis(next_q_target, next_action[:, None], axis=-1)[:, 0]
+        next_q = self.taken(next_q_target, next_action)
         return batch.reward + self.config.gamma * (1.0 - batch.terminated) * next_q
 
+    def taken(self, q, action):
+        """`q[i, action[i]]` as a one-hot product: its gradient is a multiply, where
+        `take_along_axis` would need a scatter (slow on XLA:CPU)."""
+        return (q * jax.nn.one_hot(action, self.env.num_actions, dtype=q.dtype)).sum(-1)
+
     def loss(self, params, batch: Transition, targets, weights):
-        q = jnp.take_along_axis(self.q_values(params, batch.obs), batch.action[:, None], axis=-1)[:, 0]
+        q = self.taken(self.q_values(params, batch.obs), batch.action)
         td_error = q - targets
         if self.config.loss == "huber":
             per_item = optax.huber_loss(td_error)
@@ -192,27 +215,46 @@ class DQN:
             per_item = td_error**2
         return jnp.mean(weights * per_item), (td_error, q)
 
-    def update(self, ts: TrainState) -> tuple[TrainState, dict]:
+    def update(self, ts: TrainState, learning=True, bits=None) -> tuple[TrainState, dict]:
+        """One gradient step. With `learning` False (before `learning_starts`) it is computed
+        and thrown away: selecting the old values costs far less than a `lax.cond` on
+        XLA:CPU, and the same under vmap. `bits`: `StepNoise.sample` for one update,
+        drawn from `ts.key` when not given."""
         cfg = self.config
-        key, sample_key = jax.random.split(ts.key)
+        key = ts.key
+        if bits is None:
+            key, sample_key = jax.random.split(key)
+            bits = jax.random.bits(sample_key, (cfg.batch_size,), jnp.uint32)
         if cfg.replay == "uniform":
-            rows, indices = self.buffer.sample(ts.buffer, sample_key, cfg.batch_size)
+            rows, indices = self.buffer.sample_from_bits(ts.buffer, bits)
             weights = jnp.ones((cfg.batch_size,), jnp.float32)
         else:
-            rows, indices, weights = self.buffer.sample(ts.buffer, sample_key, cfg.batch_size, self.beta(ts.env_steps))
+            rows, indices, weights = self.buffer.sample_from_bits(ts.buffer, bits, self.beta(ts.env_steps))
         batch = unpack(rows, self.env.observation_size)
         targets = self.td_targets(ts.params, ts.target_params, batch)
         grads, (td_error, q) = jax.grad(self.loss, has_aux=True)(ts.params, batch, targets, weights)
-        step, opt_state = self.optimizer.update(grads, ts.opt_state, ts.params)
-        params = optax.apply_updates(ts.params, step)
-        updates = ts.updates + 1
+
+        def keep_unless_learning(new, old):
+            return jnp.where(learning, new, old)
+
+        # The optimizer works on one flat vector: a few large elementwise kernels
+        # instead of several small ones per parameter leaf.
+        flat_params, unravel = ravel_pytree(ts.params)
+        step, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
+        params = unravel(keep_unless_learning(flat_params + step, flat_params))
+        opt_state = jax.tree.map(keep_unless_learning, opt_state, ts.opt_state)
+        updates = ts.updates + jnp.asarray(learning, jnp.int32)
         if cfg.target_update == "polyak":
             target_params = optax.incremental_update(params, ts.target_params, cfg.polyak_tau)
-        else:
-            target_params = optax.periodic_update(params, ts.target_params, updates, cfg.target_period)
+            target_params = jax.tree.map(keep_unless_learning, target_params, ts.target_params)
+        else:  # a select, not optax.periodic_update's lax.cond
+            copy_now = learning & (updates % cfg.target_period == 0)
+            target_params = jax.tree.map(lambda new, old: jnp.where(copy_now, new, old), params, ts.target_params)
         buffer = ts.buffer
-        if cfg.replay == "prioritized":
-            buffer = self.buffer.update_priorities(buffer, indices, jnp.abs(td_error))
+        if cfg.replay == "prioritized":  # only the priorities change; the stored transitions stay
+            new = self.buffer.update_priorities(buffer, indices, jnp.abs(td_error))
+            buffer = buffer.replace(**{f: keep_unless_learning(getattr(new, f), getattr(buffer, f))
+                                       for f in ("tree", "min_tree", "max_priority")})
         ts = ts.replace(params=params, target_params=target_params, opt_state=opt_state, buffer=buffer, key=key, updates=updates)
         return ts, {"loss": jnp.mean(weights * td_error**2), "q": q.mean()}
 
@@ -273,7 +315,7 @@ class DQN:
         ts = TrainState(
             params=params,
             target_params=params,
-            opt_state=self.optimizer.init(params),
+            opt_state=self.optimizer.init(ravel_pytree(params)[0]),
             buffer=self.buffer.init(example),
             env_state=env_state,
             key=loop_key,
@@ -285,36 +327,35 @@ class DQN:
         )
         return ts
 
+    def draw_noise(self, key: jax.Array) -> StepNoise:
+        """The random bits of every iteration of one chunk (leading axis: iteration)."""
+        cfg = self.config
+        act_key, sample_key = jax.random.split(key)
+        iterations = cfg.iterations_per_chunk
+        return StepNoise(
+            act=jax.random.bits(act_key, (iterations, cfg.train_every, 2, cfg.num_envs), jnp.uint32),
+            sample=jax.random.bits(sample_key, (iterations, cfg.gradient_steps, cfg.batch_size), jnp.uint32),
+        )
+
     def chunk(self, ts: TrainState) -> tuple[TrainState, dict]:
         """`eval_every` env steps of acting and learning, then a greedy evaluation."""
         cfg = self.config
 
-        def learn(ts):
-            """`gradient_steps` updates. Before `learning_starts` they run but are thrown away:
-            a select costs far less than a `lax.cond` on XLA:CPU, and the same under vmap."""
-            new, learned = repeat(self.update, ts, cfg.gradient_steps)
-            started = ts.env_steps >= cfg.learning_starts
-            learned_fields = ["params", "target_params", "opt_state", "updates"]
-            if cfg.replay == "prioritized":
-                learned_fields.append("buffer")
-            keep = {f: jax.tree.map(lambda a, b: jnp.where(started, a, b), getattr(new, f), getattr(ts, f))
-                    for f in learned_fields}
-            return new.replace(**keep), learned
-
-        def iteration(ts, _):
+        def iteration(ts, noise: StepNoise):
             epsilon = jnp.where(ts.env_steps < cfg.learning_starts, 1.0, self.epsilon(ts.env_steps - cfg.learning_starts))
-            ts, collected = repeat(lambda ts: self.collect(ts, epsilon), ts, cfg.train_every)
-            ts, learned = learn(ts)
+            ts, collected = repeat(lambda ts, bits: self.collect(ts, epsilon, bits), ts, noise.act)
+            learning = ts.env_steps >= cfg.learning_starts
+            ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample)
             return ts, (jax.tree.map(jnp.sum, collected), jax.tree.map(jnp.mean, learned), epsilon)
 
-        ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, None, cfg.iterations_per_chunk)
-        key, eval_key = jax.random.split(ts.key)
+        key, noise_key, eval_key = jax.random.split(ts.key, 3)
+        ts = ts.replace(key=key)
+        ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, self.draw_noise(noise_key))
         eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
         eval_return = eval_returns.mean()
         better = eval_return > ts.best_return
         solved_now = (eval_return >= cfg.solve_return) & (ts.solve_step < 0)
         ts = ts.replace(
-            key=key,
             best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
             best_return=jnp.maximum(eval_return, ts.best_return),
             solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
@@ -335,12 +376,12 @@ class DQN:
         return ts, metrics
 
 
-def repeat(step, ts, times: int):
-    """`times` applications of `step: ts -> (ts, stats)`; stats stacked. No loop for one."""
-    if times == 1:
-        ts, stats = step(ts)
+def repeat(step, ts, xs):
+    """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one row."""
+    if xs.shape[0] == 1:
+        ts, stats = step(ts, xs[0])
         return ts, jax.tree.map(lambda x: x[None], stats)
-    return jax.lax.scan(lambda ts, _: step(ts), ts, None, times)
+    return jax.lax.scan(step, ts, xs)
 
 
 def train(config: DQNConfig, env: Env, key: jax.Array):

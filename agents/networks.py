@@ -2,10 +2,43 @@
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import flax.linen as nn
 import jax
+
+
+@jax.custom_vjp
+def _matmul(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    return x @ kernel
+
+
+def _matmul_fwd(x, kernel):
+    return x @ kernel, (x, kernel)
+
+
+def _matmul_bwd(saved, grad):
+    """The usual gradients, with the kernel's computed from an explicitly transposed input.
+
+    XLA folds a transpose into the dot that consumes it; the kernel gradient then
+    contracts over the leading (batch) axis of both operands, which XLA:CPU runs on
+    its slow generic matmul path. Keeping the transpose as a separate small copy (the
+    barrier stops the folding) lets that dot take the fast path: ~4% of a training step.
+    """
+    x, kernel = saved
+    x_rows = x.reshape(-1, x.shape[-1])
+    x_rows_t = jax.lax.optimization_barrier(x_rows.T)
+    return grad @ kernel.T, x_rows_t @ grad.reshape(-1, grad.shape[-1])
+
+
+_matmul.defvjp(_matmul_fwd, _matmul_bwd)
+
+
+def _dense_dot_general(x, kernel, dimension_numbers, precision=None, preferred_element_type=None):
+    """`nn.Dense`'s product (x's last axis with the kernel's first) through `_matmul`."""
+    if dimension_numbers != (((x.ndim - 1,), (0,)), ((), ())):
+        raise ValueError(f"_dense_dot_general only computes x @ kernel; got dimension numbers {dimension_numbers}")
+    return _matmul(x, kernel)
 
 
 class QNetwork(nn.Module):
@@ -15,12 +48,15 @@ class QNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
+        def dense(features):
+            return nn.Dense(features, dot_general=_dense_dot_general)
+
         x = obs
         for width in self.hidden:
-            x = nn.relu(nn.Dense(width)(x))
+            x = nn.relu(dense(width)(x))
         if not self.dueling:
-            return nn.Dense(self.num_actions)(x)
+            return dense(self.num_actions)(x)
         # Dueling head (Wang et al. 2016): Q = V + A - mean(A).
-        value = nn.Dense(1)(x)
-        advantage = nn.Dense(self.num_actions)(x)
+        value = dense(1)(x)
+        advantage = dense(self.num_actions)(x)
         return value + advantage - advantage.mean(axis=-1, keepdims=True)

@@ -30,6 +30,9 @@ Why the code looks the way it does (all measured on XLA:CPU, 2 cores, inside a
 * Uniform indices come from raw `random.bits` reduced modulo `size`: half the
   random bits of `random.randint`, whose extra work only removes a modulo bias
   of at most `capacity / 2**32` (< 3e-4 for a million items).
+* Both buffers also sample from random bits the caller drew (`sample_from_bits`):
+  XLA:CPU lowers `jax.random` as a rolled loop of tiny kernels, so a training loop
+  is faster drawing the bits of many samples in one call, outside its scan.
 """
 
 from __future__ import annotations
@@ -168,9 +171,13 @@ def _read(data: Any, indices: jax.Array) -> Any:
     return jax.tree.unflatten(treedef, out)
 
 
-def _uniform_indices(key: jax.Array, size: jax.Array, batch_size: int) -> jax.Array:
-    """Uniform int32 indices in [0, size) (modulo bias <= size / 2**32)."""
-    bits = jax.random.bits(key, (batch_size,), jnp.uint32)
+def uniform_from_bits(bits: jax.Array) -> jax.Array:
+    """float32 uniform in [0, 1) from uint32 random bits: the top 24 bits, which a float32 holds exactly."""
+    return (bits >> 8).astype(jnp.float32) * (1.0 / (1 << 24))
+
+
+def _uniform_indices(bits: jax.Array, size: jax.Array) -> jax.Array:
+    """Uniform int32 indices in [0, size) from uint32 random bits (modulo bias <= size / 2**32)."""
     n = jnp.maximum(size, 1).astype(jnp.uint32)
     return (bits % n).astype(jnp.int32)
 
@@ -211,7 +218,11 @@ class UniformReplay:
 
     def sample(self, state: ReplayState, key: jax.Array, batch_size: int):
         """Returns `(batch, indices)`, indices uniform with replacement in [0, size)."""
-        idx = _uniform_indices(key, state.size, batch_size)
+        return self.sample_from_bits(state, jax.random.bits(key, (batch_size,), jnp.uint32))
+
+    def sample_from_bits(self, state: ReplayState, bits: jax.Array):
+        """`sample` with one uint32 of random bits per item drawn by the caller."""
+        idx = _uniform_indices(bits, state.size)
         return _read(state.data, idx), idx
 
     def can_sample(self, state: ReplayState, min_size: int = 1) -> jax.Array:
@@ -346,8 +357,13 @@ class PrioritizedReplay:
 
     def sample(self, state: PrioritizedState, key: jax.Array, batch_size: int, beta):
         """Returns `(batch, indices, weights)`; see the class doc for the weights."""
+        return self.sample_from_bits(state, jax.random.bits(key, (batch_size,), jnp.uint32), beta)
+
+    def sample_from_bits(self, state: PrioritizedState, bits: jax.Array, beta):
+        """`sample` with one uint32 of random bits per item drawn by the caller."""
+        batch_size = bits.shape[0]
         total = state.tree[1]
-        u = jax.random.uniform(key, (batch_size,), jnp.float32)
+        u = uniform_from_bits(bits)
         query = (jnp.arange(batch_size, dtype=jnp.float32) + u) * (total / batch_size)
         idx = self._descend(state.tree, query)
         idx = jnp.minimum(idx, jnp.maximum(state.size - 1, 0))
