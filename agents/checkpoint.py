@@ -69,7 +69,8 @@ def _from_bytes(template: Any, data: bytes) -> Any:
     if len(leaves) != len(expected) or any(
         np.shape(leaves[str(i)]) != tuple(t.shape) for i, t in enumerate(expected)
     ):
-        raise ValueError("checkpoint does not match this config and env (different network, buffer or env?)")
+        raise ValueError("checkpoint does not match this config and env (different network, buffer or env, "
+                         "or written by an older mjxsuite?)")
     return jax.tree.unflatten(jax.tree.structure(template), [leaves[str(i)] for i in range(len(expected))])
 
 
