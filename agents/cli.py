@@ -1,7 +1,8 @@
 """The `mjxsuite` command: train, eval, rollout, bench.
 
 train, eval and rollout use JAX's persistent compilation cache (see
-`agents.compile_cache`): a second run loads its compiled programs from disk.
+`agents.compile_cache`): a second run loads its compiled programs from disk, and
+`train` its traced training chunk too (`agents.export_cache`).
 `--no-compile-cache` or `MJXSUITE_COMPILE_CACHE=0` turns it off.
 """
 
@@ -238,9 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     cached = argparse.ArgumentParser(add_help=False)
     cached.add_argument("--no-compile-cache", action="store_true",
-                        help="do not use JAX's persistent compilation cache (default: on, in "
-                             "$XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, "
-                             "a path moves it)")
+                        help="do not use JAX's persistent compilation cache nor the cache of traced "
+                             "programs inside it (default: on, in $XDG_CACHE_HOME/mjxsuite/jax; "
+                             "MJXSUITE_COMPILE_CACHE=0 also turns it off, a path moves it)")
 
     tasks = argparse.ArgumentParser(add_help=False)
     tasks.add_argument("--import", dest="imports", action="append", default=[], metavar="MODULE",

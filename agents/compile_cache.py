@@ -9,6 +9,9 @@ turns it off, a path puts it there; or pass `--no-compile-cache` to a command.
 A cache directory set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins.
 Delete the directory to clear it.
 
+`enable()` also turns on `agents.export_cache` in a subdirectory, which keeps the traced
+training chunk, so a second run skips tracing too; `disable()` turns both off.
+
 Python users call `enable()` themselves (importing the suite changes no global state).
 `CompileCounter` counts traces, compiles and cache hits, to check that nothing
 recompiles between training chunks.
@@ -22,6 +25,8 @@ from typing import Self
 
 import jax
 from jax import monitoring
+
+from agents import export_cache
 
 ENV_VAR = "MJXSUITE_COMPILE_CACHE"
 _OFF = ("0", "off", "false", "no")
@@ -58,13 +63,15 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
     # such programs (init, evaluation, small chunks), and they add up at startup.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    export_cache.enable(directory / export_cache.SUBDIR)
     return directory
 
 
 def disable() -> None:
-    """Turn the persistent cache off for this process (before the first compile)."""
+    """Turn the persistent cache (and the export cache) off for this process (before the first compile)."""
     jax.config.update("jax_compilation_cache_dir", None)
     jax.config.update("jax_enable_compilation_cache", False)
+    export_cache.disable()
 
 
 class CompileCounter:

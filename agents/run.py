@@ -15,7 +15,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import envs
-from agents import checkpoint
+from agents import checkpoint, export_cache
 from agents.dqn import DQN, DQNConfig
 
 
@@ -50,6 +50,28 @@ def seed_batched(fn: Callable, seeds: int) -> Callable:
     return single
 
 
+def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
+                   env_options: dict | None, donate: bool = False) -> Callable:
+    """`fn` compiled for `args`. With the export cache on (`agents.compile_cache.enable()`),
+    its traced program comes from there when an earlier run left it: tracing (`mjx.step`
+    inside the training chunk and the evaluation) is most of a warm start."""
+    directory = export_cache.directory()
+    key_parts = program_key_parts(dqn, seeds, env_name, env_options) if directory is not None else None
+    if key_parts is None:  # cache off, or an env whose code cannot be hashed
+        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile()
+    return export_cache.cached_compile(fn, args, {**key_parts, "program": program}, directory, donate=donate)
+
+
+def program_key_parts(dqn: DQN, seeds: int, env_name: str, env_options: dict | None) -> dict | None:
+    """What names a traced program in the export cache, besides its arguments' shapes and the
+    environment (`export_cache.cached_compile` adds those); None when the env cannot be hashed."""
+    env = export_cache.env_fingerprint(dqn.env)
+    if env is None:
+        return None
+    return {"program": "DQN.chunk", "env_name": env_name, "env_options": env_options or {}, "env": env,
+            "config": dqn.config, "seeds": seeds}
+
+
 def _host(tree) -> dict:
     return {k: np.asarray(v).tolist() for k, v in tree.items()}
 
@@ -73,7 +95,6 @@ def train_run(
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
     init = jax.jit(jax.vmap(dqn.init))
-    chunk = jax.jit(seed_batched(dqn.chunk, seeds), donate_argnums=0)
 
     keys = seed_keys(seed, seeds)
     chunks_done = 0
@@ -88,7 +109,8 @@ def train_run(
             (out / "metrics.jsonl").write_text("")
 
     compile_start = time.perf_counter()
-    chunk = chunk.lower(ts).compile()
+    chunk = compile_cached("DQN.chunk", seed_batched(dqn.chunk, seeds), (ts,), dqn, seeds, env_name, env_options,
+                           donate=True)
     compile_s = time.perf_counter() - compile_start
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * seeds)
@@ -139,7 +161,9 @@ def train_run(
     solve = np.asarray(ts.solve_step).tolist()
     result.solve_step = [s if s >= 0 else None for s in solve]
     eval_keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), seeds)
-    returns = jax.jit(jax.vmap(dqn.evaluate))(ts.best_params, eval_keys)
+    evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, seeds,
+                              env_name, env_options)
+    returns = evaluate(ts.best_params, eval_keys)
     result.mean_return = np.asarray(returns.mean(axis=-1)).tolist()
     result.wall_s = time.perf_counter() - start
     if out is not None:

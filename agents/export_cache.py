@@ -1,0 +1,247 @@
+"""Traced programs kept across processes with `jax.export`, beside JAX's compilation cache.
+
+JAX's persistent compilation cache (`agents.compile_cache`) skips XLA's compile on a
+second run, but not what comes before it: tracing the Python function and lowering it
+to StableHLO. For an MJX training chunk that is ~3 s of tracing `mjx.step`. This cache
+stores the lowered program (`jax.export`'s serialized `Exported`) in a file named by a
+hash of everything that could change it; a later process deserializes it in
+milliseconds, and the compile that follows is a hit in JAX's persistent cache.
+
+It is switched with the compilation cache: `agents.compile_cache.enable()` (which the
+`mjxsuite` command calls) turns it on in `<compilation cache dir>/mjxsuite-export`,
+`disable()` or `MJXSUITE_COMPILE_CACHE=0` leave it off. Python users who enable
+nothing trace as before. Delete the directory to clear it.
+
+The key (see `cached_compile` and `environment_fingerprint`) covers the caller's
+description of the program, the arguments' shapes and dtypes, the versions of jax,
+jaxlib, mujoco, mujoco-mjx, flax, optax and numpy, the device, JAX's configuration,
+and the source of the `envs` and `agents` packages and of the suite's MJCF models.
+Code outside them that the program traces is covered only where the caller adds it
+(`env_fingerprint` does for an env's class and MuJoCo model).
+
+Custom pytree nodes (flax dataclasses, `mjx.Data`, ...) do not serialize with
+`jax.export`, so the exported function takes and returns flat lists of leaves; the
+input and output tree structures are pickled next to it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import inspect
+import json
+import os
+import pickle
+import platform
+import re
+import tempfile
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+SUBDIR = "mjxsuite-export"  # inside JAX's cache directory, whose eviction only looks at its own files
+_FORMAT = 1  # bump when the file layout below changes
+_VERSIONED = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")
+_directory: Path | None = None
+
+
+def enable(directory: str | os.PathLike) -> Path:
+    """Cache traced programs in `directory` (created when first written)."""
+    global _directory
+    _directory = Path(directory).expanduser()
+    return _directory
+
+
+def disable() -> None:
+    global _directory
+    _directory = None
+
+
+def directory() -> Path | None:
+    """Where traced programs are cached; None when the cache is off (the default)."""
+    return _directory
+
+
+@dataclass(frozen=True)
+class CachedProgram:
+    """A compiled program over flat leaves, called like the original function."""
+
+    compiled: Any  # jax.stages.Compiled, taking one list of leaves
+    out_tree: Any  # the original function's output structure
+    hit: bool  # loaded from the cache (nothing traced but the call wrapper)
+
+    def __call__(self, *args):
+        return jax.tree.unflatten(self.out_tree, self.compiled(jax.tree.leaves(args)))
+
+
+def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
+                   donate: bool = False) -> CachedProgram:
+    """`fn` compiled for `args` (a tuple of pytrees of arrays), its traced program loaded from
+    `cache_dir` when there, else traced, exported and written there.
+
+    `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
+    trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
+    the env, the code outside the suite's packages. `donate` donates every argument's
+    buffers. A file that cannot be read is traced again and overwritten; a program that
+    cannot be exported (e.g. one with host callbacks) is compiled without the cache.
+    """
+    leaves, in_tree = jax.tree.flatten(args)
+    path = cache_file(cache_dir, key_parts, args)
+    if path.is_file():
+        try:
+            exported, out_tree = _read(path, in_tree)
+            return CachedProgram(_compile(exported, leaves, donate), out_tree, hit=True)
+        except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
+            warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
+    try:
+        blob, out_tree = _export(fn, in_tree, leaves)
+    except Exception as err:
+        warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
+        flat, found = _flat(fn, in_tree)
+        compiled = jax.jit(flat, donate_argnums=0 if donate else ()).lower(leaves).compile()
+        return CachedProgram(compiled, found["out_tree"], hit=False)
+    _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
+    # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
+    return CachedProgram(_compile(jax.export.deserialize(bytearray(blob)), leaves, donate), out_tree, hit=False)
+
+
+def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
+    """The file that holds the program for `key_parts`, `args`' shapes and dtypes, and this
+    environment (`environment_fingerprint`)."""
+    leaves, in_tree = jax.tree.flatten(args)
+    # Static data in the tree (e.g. mjx's wrapped arrays) may print as addresses; `_read`
+    # compares the whole structure, contents included, before a file is used.
+    signature = [_without_addresses(str(in_tree)), [str(jax.typeof(leaf)) for leaf in leaves]]
+    return Path(cache_dir) / f"{_hash([key_parts, signature, environment_fingerprint()])}.pkl"
+
+
+def _flat(fn: Callable, in_tree) -> tuple[Callable, dict]:
+    """`fn` over one flat list of leaves, returning a flat list; its output structure
+    lands in the returned dict (under "out_tree") when it is traced."""
+    found = {}
+
+    def flat(leaves):
+        out = fn(*jax.tree.unflatten(in_tree, leaves))
+        out_leaves, found["out_tree"] = jax.tree.flatten(out)
+        return out_leaves
+
+    return flat, found
+
+
+def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
+    """The serialized program of `fn` over flat leaves, and its output tree structure."""
+    flat, found = _flat(fn, in_tree)
+    exported = jax.export.export(jax.jit(flat))(leaves)
+    return bytes(exported.serialize()), found["out_tree"]
+
+
+def _compile(exported, leaves: list, donate: bool):
+    return jax.jit(exported.call, donate_argnums=0 if donate else ()).lower(leaves).compile()
+
+
+def _read(path: Path, in_tree) -> tuple[Any, Any]:
+    with open(path, "rb") as f:
+        entry = pickle.load(f)
+    if entry["format"] != _FORMAT or entry["in_tree"] != in_tree:
+        raise ValueError("written for other arguments or by another version of this module")
+    exported = jax.export.deserialize(bytearray(entry["exported"]))
+    if entry["out_tree"].num_leaves != len(exported.out_avals):
+        raise ValueError("output structure does not match the program")
+    return exported, entry["out_tree"]
+
+
+def _write(path: Path, entry: dict) -> None:
+    """Write atomically (temporary file, then rename), so a concurrent run reads whole files only.
+    A cache that cannot be written is not an error: the run goes on without it."""
+    temporary = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=path.stem, suffix=".tmp", delete=False) as f:
+            temporary = f.name
+            pickle.dump(entry, f, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(temporary, path)
+    except OSError as err:
+        warnings.warn(f"cannot write the traced-program cache {path}: {err}")
+        if temporary is not None and os.path.exists(temporary):
+            os.remove(temporary)
+
+
+def _without_addresses(text: str) -> str:
+    """`text` without the " at 0x..." of default reprs, which change from process to process."""
+    return re.sub(r" at 0x[0-9a-fA-F]+", "", text)
+
+
+def _hash(parts: Any) -> str:
+    text = json.dumps(parts, sort_keys=True, default=repr)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+# ---- what else could change a traced program ----------------------------------
+def environment_fingerprint() -> dict:
+    """Versions, device, JAX's configuration and the suite's own source and models."""
+    import envs
+    from envs.assets import ASSET_DIRS
+
+    device = jax.devices()[0]
+    packages = [Path(envs.__file__).parent, Path(__file__).parent]
+    sources = [p for package in packages for p in sorted(package.rglob("*.py"))]
+    models = [p for d in ASSET_DIRS if d.is_dir() for p in sorted(d.glob("*.xml"))]
+    return {
+        "versions": {name: _version(name) for name in _VERSIONED},
+        "python": platform.python_version(),
+        "device": [jax.default_backend(), device.device_kind, device.client.platform_version, jax.device_count()],
+        "jax_config": {name: repr(value) for name, value in sorted(jax.config.values.items())},
+        "sources": files_hash(sources + models),
+    }
+
+
+def env_fingerprint(env) -> dict | None:
+    """What an env adds to the key: its description, the source of its class (a user's task
+    lives outside the hashed packages) and, for an MJX env, its MuJoCo model (which may come
+    from the user's own MJCF file). None when a class's source file cannot be found (e.g.
+    defined at an interactive prompt): such an env's program must not be cached."""
+    task = env.unwrapped
+    sources = set()
+    for cls in type(task).__mro__:
+        if cls is object:
+            continue
+        try:
+            source = inspect.getsourcefile(cls)
+        except (TypeError, OSError):  # a built-in class, or one without a file
+            return None
+        if source is None or not Path(source).is_file():
+            return None
+        sources.add(Path(source))
+    parts = {
+        "repr": _without_addresses(repr(env)),
+        "class": f"{type(task).__module__}.{type(task).__qualname__}",
+        "sources": files_hash(sorted(sources)),
+        "episode_length": getattr(env, "episode_length", None),
+    }
+    model = getattr(task, "mj_model", None)
+    if model is not None:
+        import mujoco
+
+        saved = np.empty(mujoco.mj_sizeModel(model), np.uint8)
+        mujoco.mj_saveModel(model, None, saved)
+        parts["mj_model"] = hashlib.sha256(saved.tobytes()).hexdigest()
+    return parts
+
+
+def files_hash(paths: list[Path]) -> str:
+    digest = hashlib.sha256()
+    for path in paths:
+        digest.update(str(path).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def _version(name: str) -> str | None:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return None

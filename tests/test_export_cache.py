@@ -1,0 +1,170 @@
+"""The export cache: a second run loads the traced training chunk instead of tracing it,
+with identical results; anything that could change the program misses; a bad file is
+traced again; nothing is written while the cache is off."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from agents import compile_cache, export_cache
+from agents.dqn import DQN, DQNConfig
+from agents.run import program_key_parts, seed_keys, train_run
+
+TINY = DQNConfig(total_steps=200, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                 eval_episodes=4, hidden=(16,))
+
+
+@pytest.fixture
+def cache_dir(tmp_path):
+    directory = export_cache.enable(tmp_path / "export")
+    yield directory
+    export_cache.disable()
+
+
+@pytest.fixture
+def chunk_traces(monkeypatch):
+    """How often `DQN.chunk` is traced (a run that loads it from the cache never calls it)."""
+    calls = []
+    original = DQN.chunk
+
+    def counted(self, ts):
+        calls.append(1)
+        return original(self, ts)
+
+    monkeypatch.setattr(DQN, "chunk", counted)
+    return calls
+
+
+def leaves(tree) -> list[np.ndarray]:
+    return [np.asarray(x) for x in jax.tree.leaves(tree)]
+
+
+def assert_same_run(a, b):
+    drop_speed = [{k: v for k, v in r.items() if k != "steps_per_s"} for r in a.history]
+    assert drop_speed == [{k: v for k, v in r.items() if k != "steps_per_s"} for r in b.history]
+    assert a.mean_return == b.mean_return
+    for x, y in zip(leaves(a.train_state), leaves(b.train_state), strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_a_second_run_loads_the_traced_chunk_with_identical_results(tmp_path, chunk_traces):
+    export_cache.disable()
+    plain = train_run("cartpole", TINY, progress=False)
+    assert len(chunk_traces) == 1
+    export_cache.enable(tmp_path / "export")
+    try:
+        first = train_run("cartpole", TINY, progress=False)
+        assert len(chunk_traces) == 2  # traced, exported and written
+        files = sorted((tmp_path / "export").iterdir())
+        assert [f.suffix for f in files] == [".pkl", ".pkl"]  # the chunk and the final evaluation
+        second = train_run("cartpole", TINY, progress=False)
+        assert len(chunk_traces) == 2  # loaded: not traced
+        assert sorted((tmp_path / "export").iterdir()) == files
+    finally:
+        export_cache.disable()
+    assert_same_run(first, plain)
+    assert_same_run(second, plain)
+
+
+def chunk_file(cache_dir, env_name, config=TINY, seeds=1, env_options=None):
+    env = envs.make(env_name, **(env_options or {}))
+    dqn = DQN(config, env)
+    ts = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds))
+    ts = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), ts)  # concrete arguments, as train_run passes
+    return export_cache.cache_file(cache_dir, program_key_parts(dqn, seeds, env_name, env_options), (ts,))
+
+
+def test_whatever_could_change_the_chunk_changes_its_file(tmp_path):
+    base = chunk_file(tmp_path, "cartpole")
+    assert chunk_file(tmp_path, "cartpole") == base  # stable
+    changed = [
+        chunk_file(tmp_path, "cartpole", dataclasses.replace(TINY, learning_rate=1e-3)),
+        chunk_file(tmp_path, "cartpole", dataclasses.replace(TINY, eval_episodes=8)),
+        chunk_file(tmp_path, "cartpole", seeds=2),
+        chunk_file(tmp_path, "cartpole", env_options={"gravity": 9.81}),  # same shapes, other constants
+        chunk_file(tmp_path, "cartpole", env_options={"episode_length": 200}),
+        chunk_file(tmp_path, "cartpole-mjx"),
+    ]
+    assert len({base, *changed}) == len(changed) + 1
+
+
+def test_a_changed_mjcf_model_changes_the_env_fingerprint():
+    default = export_cache.env_fingerprint(envs.make("cartpole-mjx"))
+    assert default == export_cache.env_fingerprint(envs.make("cartpole-mjx"))
+    heavier = envs.CartPoleMjx()
+    heavier.mj_model.body_mass[-1] *= 2  # as if the user's XML file had changed
+    assert export_cache.env_fingerprint(envs.TimeLimit(heavier, 500))["mj_model"] != default["mj_model"]
+
+
+def test_an_env_without_source_file_is_not_cached():
+    typed_at_a_prompt = type("Typed", (envs.CartPole,), {"__module__": "__typed_at_a_prompt__"})
+    assert export_cache.env_fingerprint(typed_at_a_prompt()) is None
+
+
+def step(state: envs.State, scale):
+    """A small program whose input and output trees hold a custom node (a flax dataclass)."""
+    obs = state.obs * scale + 1
+    return state.replace(obs=obs, reward=obs.sum()), {"mean": obs.mean()}
+
+
+def example_args():
+    # Distinct buffers: one buffer donated twice is an error.
+    return envs.State(jnp.zeros(2), jnp.arange(3.0), jnp.zeros(()), jnp.zeros(()),
+                      info={"truncation": jnp.zeros(())}), jnp.float32(2.0)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated"])
+def test_a_corrupt_file_is_traced_again_and_overwritten(cache_dir, damage):
+    expected = jax.jit(step)(*example_args())
+    first = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+    (path,) = cache_dir.iterdir()
+    good = path.read_bytes()
+    damaged = b"not a cached program" if damage == "garbage" else good[: len(good) // 2]
+    path.write_bytes(damaged)
+    with pytest.warns(UserWarning, match="unreadable cached program"):
+        again = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+    assert not first.hit and not again.hit
+    assert path.read_bytes() != damaged and list(cache_dir.iterdir()) == [path]  # rewritten in place
+    loaded = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+    assert loaded.hit
+    for program in (first, again, loaded):
+        for x, y in zip(leaves(program(*example_args())), leaves(expected), strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_donation_is_kept(cache_dir):
+    for _ in range(2):  # written, then loaded
+        args = example_args()
+        program = export_cache.cached_compile(step, args, "step", cache_dir, donate=True)
+        program(*args)
+        assert args[0].obs.is_deleted()
+    assert program.hit
+
+
+def test_nothing_is_written_while_the_cache_is_off(monkeypatch, tmp_path):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    monkeypatch.setenv(compile_cache.ENV_VAR, "0")
+    assert compile_cache.enable() is None and export_cache.directory() is None
+    train_run("cartpole", TINY, progress=False)
+    assert not (tmp_path / "xdg").exists()
+
+
+def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch, tmp_path):
+    """`compile_cache.enable()` (what the CLI calls) puts the export cache inside its directory."""
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+             "jax_persistent_cache_min_entry_size_bytes", "jax_enable_compilation_cache")
+    saved = {name: getattr(jax.config, name) for name in names}
+    monkeypatch.setenv(compile_cache.ENV_VAR, str(tmp_path / "jax"))
+    try:
+        assert compile_cache.enable() == tmp_path / "jax"
+        assert export_cache.directory() == tmp_path / "jax" / export_cache.SUBDIR
+        compile_cache.disable()
+        assert export_cache.directory() is None
+    finally:
+        export_cache.disable()
+        for name, value in saved.items():
+            jax.config.update(name, value)
