@@ -3,17 +3,24 @@
     python -m agents.bench [--quick] [--json FILE]
 
 Rows:
-- `dqn-solve`: one seed and 16 vmapped seeds on each backend, default config, training
-  stops once every seed's greedy evaluation reached 475; time-to-solve with and
-  without compile (wall time from the start of `train_run`).
-- `dqn-throughput` (with `--quick`, for 16 seeds): env steps/s and updates/s over
-  a few chunks, compile excluded, no solving.
-- `dqn-seed-scaling`: env steps/s of 16 vmapped seeds over that of one seed.
+- `dqn-solve`: default config, training stops once every seed's greedy evaluation
+  reached 475; time-to-solve with and without compile (wall time from the start of
+  `train_run`). One seed: `SOLVE_SEEDS` separate runs (seeds 0, 1, ...), their median
+  and range, since one seed's solve step is a lottery (4k to 25k steps); 16 vmapped
+  seeds: one run, until the last of them solved.
+- `dqn-throughput`: env steps/s and updates/s of 1 and 16 seeds over a few chunks after
+  the first, compile excluded, no solving (training only, with its per-chunk greedy
+  evaluation). 16 seeds run as `train_run` runs them on the device (`seed_axis`:
+  vmapped on accelerators, mapped on the CPU), and on the CPU vmapped as well.
+- `dqn-seed-scaling`: from those, 16 seeds' env steps/s over one seed's, and the time 16
+  seeds take for 16 times the work, as a multiple of one seed's time.
 - `article`: the seed-article setup (1 env, MLP 64-64-64, batch 32, buffer 512,
   gamma 0.9, hard target copy every 10 updates, lr 1e-3, 20,000 steps; plain DQN: no
   double Q, no gradient clipping, as published) on our agent,
   steps/s with compile excluded.
 - replay add/sample latency against flashbax, when flashbax is installed.
+
+`--quick`: time-to-solve of seed 0 on both backends, throughput on the analytic CartPole only.
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ import numpy as np
 
 from agents.bench_replay import bench_replay, format_table
 from agents.dqn import DQNConfig
-from agents.run import train_run
+from agents.run import default_seed_axis, train_run
 
 ARTICLE = DQNConfig(
     total_steps=20_000, num_envs=1, hidden=(64, 64, 64), batch_size=32, buffer_size=512, gamma=0.9,
@@ -35,70 +42,77 @@ ARTICLE = DQNConfig(
 )
 
 
-def solve_record(env: str, seeds: int, config: DQNConfig) -> dict:
-    result = train_run(env, config, seeds=seeds, progress=False, stop_when_solved=True)
-    steps = len(result.history) * config.eval_every
-    run_s = result.wall_s - result.compile_s
-    solved = [s for s in result.solve_wall_s if s is not None]
-    solve_steps = [s for s in (result.solve_step or []) if s is not None]
+SOLVE_SEEDS = 5  # one-seed time-to-solve: median over this many runs
+
+
+def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1) -> dict:
+    """Time-to-solve of `seeds` vmapped seeds; with `runs` > 1, of that many separate runs
+    (seed 0, 1, ...), reporting the median and every run."""
+    results = [train_run(env, config, seeds=seeds, seed=seed, progress=False, stop_when_solved=True)
+               for seed in range(runs)]
+    solve_times = [max(r.solve_wall_s) if None not in r.solve_wall_s else None for r in results]
+    solved = [t for t in solve_times if t is not None]
+    excl = [t - r.compile_s for t, r in zip(solve_times, results) if t is not None]
+    solve_steps = [s for r in results for s in (r.solve_step or []) if s is not None]
     return {
-        "lib": "mjxsuite", "kind": "dqn-solve", "env": env, "seeds": seeds, "device": jax.devices()[0].device_kind,
-        "compile_s": result.compile_s,
-        "steps_per_s": steps * seeds / run_s,  # env steps over all seeds, evaluation included
-        "updates_per_s": steps * seeds / config.train_every * config.gradient_steps / run_s,
-        "solved": f"{len(solved)}/{seeds}",
-        "time_to_solve_s": max(solved) if solved else None,  # all seeds, compile included
-        "time_to_solve_excl_compile_s": max(solved) - result.compile_s if solved else None,
+        "lib": "mjxsuite", "kind": "dqn-solve", "env": env, "seeds": seeds, "runs": runs,
+        "device": jax.devices()[0].device_kind,
+        "compile_s": float(np.median([r.compile_s for r in results])),
+        "solved": f"{sum(len([s for s in r.solve_wall_s if s is not None]) for r in results)}/{seeds * runs}",
+        "time_to_solve_s": float(np.median(solved)) if len(solved) == runs else None,  # compile included
+        "time_to_solve_excl_compile_s": float(np.median(excl)) if len(solved) == runs else None,
+        "time_to_solve_runs_s": solve_times,
         "median_solve_step": float(np.median(solve_steps)) if solve_steps else None,
-        "final_mean_return": float(np.mean(result.mean_return)) if result.mean_return else None,
+        "final_mean_return": float(np.mean([np.mean(r.mean_return) for r in results if r.mean_return])),
     }
 
 
-def throughput_record(env: str, seeds: int, config: DQNConfig, chunks: int = 3) -> dict:
+def throughput_record(env: str, seeds: int, config: DQNConfig, chunks: int = 3, seed_axis: str | None = None) -> dict:
     """Env steps/s and updates/s over `chunks` chunks after the first (compile excluded)."""
-    result = train_run(env, config, seeds=seeds, progress=False, stop_after_chunks=chunks + 1)
+    seed_axis = seed_axis or default_seed_axis()
+    result = train_run(env, config, seeds=seeds, progress=False, stop_after_chunks=chunks + 1, seed_axis=seed_axis)
     speeds = [h["steps_per_s"] for h in result.history[1:]]
     steps_per_s = float(np.median(speeds))
     return {
-        "lib": "mjxsuite", "kind": "dqn-throughput", "env": env, "seeds": seeds, "device": jax.devices()[0].device_kind,
+        "lib": "mjxsuite", "kind": "dqn-throughput", "env": env, "seeds": seeds,
+        "seed_axis": seed_axis if seeds > 1 else "one seed", "device": jax.devices()[0].device_kind,
         "compile_s": result.compile_s, "chunks": chunks, "steps_per_s": steps_per_s,
         "updates_per_s": steps_per_s / config.train_every * config.gradient_steps,
     }
 
 
 def seed_scaling_records(records: list[dict]) -> list[dict]:
-    """16-seed over 1-seed env steps/s, per env (from solve or throughput rows)."""
-    speed = {(r["env"], r["seeds"]): r["steps_per_s"] for r in records
-             if r.get("kind") in ("dqn-solve", "dqn-throughput")}
-    rows = []
-    for (env, seeds), many in sorted(speed.items()):
-        one = speed.get((env, 1))
-        if seeds > 1 and one:
-            rows.append({"lib": "mjxsuite", "kind": "dqn-seed-scaling", "env": env, "seeds": seeds,
-                         "device": jax.devices()[0].device_kind, "ratio": many / one,
-                         "steps_per_s_one_seed": one, "steps_per_s": many})
-    return rows
+    """Many seeds' env steps/s over one seed's, per env and seed axis, from the throughput rows;
+    `time_ratio` is the time the seeds take for their work, as a multiple of one seed's time
+    for its share."""
+    throughput = [r for r in records if r.get("kind") == "dqn-throughput"]
+    one = {r["env"]: r["steps_per_s"] for r in throughput if r["seeds"] == 1}
+    return [{"lib": "mjxsuite", "kind": "dqn-seed-scaling", "env": r["env"], "seeds": r["seeds"],
+             "seed_axis": r["seed_axis"], "device": r["device"], "ratio": r["steps_per_s"] / one[r["env"]],
+             "time_ratio": r["seeds"] * one[r["env"]] / r["steps_per_s"], "steps_per_s_one_seed": one[r["env"]],
+             "steps_per_s": r["steps_per_s"]}
+            for r in throughput if r["seeds"] > 1 and r["env"] in one]
 
 
 def dqn_records(quick: bool = False, print_rows: bool = True, replay: bool = True) -> list[dict]:
-    """The DQN figures. `quick`: time-to-solve with one seed on both backends, 16-seed throughput
-    over a few chunks on the analytic CartPole; otherwise the article setup, time-to-solve with
-    1 and 16 seeds on both backends, and replay vs flashbax."""
+    """The DQN figures (see the module docstring); `quick` drops the article setup, the
+    16-seed solve runs, the MJX throughput rows and the replay rows, and solves seed 0 only."""
     records = [] if quick else [article_record()]
     if records and print_rows:
         r = records[0]
         print(f"article setup: {r['steps_per_s']:,.0f} env-steps/s, median of {[round(v) for v in r['steps_per_s_runs']]} "
               f"(compile {r['compile_s']:.1f}s excluded), greedy return {r['final_mean_return']:.1f}", flush=True)
     for env in ("cartpole", "cartpole-mjx"):
-        for seeds in (1, 16):
-            if quick and seeds > 1:
-                if env != "cartpole":  # its compile alone would take a sixth of --quick's budget on 2 cores
-                    continue
-                r = throughput_record(env, seeds, DQNConfig(), chunks=2)
-            else:
-                r = solve_record(env, seeds, DQNConfig())
-            records.append(r)
-            if print_rows:
+        rows = [solve_record(env, 1, DQNConfig(), runs=1 if quick else SOLVE_SEEDS)]
+        if not quick:
+            rows.append(solve_record(env, 16, DQNConfig()))
+        if not quick or env == "cartpole":  # MJX's 16-seed compile alone would take a sixth of --quick's budget
+            rows += [throughput_record(env, seeds, DQNConfig()) for seeds in (1, 16)]
+            if default_seed_axis() != "vmap":  # the CPU maps seeds; report vmapped seeds too
+                rows.append(throughput_record(env, 16, DQNConfig(), seed_axis="vmap"))
+        records += rows
+        if print_rows:
+            for r in rows:
                 print(_describe(r), flush=True)
     records += seed_scaling_records(records)
     if replay and not quick:
@@ -116,13 +130,15 @@ def dqn_records(quick: bool = False, print_rows: bool = True, replay: bool = Tru
 
 
 def _describe(r: dict) -> str:
-    speed = f"{r['steps_per_s']:,.0f} env-steps/s, {r['updates_per_s']:,.0f} updates/s (compile {r['compile_s']:.1f}s)"
     if r["kind"] == "dqn-throughput":
-        return f"{r['env']:<13} seeds {r['seeds']:>2}: {speed}"
+        axis = f" ({r['seed_axis']})" if r["seeds"] > 1 else ""
+        return (f"{r['env']:<13} seeds {r['seeds']:>2}{axis}: {r['steps_per_s']:,.0f} env-steps/s, "
+                f"{r['updates_per_s']:,.0f} updates/s (compile {r['compile_s']:.1f}s excluded)")
+    runs = f" (median of {r['runs']} runs: {', '.join(f'{t:.1f}' if t else '–' for t in r['time_to_solve_runs_s'])} s)"
     solve = (f"time-to-solve {r['time_to_solve_s']:.1f}s with compile, {r['time_to_solve_excl_compile_s']:.1f}s without"
              if r["time_to_solve_s"] is not None else "time-to-solve n/a")
-    return f"{r['env']:<13} seeds {r['seeds']:>2}: solved {r['solved']}, {solve}; median solve step " \
-           f"{r['median_solve_step']}; {speed}"
+    return (f"{r['env']:<13} seeds {r['seeds']:>2}: solved {r['solved']}, {solve}{runs if r['runs'] > 1 else ''}; "
+            f"median solve step {r['median_solve_step']}")
 
 
 def article_record(repeats: int = 3) -> dict:
@@ -146,7 +162,8 @@ def main(argv=None) -> None:
     records = dqn_records(args.quick)
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
-            print(f"{r['env']}: {r['seeds']} vmapped seeds run {r['ratio']:.1f}x the env-steps/s of one seed")
+            print(f"{r['env']}: {r['seeds']} seeds ({r['seed_axis']}) run {r['ratio']:.1f}x the env-steps/s of one seed "
+                  f"({r['time_ratio']:.2f}x its time for {r['seeds']}x the work)")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(records, f, indent=2)

@@ -81,7 +81,8 @@ def dqn_section(quick: bool) -> list[dict]:
     records = dqn_records(quick)
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
-            print(f"   {r['env']}: {r['seeds']} vmapped seeds: {r['ratio']:.1f}x the env-steps/s of one seed")
+            print(f"   {r['env']}: {r['seeds']} seeds ({r['seed_axis']}): {r['ratio']:.1f}x the env-steps/s of one seed "
+                  f"({r['time_ratio']:.2f}x its time for {r['seeds']}x the work)")
     return records
 
 
@@ -191,19 +192,41 @@ def throughput_table(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _default_axis(records: list[dict]) -> str:
+    """The seed axis `train_run` uses on the device of these records."""
+    meta = next((m for m in records if m["kind"] == "meta"), {})
+    return "map" if meta.get("platform", "gpu") == "cpu" else "vmap"
+
+
 def dqn_table(records: list[dict]) -> str:
-    rows = [r for r in records if r["kind"] in ("dqn-solve", "dqn-throughput")]
+    """Markdown: one row per env and seed count; speed from the throughput runs, times from
+    the solve runs (one seed: the median of several separately seeded runs)."""
+    rows: dict[tuple[str, int], dict] = {}
+    for r in records:
+        if r["kind"] in ("dqn-solve", "dqn-throughput"):
+            axis = r.get("seed_axis") if r["kind"] == "dqn-throughput" and r["seeds"] > 1 else None
+            if axis and axis != _default_axis(records):
+                rows.setdefault((r["env"], f"{r['seeds']} ({axis})"), {})[r["kind"]] = r
+            else:
+                rows.setdefault((r["env"], str(r["seeds"])), {})[r["kind"]] = r
     if not rows:
         return ""
     head = ["env", "seeds", "env-steps/s", "updates/s", "compile s", "solved", "time-to-solve (with compile)",
-            "time-to-solve (without)"]
+            "time-to-solve (without)", "median solve step"]
     lines = ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
-    for r in rows:
-        solve = r.get("time_to_solve_s")
+    for (env, seeds), kinds in rows.items():
+        speed, solve = kinds.get("dqn-throughput", {}), kinds.get("dqn-solve", {})
+        with_compile, step = solve.get("time_to_solve_s"), solve.get("median_solve_step")
+        runs = f" (median of {solve['runs']} runs)" if solve.get("runs", 1) > 1 else ""
         lines.append("| " + " | ".join([
-            r["env"], str(r["seeds"]), f"{r['steps_per_s']:,.0f}", f"{r['updates_per_s']:,.0f}", f"{r['compile_s']:.1f}",
-            r.get("solved", "–"), f"{solve:.1f} s" if solve is not None else "–",
-            f"{r['time_to_solve_excl_compile_s']:.1f} s" if solve is not None else "–",
+            env, seeds,
+            f"{speed['steps_per_s']:,.0f}" if speed else "–",
+            f"{speed['updates_per_s']:,.0f}" if speed else "–",
+            f"{(solve or speed)['compile_s']:.1f}",
+            solve.get("solved", "–"),
+            f"{with_compile:.1f} s{runs}" if with_compile is not None else "–",
+            f"{solve['time_to_solve_excl_compile_s']:.1f} s" if with_compile is not None else "–",
+            f"{step:,.0f}" if step is not None else "–",
         ]) + " |")
     return "\n".join(lines)
 
@@ -226,7 +249,10 @@ def tables(records: list[dict]) -> str:
         parts += ["", dqn]
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
-            parts.append(f"\n{r['env']}: {r['seeds']} vmapped seeds give {r['ratio']:.1f}x the env-steps/s of one seed.")
+            time_ratio = r.get("time_ratio", r["seeds"] / r["ratio"])  # older records lack it
+            axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}.get(r.get("seed_axis", "vmap"), "")
+            parts.append(f"\n{r['env']}: {r['seeds']} {axis}seeds give {r['ratio']:.1f}x the env-steps/s of one "
+                         f"seed, i.e. {r['seeds']} times the work in {time_ratio:.2f}x the time.")
         elif r["kind"] == "log-rollout":
             parts.append(f"\nLogging a {r['steps']:,}-step rollout to a Rerun file: {r['total_s_median']:.2f} s "
                          f"(median; {r['file_mb']:.1f} MB).")
