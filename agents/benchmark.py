@@ -204,11 +204,9 @@ def dqn_table(records: list[dict]) -> str:
     rows: dict[tuple[str, int], dict] = {}
     for r in records:
         if r["kind"] in ("dqn-solve", "dqn-throughput"):
-            axis = r.get("seed_axis") if r["kind"] == "dqn-throughput" and r["seeds"] > 1 else None
-            if axis and axis != _default_axis(records):
-                rows.setdefault((r["env"], f"{r['seeds']} ({axis})"), {})[r["kind"]] = r
-            else:
-                rows.setdefault((r["env"], str(r["seeds"])), {})[r["kind"]] = r
+            axis = r.get("seed_axis") or _default_axis(records)  # solve runs use the device's default
+            seeds = f"{r['seeds']} ({axis})" if r["seeds"] > 1 else "1"
+            rows.setdefault((r["env"], seeds), {})[r["kind"]] = r
     if not rows:
         return ""
     head = ["env", "seeds", "env-steps/s", "updates/s", "compile s", "solved", "time-to-solve (with compile)",
@@ -228,6 +226,19 @@ def dqn_table(records: list[dict]) -> str:
             f"{solve['time_to_solve_excl_compile_s']:.1f} s" if with_compile is not None else "–",
             f"{step:,.0f}" if step is not None else "–",
         ]) + " |")
+    return "\n".join(lines)
+
+
+def replay_table(records: list[dict]) -> str:
+    """Markdown: µs per replay operation inside a `lax.scan`, ours and flashbax's, with the ratio."""
+    rows = [r for r in records if r["kind"] in ("uniform", "prioritized") and "ours_scan_us" in r]
+    if not rows:
+        return ""
+    lines = ["| capacity | buffer | op | ours µs | flashbax µs | ratio (> 1: ours faster) |",
+             "|---:|---|---|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['capacity']:,} | {r['kind']} | {r['op']} | {r['ours_scan_us']:.2f} | "
+                     f"{r['fbx_scan_us']:.2f} | {r['scan_ratio']:.2f}x |")
     return "\n".join(lines)
 
 
@@ -253,12 +264,25 @@ def tables(records: list[dict]) -> str:
             axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}.get(r.get("seed_axis", "vmap"), "")
             parts.append(f"\n{r['env']}: {r['seeds']} {axis}seeds give {r['ratio']:.1f}x the env-steps/s of one "
                          f"seed, i.e. {r['seeds']} times the work in {time_ratio:.2f}x the time.")
+        elif r["kind"] == "dqn-article-setup":
+            parts.append(f"\nArticle setup (1 env, MLP 64-64-64, batch 32, buffer 512, 20,000 steps): "
+                         f"{r['steps_per_s']:,.0f} env-steps/s, median of "
+                         f"{', '.join(f'{v:,.0f}' for v in r['steps_per_s_runs'])} (compile {r['compile_s']:.1f} s "
+                         "excluded).")
+        elif r["kind"] == "train-rerun":
+            parts.append(f"\nTraining {r['steps']:,} steps with `--rerun` ({r['logging']}): median wall "
+                         f"{r['median_with_s']:.1f} s vs {r['median_without_s']:.1f} s without "
+                         f"({100 * r['slowdown']:+.1f}%); the logger's own time: {100 * r['logger_share']:.1f}% of the run.")
         elif r["kind"] == "log-rollout":
             parts.append(f"\nLogging a {r['steps']:,}-step rollout to a Rerun file: {r['total_s_median']:.2f} s "
                          f"(median; {r['file_mb']:.1f} MB).")
         elif r["kind"] == "startup":
             parts.append(f"\n`mjxsuite train --env {r['env']} --steps {r['steps']}`, run {r['run']} ({r['cache']} "
                          f"compile cache): compile_s {r['compile_s']:.2f}.")
+    replay = replay_table(records)
+    if replay:
+        parts += ["", "Replay buffers against flashbax, µs per operation inside a `lax.scan` (add = 1 transition, "
+                  "sample = 32):", "", replay]
     return "\n".join(parts)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import typing
 from pathlib import Path
@@ -60,12 +61,17 @@ def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
         raise SystemExit(f"mjxsuite: {err}")
 
 
-def cmd_train(args, extra: list[str]) -> int:
+def _require_registered(env_name: str) -> None:
     import envs
 
-    if args.env not in envs.names():
-        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())} "
+    if env_name not in envs.names():
+        raise SystemExit(f"mjxsuite: unknown env {env_name!r}; registered envs: {', '.join(envs.names())} "
                          "(your own task? --import the module that registers it)")
+
+
+def cmd_train(args, extra: list[str]) -> int:
+
+    _require_registered(args.env)
     if args.resume:
         from agents import checkpoint
 
@@ -144,9 +150,8 @@ def cmd_rollout(args, extra: list[str]) -> int:
     if extra:
         raise SystemExit(f"mjxsuite rollout: unexpected arguments {extra}")
     recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
-    if args.env is not None and args.env not in envs.names():
-        raise SystemExit(f"mjxsuite: unknown env {args.env!r}; registered envs: {', '.join(envs.names())} "
-                         "(your own task? --import the module that registers it)")
+    if args.env is not None:
+        _require_registered(args.env)
     if args.checkpoint:
         from agents.recording import load_greedy
 
@@ -191,9 +196,14 @@ def cmd_bench(args, extra: list[str]) -> int:
         print(f"wrote {benchmark.plot(benchmark.load_records(args.plot), args.out)}")
     if args.plot or args.table:
         return 0
-    if args.json:  # fail before an hour of benchmarking, not after
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).touch()
+    if args.json:  # fail before an hour of benchmarking, not after (and leave no empty file behind)
+        target = Path(args.json)
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise SystemExit(f"mjxsuite bench: cannot write {target}: {err}")
+        if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
+            raise SystemExit(f"mjxsuite bench: cannot write {target}")
     records = benchmark.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
                                   repeats=args.repeats)
     if args.json:

@@ -192,3 +192,15 @@ def test_training_chunks_compile_once(tmp_path):
     assert len(counts) == config.num_chunks == 4
     assert counts[1:] == [counts[0]] * 3, counts
     assert counter.compiles >= 2  # the counter does see compiles (init, chunk, final evaluation)
+
+
+def test_bench_refuses_an_unwritable_json_path_before_running_and_creates_nothing(tmp_path, monkeypatch):
+    from agents import benchmark
+
+    monkeypatch.setattr(benchmark, "run_bench", lambda *a, **k: pytest.fail("benchmarked before checking the path"))
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    for target in (blocker / "out.json", tmp_path):  # parent is a file; the path is a directory
+        with pytest.raises(SystemExit, match="cannot write"):
+            cli_main(["bench", "--json", str(target)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
