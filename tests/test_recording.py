@@ -285,17 +285,19 @@ def test_recorded_eval_episode_replays_the_greedy_policy():
     env = envs.make("cartpole-mjx")
     dqn = DQN(DQNConfig(hidden=(16,)), env)
     params = dqn.network.init(jax.random.PRNGKey(1), jnp.zeros((1, 4)))
-    returns, episode = dqn.evaluate(params, jax.random.PRNGKey(2), 3, record=True)
+    evaluate = jax.jit(lambda p, key: dqn.evaluate(p, key, 3, record=True))  # jitted: MJX op by op is slow
+    returns, episode = evaluate(params, jax.random.PRNGKey(2))
     length = int(episode.length)
     assert length == int(returns[0])  # reward 1 per step
-    state = envs.VmapWrapper(env, 3).reset(jax.random.PRNGKey(2))
+    state = jax.jit(envs.VmapWrapper(env, 3).reset)(jax.random.PRNGKey(2))
     state = jax.tree.map(lambda x: x[0], state)
+    step = jax.jit(env.step)
     for t in range(length):
         np.testing.assert_allclose(np.asarray(episode.obs[t]), np.asarray(state.obs), atol=1e-6)
         np.testing.assert_allclose(np.asarray(episode.scene_qpos[t]), np.asarray(state.pipeline_state.qpos), atol=1e-6)
         action = int(jnp.argmax(dqn.q_values(params, state.obs)))
         assert int(episode.action[t]) == action
-        state = env.step(state, action)
+        state = step(state, jnp.int32(action))
     assert float(state.done) == 1.0
 
 
