@@ -6,8 +6,8 @@ Rows:
 - `dqn-solve`: default config, training stops once every seed's greedy evaluation
   reached 475; time-to-solve with and without compile (wall time from the start of
   `train_run`). One seed: `SOLVE_SEEDS` separate runs (seeds 0, 1, ...), their median
-  and range, since one seed's solve step is a lottery (4k to 25k steps); 16 vmapped
-  seeds: one run, until the last of them solved.
+  and range, since one seed's solve step is a lottery (4k to 25k steps); 16 seeds
+  (as `train_run` runs them on the device): one run, until the last of them solved.
 - `dqn-throughput`: env steps/s and updates/s of 1 and 16 seeds over a few chunks after
   the first, compile excluded, no solving (training only, with its per-chunk greedy
   evaluation). 16 seeds run as `train_run` runs them on the device (`seed_axis`:
@@ -46,7 +46,7 @@ SOLVE_SEEDS = 5  # one-seed time-to-solve: median over this many runs
 
 
 def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1) -> dict:
-    """Time-to-solve of `seeds` vmapped seeds; with `runs` > 1, of that many separate runs
+    """Time-to-solve of `seeds` seeds trained together; with `runs` > 1, of that many separate runs
     (seed 0, 1, ...), reporting the median and every run."""
     results = [train_run(env, config, seeds=seeds, seed=seed, progress=False, stop_when_solved=True)
                for seed in range(runs)]
@@ -114,7 +114,11 @@ def dqn_records(quick: bool = False, print_rows: bool = True, replay: bool = Tru
         if print_rows:
             for r in rows:
                 print(_describe(r), flush=True)
-    records += seed_scaling_records(records)
+    scaling = seed_scaling_records(records)
+    records += scaling
+    if print_rows:
+        for r in scaling:
+            print(_describe(r), flush=True)
     if replay and not quick:
         try:
             replay_rows = bench_replay()
@@ -130,6 +134,9 @@ def dqn_records(quick: bool = False, print_rows: bool = True, replay: bool = Tru
 
 
 def _describe(r: dict) -> str:
+    if r["kind"] == "dqn-seed-scaling":
+        return (f"{r['env']}: {r['seeds']} seeds ({r['seed_axis']}) run {r['ratio']:.1f}x the env-steps/s of one "
+                f"seed ({r['time_ratio']:.2f}x its time for {r['seeds']}x the work)")
     if r["kind"] == "dqn-throughput":
         axis = f" ({r['seed_axis']})" if r["seeds"] > 1 else ""
         return (f"{r['env']:<13} seeds {r['seeds']:>2}{axis}: {r['steps_per_s']:,.0f} env-steps/s, "
@@ -160,10 +167,6 @@ def main(argv=None) -> None:
     parser.add_argument("--json")
     args = parser.parse_args(argv)
     records = dqn_records(args.quick)
-    for r in records:
-        if r["kind"] == "dqn-seed-scaling":
-            print(f"{r['env']}: {r['seeds']} seeds ({r['seed_axis']}) run {r['ratio']:.1f}x the env-steps/s of one seed "
-                  f"({r['time_ratio']:.2f}x its time for {r['seeds']}x the work)")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(records, f, indent=2)

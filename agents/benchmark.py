@@ -78,12 +78,7 @@ def dqn_section(quick: bool) -> list[dict]:
     from agents.bench import dqn_records
 
     print("== DQN: env-steps/s, updates/s, time-to-solve CartPole-v1 (greedy mean return >= 475) ==")
-    records = dqn_records(quick)
-    for r in records:
-        if r["kind"] == "dqn-seed-scaling":
-            print(f"   {r['env']}: {r['seeds']} seeds ({r['seed_axis']}): {r['ratio']:.1f}x the env-steps/s of one seed "
-                  f"({r['time_ratio']:.2f}x its time for {r['seeds']}x the work)")
-    return records
+    return dqn_records(quick)
 
 
 def logging_section(quick: bool) -> list[dict]:

@@ -70,7 +70,6 @@ def _require_registered(env_name: str) -> None:
 
 
 def cmd_train(args, extra: list[str]) -> int:
-
     _require_registered(args.env)
     if args.resume:
         from agents import checkpoint
@@ -225,7 +224,6 @@ def import_tasks(modules: list[str]) -> None:
     """Import the user's task modules (`--import`), so their `envs.register` calls run."""
     import importlib
     import importlib.util
-    import os
 
     for module in modules:
         try:

@@ -70,19 +70,19 @@ def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int
     its traced program comes from there when an earlier run left it: tracing (`mjx.step`
     inside the training chunk and the evaluation) is most of a warm start."""
     directory = export_cache.directory()
-    key_parts = program_key_parts(dqn, seeds, env_name, env_options) if directory is not None else None
+    key_parts = program_key_parts(program, dqn, seeds, env_name, env_options) if directory is not None else None
     if key_parts is None:  # cache off, or an env whose code cannot be hashed
         return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile()
-    return export_cache.cached_compile(fn, args, {**key_parts, "program": program}, directory, donate=donate)
+    return export_cache.cached_compile(fn, args, key_parts, directory, donate=donate)
 
 
-def program_key_parts(dqn: DQN, seeds: int, env_name: str, env_options: dict | None) -> dict | None:
+def program_key_parts(program: str, dqn: DQN, seeds: int, env_name: str, env_options: dict | None) -> dict | None:
     """What names a traced program in the export cache, besides its arguments' shapes and the
     environment (`export_cache.cached_compile` adds those); None when the env cannot be hashed."""
     env = export_cache.env_fingerprint(dqn.env)
     if env is None:
         return None
-    return {"program": "DQN.chunk", "env_name": env_name, "env_options": env_options or {}, "env": env,
+    return {"program": program, "env_name": env_name, "env_options": env_options or {}, "env": env,
             "config": dqn.config, "seeds": seeds}
 
 

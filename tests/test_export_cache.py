@@ -75,7 +75,7 @@ def chunk_file(cache_dir, env_name, config=TINY, seeds=1, env_options=None):
     dqn = DQN(config, env)
     ts = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds))
     ts = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), ts)  # concrete arguments, as train_run passes
-    return export_cache.cache_file(cache_dir, program_key_parts(dqn, seeds, env_name, env_options), (ts,))
+    return export_cache.cache_file(cache_dir, program_key_parts("DQN.chunk", dqn, seeds, env_name, env_options), (ts,))
 
 
 def test_whatever_could_change_the_chunk_changes_its_file(tmp_path):
