@@ -80,14 +80,14 @@ class CachedProgram:
 
 
 def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
-                   donate: bool = False) -> CachedProgram:
+                   donate: bool = False, compiler_options: dict | None = None) -> CachedProgram:
     """`fn` compiled for `args` (a tuple of pytrees of arrays), its traced program loaded from
     `cache_dir` when there, else traced, exported and written there.
 
     `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
     trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
     the env, the code outside the suite's packages. `donate` donates every argument's
-    buffers. A file that cannot be read is traced again and overwritten; a program that
+    buffers; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read is traced again and overwritten; a program that
     cannot be exported (e.g. one with host callbacks) is compiled without the cache.
     """
     leaves, in_tree = jax.tree.flatten(args)
@@ -95,7 +95,7 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     if path.is_file():
         try:
             exported, out_tree = _read(path, in_tree)
-            return CachedProgram(_compile(exported, leaves, donate), out_tree, hit=True)
+            return CachedProgram(_compile(exported, leaves, donate, compiler_options), out_tree, hit=True)
         except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
             warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
     try:
@@ -103,11 +103,12 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     except Exception as err:
         warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
         flat, found = _flat(fn, in_tree)
-        compiled = jax.jit(flat, donate_argnums=0 if donate else ()).lower(leaves).compile()
+        compiled = jax.jit(flat, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
         return CachedProgram(compiled, found["out_tree"], hit=False)
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
-    return CachedProgram(_compile(jax.export.deserialize(bytearray(blob)), leaves, donate), out_tree, hit=False)
+    exported = jax.export.deserialize(bytearray(blob))
+    return CachedProgram(_compile(exported, leaves, donate, compiler_options), out_tree, hit=False)
 
 
 def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
@@ -140,8 +141,8 @@ def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
     return bytes(exported.serialize()), found["out_tree"]
 
 
-def _compile(exported, leaves: list, donate: bool):
-    return jax.jit(exported.call, donate_argnums=0 if donate else ()).lower(leaves).compile()
+def _compile(exported, leaves: list, donate: bool, compiler_options: dict | None):
+    return jax.jit(exported.call, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
 
 
 def _read(path: Path, in_tree) -> tuple[Any, Any]:

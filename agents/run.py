@@ -71,9 +71,27 @@ def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int
     inside the training chunk and the evaluation) is most of a warm start."""
     directory = export_cache.directory()
     key_parts = program_key_parts(program, dqn, seeds, env_name, env_options) if directory is not None else None
+    options = training_compiler_options()
     if key_parts is None:  # cache off, or an env whose code cannot be hashed
-        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile()
-    return export_cache.cached_compile(fn, args, key_parts, directory, donate=donate)
+        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile(options)
+    return export_cache.cached_compile(fn, args, key_parts, directory, donate=donate, compiler_options=options)
+
+
+# XLA's default command buffers (CUDA graphs) cover runs of plain kernels, not the
+# `while` loops and conditionals a training chunk is made of (its scan, the greedy
+# evaluation episode, the replay's branches), so on a GPU every iteration launched
+# its small kernels one by one. With WHILE and CONDITIONAL added to XLA's default
+# list, an H200 ran DQN 20-40% faster and 16 seeds in 1.24-1.34x the time of one
+# (1.42-1.89x without), training to the same parameters. Set per program: env
+# rollouts, which these loops would slow down, keep XLA's defaults.
+GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
+
+
+def training_compiler_options() -> dict:
+    """XLA options for the training programs: CUDA graphs for loops on a GPU, nothing elsewhere."""
+    if jax.default_backend() != "gpu":
+        return {}
+    return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS}
 
 
 def program_key_parts(program: str, dqn: DQN, seeds: int, env_name: str, env_options: dict | None) -> dict | None:

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from envs.core import Env, State, Wrapper
+from envs.episode_keys import episode_keys, next_episode_key
 
 # Info entries that describe the transition just taken; an auto-reset keeps
 # them instead of taking the fresh episode's values.
@@ -50,15 +51,18 @@ class AutoReset(Wrapper):
     The returned state carries the new episode's first observation in `obs`, and the
     observation the step actually produced in `info["final_obs"]` (equal to `obs`
     when the episode did not end), so learners can bootstrap from the true final
-    state of a truncated episode. Each env keeps its own key in `info["rng"]`; it
-    advances once per finished episode, so an env's episodes do not depend on how
-    the resets are batched (`BatchedAutoReset` gives the same states).
+    state of a truncated episode. Each env keeps its own stream of episode keys in
+    `info["rng"]`; it advances once per finished episode, so an env's episodes do not
+    depend on how the resets are batched (`BatchedAutoReset` gives the same states).
+    The stream is a cheap counter-based generator (`envs.episode_keys`), as every env
+    draws a fresh episode on every step under `vmap`; the first episode is drawn from
+    the key given to `reset`.
     """
 
     def reset(self, key: jax.Array) -> State:
         key, episode_key = jax.random.split(key)
         state = self.env.reset(episode_key)
-        return state.replace(info={**state.info, "rng": key, "final_obs": state.obs})
+        return state.replace(info={**state.info, "rng": episode_keys(key), "final_obs": state.obs})
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.reset_if_done(self.env.step(state, action))
@@ -66,7 +70,7 @@ class AutoReset(Wrapper):
     def reset_if_done(self, stepped: State) -> State:
         """`stepped`, or a fresh episode in its place if it is done (`final_obs` keeps its observation)."""
         rng = stepped.info["rng"]
-        next_rng, episode_key = jax.random.split(rng)
+        next_rng, episode_key = next_episode_key(rng)
         fresh = self.env.reset(episode_key)
         done = stepped.done.astype(bool)
 
@@ -145,7 +149,7 @@ class BatchedAutoReset(Wrapper):
         # Unused slots hold num_envs: gathered clipped, dropped by the scatter.
         index = jnp.nonzero(stepped.done > 0, size=self.max_resets, fill_value=self.num_envs)[0]
         rng = stepped.info["rng"][jnp.minimum(index, self.num_envs - 1)]
-        next_rng, episode_key = jax.vmap(lambda k: tuple(jax.random.split(k)))(rng)
+        next_rng, episode_key = jax.vmap(next_episode_key)(rng)
         fresh = jax.vmap(self.env.reset)(episode_key)
 
         def put(into, new):
