@@ -69,31 +69,29 @@ class AutoReset(Wrapper):
 
     def reset_if_done(self, stepped: State) -> State:
         """`stepped`, or a fresh episode in its place if it is done (`final_obs` keeps its observation)."""
-        rng = stepped.info["rng"]
-        next_rng, episode_key = next_episode_key(rng)
+        next_rng, episode_key = next_episode_key(stepped.info["rng"])
         fresh = self.env.reset(episode_key)
         done = stepped.done.astype(bool)
 
         def pick(new, old):
             return jnp.where(jnp.reshape(done, done.shape + (1,) * (new.ndim - done.ndim)), new, old)
 
-        carried = _carried_info(fresh)
-        info = {
-            **stepped.info,
-            **jax.tree.map(pick, carried, {k: stepped.info[k] for k in carried}),
-            "rng": pick(next_rng, rng),
-            "final_obs": stepped.obs,
-        }
-        return stepped.replace(
-            pipeline_state=jax.tree.map(pick, fresh.pipeline_state, stepped.pipeline_state),
-            obs=pick(fresh.obs, stepped.obs),
-            info=info,
-        )
+        merged = _merge_fresh(stepped, fresh, next_rng, pick)
+        return merged.replace(info={**merged.info, "final_obs": stepped.obs})
 
 
-def _carried_info(fresh: State) -> dict:
-    """The info entries a fresh episode brings (not those describing the finished transition)."""
-    return {k: v for k, v in fresh.info.items() if k not in TRANSITION_INFO and k != "rng"}
+def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge) -> State:
+    """`stepped` with `fresh` episodes merged in by `merge(new, old)`: state, obs, the
+    stream's next key and the info entries a fresh episode brings (not those that
+    describe the finished transition)."""
+    carried = [k for k in fresh.info if k not in TRANSITION_INFO and k != "rng"]
+    info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
+            "rng": merge(next_rng, stepped.info["rng"])}
+    return stepped.replace(
+        pipeline_state=jax.tree.map(merge, fresh.pipeline_state, stepped.pipeline_state),
+        obs=merge(fresh.obs, stepped.obs),
+        info=info,
+    )
 
 
 class BatchedAutoReset(Wrapper):
@@ -152,20 +150,10 @@ class BatchedAutoReset(Wrapper):
         next_rng, episode_key = jax.vmap(next_episode_key)(rng)
         fresh = jax.vmap(self.env.reset)(episode_key)
 
-        def put(into, new):
-            return into.at[index].set(new, mode="drop")
+        def put(new, old):
+            return old.at[index].set(new, mode="drop")
 
-        carried = _carried_info(fresh)
-        info = {
-            **stepped.info,
-            **jax.tree.map(put, {k: stepped.info[k] for k in carried}, carried),
-            "rng": put(stepped.info["rng"], next_rng),
-        }
-        return stepped.replace(
-            pipeline_state=jax.tree.map(put, stepped.pipeline_state, fresh.pipeline_state),
-            obs=put(stepped.obs, fresh.obs),
-            info=info,
-        )
+        return _merge_fresh(stepped, fresh, next_rng, put)
 
 
 class EpisodeStats(Wrapper):
