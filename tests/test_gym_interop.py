@@ -48,7 +48,7 @@ class Slider(envs.MjxEnv):
     observation_size = 2
 
     def initial_qpos_qvel(self, key):
-        return jnp.zeros(1) + 0.1 * jnp.tanh(key[-1].astype(jnp.float32)), jnp.zeros(1)
+        return jax.random.uniform(key, (1,), minval=-0.1, maxval=0.1), jnp.zeros(1)
 
     def observation(self, data):
         return jnp.concatenate([data.qpos, data.qvel])
@@ -206,7 +206,9 @@ def test_vector_env_matches_gymnasiums_same_step_autoreset():
     reference.reset(seed=0)
     rng = np.random.default_rng(0)
     ended_by = {"terminated": 0, "truncated": 0}
-    for _ in range(40):
+    for _ in range(200):  # until both kinds of ending were checked; ~28% of random episodes end before 15 steps
+        if min(ended_by.values()) >= 3:
+            break
         for i, sub_env in enumerate(reference.envs):
             sub_env.state = jax.tree.map(lambda x, i=i: x[i], ours.state)
         actions = rng.integers(0, 2, num_envs)
@@ -224,7 +226,7 @@ def test_vector_env_matches_gymnasiums_same_step_autoreset():
             assert np.all(np.abs(obs[ended]) <= 0.05)  # a new episode's first observation
             ended_by["terminated"] += int(terminated.sum())
             ended_by["truncated"] += int(truncated.sum())
-    assert ended_by["terminated"] > 0 and ended_by["truncated"] > 0
+    assert ended_by["terminated"] > 0 and ended_by["truncated"] > 0, ended_by
 
 
 def test_vector_env_continuous_and_nan_final_info(slider):
