@@ -87,8 +87,9 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
     trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
     the env, the code outside the suite's packages. `donate` donates every argument's
-    buffers; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read is traced again and overwritten; a program that
-    cannot be exported (e.g. one with host callbacks) is compiled without the cache.
+    buffers; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read
+    is traced again and overwritten; a program that cannot be exported (e.g. one with
+    host callbacks) is compiled without the cache.
     """
     leaves, in_tree = jax.tree.flatten(args)
     path = cache_file(cache_dir, key_parts, args)

