@@ -22,11 +22,13 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.extend.random import define_prng_impl
 
 # The fourth input word keeps the streams of one key apart (pcg4d is a bijection,
-# so different inputs never give the same four output words).
-_SEED, _BITS, _SPLIT, _FOLD_IN = (jnp.uint32(purpose) for purpose in (0x5EED, 0xB175, 0x5B17, 0xF01D))
+# so different inputs never give the same four output words). NumPy scalars, so that
+# importing the suite does not start a JAX backend.
+_SEED, _BITS, _SPLIT, _FOLD_IN = (np.uint32(purpose) for purpose in (0x5EED, 0xB175, 0x5B17, 0xF01D))
 
 
 def pcg4d(x, y, z, w):

@@ -21,3 +21,12 @@ def test_non_editable_install_ships_the_assets(tmp_path):
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": ""},
                          check=True, capture_output=True, text=True).stdout
     assert out.strip() == str(target / "envs" / "assets" / "cartpole.xml")
+
+
+def test_importing_the_suite_starts_no_jax_backend():
+    """Users set JAX's config (platform, x64) after importing us; an import that touched a
+    device would have fixed it already, and slowed every start."""
+    script = ("import jax._src.xla_bridge as xb, envs, agents.run, agents.cli; "
+              "print(xb.backends_are_initialized())")
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out.stderr
