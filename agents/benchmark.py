@@ -189,8 +189,10 @@ def throughput_table(records: list[dict]) -> str:
 
 def _default_axis(records: list[dict]) -> str:
     """The seed axis `train_run` uses on the device of these records."""
+    from agents.run import default_seed_axis
+
     meta = next((m for m in records if m["kind"] == "meta"), {})
-    return "map" if meta.get("platform", "gpu") == "cpu" else "vmap"
+    return default_seed_axis(meta.get("platform", "gpu"))
 
 
 def dqn_table(records: list[dict]) -> str:
@@ -255,10 +257,9 @@ def tables(records: list[dict]) -> str:
         parts += ["", dqn]
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
-            time_ratio = r.get("time_ratio", r["seeds"] / r["ratio"])  # older records lack it
-            axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}.get(r.get("seed_axis", "vmap"), "")
+            axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}[r["seed_axis"]]
             parts.append(f"\n{r['env']}: {r['seeds']} {axis}seeds give {r['ratio']:.1f}x the env-steps/s of one "
-                         f"seed, i.e. {r['seeds']} times the work in {time_ratio:.2f}x the time.")
+                         f"seed, i.e. {r['seeds']} times the work in {r['time_ratio']:.2f}x the time.")
         elif r["kind"] == "dqn-article-setup":
             parts.append(f"\nArticle setup (1 env, MLP 64-64-64, batch 32, buffer 512, 20,000 steps): "
                          f"{r['steps_per_s']:,.0f} env-steps/s, median of "

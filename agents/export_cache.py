@@ -96,7 +96,7 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     if path.is_file():
         try:
             exported, out_tree = _read(path, in_tree)
-            return CachedProgram(_compile(exported, leaves, donate, compiler_options), out_tree, hit=True)
+            return CachedProgram(_compile(exported.call, leaves, donate, compiler_options), out_tree, hit=True)
         except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
             warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
     try:
@@ -104,12 +104,11 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     except Exception as err:
         warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
         flat, found = _flat(fn, in_tree)
-        compiled = jax.jit(flat, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
-        return CachedProgram(compiled, found["out_tree"], hit=False)
+        return CachedProgram(_compile(flat, leaves, donate, compiler_options), found["out_tree"], hit=False)
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
     exported = jax.export.deserialize(bytearray(blob))
-    return CachedProgram(_compile(exported, leaves, donate, compiler_options), out_tree, hit=False)
+    return CachedProgram(_compile(exported.call, leaves, donate, compiler_options), out_tree, hit=False)
 
 
 def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
@@ -142,8 +141,9 @@ def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
     return bytes(exported.serialize()), found["out_tree"]
 
 
-def _compile(exported, leaves: list, donate: bool, compiler_options: dict | None):
-    return jax.jit(exported.call, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
+def _compile(flat_fn: Callable, leaves: list, donate: bool, compiler_options: dict | None):
+    """`flat_fn` (over one list of leaves) compiled for `leaves`."""
+    return jax.jit(flat_fn, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
 
 
 def _read(path: Path, in_tree) -> tuple[Any, Any]:

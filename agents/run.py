@@ -40,8 +40,9 @@ def seed_keys(seed: int, seeds: int) -> jax.Array:
 SEED_AXES = ("vmap", "map")
 
 
-def default_seed_axis() -> str:
-    return "map" if jax.default_backend() == "cpu" else "vmap"
+def default_seed_axis(platform: str | None = None) -> str:
+    """How `train_run` batches seeds on `platform` (default: JAX's backend); see `seed_batched`."""
+    return "map" if (platform or jax.default_backend()) == "cpu" else "vmap"
 
 
 def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Callable:
