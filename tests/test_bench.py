@@ -91,6 +91,16 @@ def test_plot_and_tables_come_from_saved_records(tmp_path):
         benchmark.load_records(tmp_path / "bad.json")
 
 
+def test_startup_figure_is_the_median_of_the_warm_runs():
+    runs = [("cold", 9.5), ("warm", 1.2), ("warm", 0.5), ("warm", 0.6)]
+    records = [{"kind": "startup", "lib": "mjxsuite", "env": "cartpole-mjx", "steps": 2000, "run": i + 1,
+                "cache": cache, "compile_s": s, "device": "cpu"} for i, (cache, s) in enumerate(runs)]
+    line = "compile_s 9.50 with a cold compile cache, 0.60 warm (median of 1.20, 0.50, 0.60)."
+    assert line in benchmark.startup_line(records)
+    assert line in benchmark.tables(records)
+    assert benchmark.startup_line(records[:2]).endswith("compile_s 9.50 with a cold compile cache, 1.20 warm.")
+
+
 def test_batched_auto_reset_gives_the_same_states_as_vmapped_auto_reset():
     """Every branch (no env ended, a few reset by index, all) against VmapWrapper(AutoReset)."""
     num_envs = 64
