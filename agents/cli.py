@@ -124,14 +124,19 @@ def cmd_eval(args, extra: list[str]) -> int:
     import jax
     import numpy as np
 
-    from agents.run import load_agent
+    from agents import checkpoint
+    from agents.run import compile_cached, load_agent
 
     if extra:
         raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
     env_name, _, dqn, params = load_agent(args.checkpoint)
+    env_options = checkpoint.load_config(args.checkpoint)[3]
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
-    returns = jax.jit(jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)))(params, keys)
+    evaluate = compile_cached(f"DQN.evaluate, {args.episodes} episodes",
+                              jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)), (params, keys), dqn, seeds,
+                              env_name, env_options)
+    returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
     for i, mean in enumerate(means):
         print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
@@ -144,6 +149,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
     import numpy as np
 
     import envs
+    from agents.recording import collect_rollout_cached
     from envs import recording
 
     if extra:
@@ -152,24 +158,27 @@ def cmd_rollout(args, extra: list[str]) -> int:
     if args.env is not None:
         _require_registered(args.env)
     if args.checkpoint:
+        from agents import checkpoint
         from agents.recording import load_greedy
 
         trained_on, env, policy, params = load_greedy(args.checkpoint)
+        _, _, config, env_options = checkpoint.load_config(args.checkpoint)
+        env_name, policy_name = trained_on, {"greedy": config}
         if args.env is not None and args.env != trained_on:
             other = envs.make(args.env)
             if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
                 raise SystemExit(f"mjxsuite rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
-            env = other
+            env, env_name, env_options = other, args.env, None
     elif args.env is None:
         raise SystemExit("mjxsuite rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
-        env = envs.make(args.env)
-        policy, params = recording.random_policy(env), None
+        env, env_name, env_options = envs.make(args.env), args.env, None
+        policy, params, policy_name = recording.random_policy(env), None, "random"
     episodes = args.episodes or (None if args.steps else 1)
     steps = args.steps or episodes * getattr(env, "episode_length", 1000)
-    rollout = recording.collect_rollout(env, policy, jax.random.PRNGKey(args.seed), num_envs=args.num_envs,
-                                        steps=steps, params=params, scene_envs=args.scene_envs)
+    rollout = collect_rollout_cached(env, env_name, env_options, policy, policy_name, jax.random.PRNGKey(args.seed),
+                                     num_envs=args.num_envs, steps=steps, params=params, scene_envs=args.scene_envs)
     if episodes:
         rollout = recording.trim_to_episodes(rollout, episodes)
     rec = recording.open_recording(args.rerun, args.overwrite, blueprint=recording.rollout_blueprint())

@@ -111,6 +111,30 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     return CachedProgram(_compile(exported.call, leaves, donate, compiler_options), out_tree, hit=False)
 
 
+def compile_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
+                        extra: dict | None = None, donate: bool = False,
+                        compiler_options: dict | None = None) -> Callable:
+    """`fn` (a program that runs `env`) compiled for `args`: through this cache when it is on
+    and the env can be fingerprinted, else by plain `jax.jit`. The key is `program`, the
+    env's name, options and `env_fingerprint`, and `extra` (whatever else the trace depends
+    on: a config, the number of seeds, static sizes)."""
+    key_parts = program_key_parts(program, env, env_name, env_options, extra) if _directory is not None else None
+    if key_parts is None:  # cache off, or an env whose code cannot be hashed
+        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile(compiler_options)
+    return cached_compile(fn, args, key_parts, _directory, donate=donate, compiler_options=compiler_options)
+
+
+def program_key_parts(program: str, env, env_name: str, env_options: dict | None,
+                      extra: dict | None = None) -> dict | None:
+    """`compile_env_program`'s key, less the arguments' shapes and `environment_fingerprint`
+    (`cache_file` adds those); None when the env cannot be fingerprinted."""
+    fingerprint = env_fingerprint(env)
+    if fingerprint is None:
+        return None
+    return {"program": program, "env_name": env_name, "env_options": env_options or {}, "env": fingerprint,
+            **(extra or {})}
+
+
 def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
     """The file that holds the program for `key_parts`, `args`' shapes and dtypes, and this
     environment (`environment_fingerprint`)."""

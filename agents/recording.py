@@ -25,6 +25,7 @@ import numpy as np
 import rerun as rr
 
 import envs
+from agents import export_cache
 from agents.dqn import DQN, DQNConfig, EvalEpisode
 from envs import recording
 
@@ -46,6 +47,19 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):
 
     env_name, env, dqn, params = load_agent(out_dir)
     return env_name, env, greedy_policy(dqn), pick_seed(out_dir, params, seed_index)
+
+
+def collect_rollout_cached(env: envs.Env, env_name: str, env_options: dict | None, policy_fn: recording.PolicyFn,
+                           policy: Any, key: jax.Array, num_envs: int, steps: int, params: Any = None,
+                           scene_envs: int = 1) -> recording.Rollout:
+    """`envs.recording.collect_rollout`, its traced program kept in the export cache when that
+    is on (`mjxsuite rollout`), so a second rollout of the same env and policy traces nothing.
+    `policy` names `policy_fn` in the cache key: "random", or the DQN config of a greedy policy."""
+    program = recording.rollout_program(env, policy_fn, num_envs, steps, scene_envs)
+    sizes = {"num_envs": num_envs, "steps": steps, "scene_envs": scene_envs}
+    compiled = export_cache.compile_env_program("rollout", program, (key, params), env, env_name, env_options,
+                                                extra={"policy": policy, **sizes})
+    return compiled(key, params)
 
 
 class TrainingLogger:

@@ -67,15 +67,13 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
 
 def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
                    env_options: dict | None, donate: bool = False) -> Callable:
-    """`fn` compiled for `args`. With the export cache on (`agents.compile_cache.enable()`),
-    its traced program comes from there when an earlier run left it: tracing (`mjx.step`
-    inside the training chunk and the evaluation) is most of a warm start."""
-    directory = export_cache.directory()
-    key_parts = program_key_parts(program, dqn, seeds, env_name, env_options) if directory is not None else None
-    options = training_compiler_options()
-    if key_parts is None:  # cache off, or an env whose code cannot be hashed
-        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile(options)
-    return export_cache.cached_compile(fn, args, key_parts, directory, donate=donate, compiler_options=options)
+    """A DQN program (`fn`, for `seeds` seeds of `dqn`) compiled for `args` with the training
+    programs' XLA options; with the export cache on (`agents.compile_cache.enable()`), its
+    traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
+    the training chunk and the evaluation) is most of a warm start."""
+    return export_cache.compile_env_program(program, fn, args, dqn.env, env_name, env_options,
+                                            extra=dqn_key_parts(dqn, seeds), donate=donate,
+                                            compiler_options=training_compiler_options())
 
 
 # XLA's default command buffers (CUDA graphs) cover runs of plain kernels, not the
@@ -95,14 +93,9 @@ def training_compiler_options() -> dict:
     return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS}
 
 
-def program_key_parts(program: str, dqn: DQN, seeds: int, env_name: str, env_options: dict | None) -> dict | None:
-    """What names a traced program in the export cache, besides its arguments' shapes and the
-    environment (`export_cache.cached_compile` adds those); None when the env cannot be hashed."""
-    env = export_cache.env_fingerprint(dqn.env)
-    if env is None:
-        return None
-    return {"program": program, "env_name": env_name, "env_options": env_options or {}, "env": env,
-            "config": dqn.config, "seeds": seeds}
+def dqn_key_parts(dqn: DQN, seeds: int) -> dict:
+    """What a DQN program's export-cache key holds besides the env and the arguments' shapes."""
+    return {"config": dqn.config, "seeds": seeds}
 
 
 def _host(tree) -> dict:

@@ -296,10 +296,13 @@ def random_policy(env: Env) -> PolicyFn:
     return lambda params, obs, key: jax.random.uniform(key, obs.shape[:1] + (env.action_size,), minval=-1.0, maxval=1.0)
 
 
-@functools.lru_cache(maxsize=32)
-def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_envs: int):
-    """A jitted `(key, params) -> Rollout`, cached so repeated rollouts compile once."""
+def rollout_program(env: Env, policy_fn: PolicyFn, num_envs: int = 1, steps: int = 500, scene_envs: int = 1):
+    """The traceable `(key, params) -> Rollout` behind `collect_rollout`, for callers that
+    compile it themselves (`mjxsuite rollout` keeps it in its cache of traced programs)."""
+    if steps < 1 or num_envs < 1:
+        raise ValueError(f"need steps >= 1 and num_envs >= 1, got steps={steps}, num_envs={num_envs}")
     batch = wrap_for_training(env, num_envs)
+    scene_envs = min(scene_envs, num_envs)
     scene_qpos = jax.vmap(env.scene_qpos) if has_scene(env) and scene_envs > 0 else None
 
     def step(carry, _):
@@ -321,17 +324,21 @@ def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_e
         _, rollout = jax.lax.scan(step, (batch.reset(reset_key), loop_key, params), None, steps)
         return rollout
 
-    return jax.jit(collect)
+    return collect
+
+
+@functools.lru_cache(maxsize=32)
+def _collector(env: Env, policy_fn: PolicyFn, num_envs: int, steps: int, scene_envs: int):
+    """`rollout_program` jitted, cached so repeated rollouts compile once."""
+    return jax.jit(rollout_program(env, policy_fn, num_envs, steps, scene_envs))
 
 
 def collect_rollout(env: Env, policy_fn: PolicyFn, key: jax.Array, num_envs: int = 1, steps: int = 500,
                     params: Any = None, scene_envs: int = 1) -> Rollout:
     """`steps` steps of `num_envs` auto-resetting copies of `env` (a registered env, time limit
-    included) under `policy_fn(params, obs, key)`, in one jitted scan; arrays stay on the device."""
-    if steps < 1 or num_envs < 1:
-        raise ValueError(f"need steps >= 1 and num_envs >= 1, got steps={steps}, num_envs={num_envs}")
-    collect = _collector(env, policy_fn, num_envs, steps, min(scene_envs, num_envs))
-    return collect(key, params)
+    included) under `policy_fn(params, obs, key)`, in one jitted scan; arrays stay on the device.
+    Poses for the 3D scene are kept for the first `scene_envs` envs."""
+    return _collector(env, policy_fn, num_envs, steps, scene_envs)(key, params)
 
 
 def trim_to_episodes(rollout: Rollout, episodes: int) -> Rollout:

@@ -12,7 +12,7 @@ import pytest
 import envs
 from agents import compile_cache, export_cache
 from agents.dqn import DQN, DQNConfig
-from agents.run import program_key_parts, seed_keys, train_run
+from agents.run import dqn_key_parts, seed_keys, train_run
 
 TINY = DQNConfig(total_steps=200, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                  eval_episodes=4, hidden=(16,))
@@ -75,7 +75,8 @@ def chunk_file(cache_dir, env_name, config=TINY, seeds=1, env_options=None):
     dqn = DQN(config, env)
     ts = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds))
     ts = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), ts)  # concrete arguments, as train_run passes
-    return export_cache.cache_file(cache_dir, program_key_parts("DQN.chunk", dqn, seeds, env_name, env_options), (ts,))
+    key_parts = export_cache.program_key_parts("DQN.chunk", env, env_name, env_options, dqn_key_parts(dqn, seeds))
+    return export_cache.cache_file(cache_dir, key_parts, (ts,))
 
 
 def test_whatever_could_change_the_chunk_changes_its_file(tmp_path):
@@ -168,3 +169,35 @@ def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch,
         export_cache.disable()
         for name, value in saved.items():
             jax.config.update(name, value)
+
+
+def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypatch, capsys):
+    """A second `mjxsuite eval` / `rollout` (greedy or random policy) traces no env step and prints the same."""
+    from agents import cli
+    from agents.cli import main as cli_main
+
+    run = str(tmp_path / "run")
+    train_run("cartpole", TINY, out_dir=run, progress=False)
+    monkeypatch.setattr(cli, "_use_compile_cache", lambda args: export_cache.enable(tmp_path / "export"))
+    env_steps = []
+    step = envs.CartPole.step
+    monkeypatch.setattr(envs.CartPole, "step", lambda self, *args: env_steps.append(1) or step(self, *args))
+    commands = [["eval", "--checkpoint", run, "--episodes", "3"],
+                ["rollout", "--checkpoint", run, "--rerun", str(tmp_path / "greedy.rrd"), "--overwrite"],
+                ["rollout", "--env", "cartpole", "--num-envs", "2", "--rerun", str(tmp_path / "random.rrd"),
+                 "--overwrite"]]
+    try:
+        printed = []
+        for command in commands:
+            traced = len(env_steps)
+            assert cli_main(command) == 0
+            assert len(env_steps) > traced  # traced, exported and written
+            printed.append(capsys.readouterr().out)
+        assert len(list((tmp_path / "export").iterdir())) == len(commands)
+        for command, first in zip(commands, printed):
+            traced = len(env_steps)
+            assert cli_main(command) == 0
+            assert len(env_steps) == traced  # loaded: not traced
+            assert capsys.readouterr().out == first
+    finally:
+        export_cache.disable()

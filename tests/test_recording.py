@@ -319,6 +319,7 @@ def no_training(monkeypatch):
 
     monkeypatch.setattr(agents.run, "train_run", boom)
     monkeypatch.setattr(recording, "collect_rollout", boom)
+    monkeypatch.setattr(recording, "rollout_program", boom)
 
 
 def test_bad_rerun_paths_fail_before_training(tmp_path, capsys, no_training):
