@@ -10,7 +10,8 @@ A cache directory set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins.
 Delete the directory to clear it.
 
 `enable()` also turns on `agents.export_cache` in a subdirectory, which keeps the traced
-training chunk, so a second run skips tracing too; `disable()` turns both off.
+programs of `train`, `eval` and `rollout`, so a second run skips tracing too; `disable()`
+turns both off.
 
 Python users call `enable()` themselves (importing the suite changes no global state).
 `CompileCounter` counts traces, compiles and cache hits, to check that nothing
