@@ -98,8 +98,8 @@ def logging_section(quick: bool) -> list[dict]:
 
 def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int = 3) -> list[dict]:
     """`mjxsuite train` processes one after another sharing a fresh compilation cache: one cold,
-    then `warm_runs` warm (their median is the figure: one run's executable load varied from
-    0.6 to 1.1 s on one H200)."""
+    then `warm_runs` warm (their median is the figure: single warm runs gave 0.67 and 1.07 s
+    on one H200 machine, 0.6 s three times on another)."""
     import jax
 
     print(f"== startup: `mjxsuite train --env {env} --steps {steps}`, 1 cold + {warm_runs} warm runs, "
