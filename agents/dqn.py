@@ -19,6 +19,7 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
+from agents import backend
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, VmapWrapper, wrap_for_training
@@ -126,7 +127,7 @@ class StepNoise(NamedTuple):
 class TrainState:
     params: Any
     target_params: Any
-    opt_state: Any  # of the parameters flattened into one vector (`ravel_pytree`)
+    opt_state: Any  # per parameter leaf, or of the parameters flattened into one vector (`DQN.flat_optimizer`)
     buffer: Any
     env_state: Any
     key: jax.Array
@@ -140,19 +141,24 @@ class TrainState:
 class DQN:
     """The pieces of a DQN run for one env and config; all methods are pure."""
 
-    def __init__(self, config: DQNConfig, env: Env):
+    def __init__(self, config: DQNConfig, env: Env, platform: str | None = None):
+        """`platform`: the backend whose program shapes to use (`agents.backend`); None:
+        JAX's default backend."""
         if env.num_actions is None:
             raise ValueError(f"DQN needs a discrete-action env; {env!r} has continuous actions")
         self.config = config
         self.env = env
         self.train_env = wrap_for_training(env, config.num_envs)
-        self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling)
+        self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
+                                transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
+        self.flat_optimizer = backend.flat_optimizer(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
         self.optimizer = optax.chain(*clip, optax.adam(config.learning_rate))
+        vectorized = backend.vectorized_replay(platform)
         if config.replay == "uniform":
-            self.buffer = UniformReplay(config.buffer_size)
+            self.buffer = UniformReplay(config.buffer_size, vectorized=vectorized)
         else:
-            self.buffer = PrioritizedReplay(config.buffer_size, alpha=config.priority_alpha)
+            self.buffer = PrioritizedReplay(config.buffer_size, alpha=config.priority_alpha, vectorized=vectorized)
         self.epsilon = optax.linear_schedule(config.epsilon_start, config.epsilon_end, config.exploration_steps)
         self.beta = optax.linear_schedule(config.priority_beta_start, 1.0, config.total_steps)
 
@@ -237,11 +243,13 @@ class DQN:
         def keep_unless_learning(new, old):
             return jnp.where(learning, new, old)
 
-        # The optimizer works on one flat vector: a few large elementwise kernels
-        # instead of several small ones per parameter leaf.
-        flat_params, unravel = ravel_pytree(ts.params)
-        step, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
-        params = unravel(keep_unless_learning(flat_params + step, flat_params))
+        if self.flat_optimizer:  # one flat vector: a few large elementwise kernels (see `agents.backend`)
+            flat_params, unravel = ravel_pytree(ts.params)
+            step, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
+            params = unravel(keep_unless_learning(flat_params + step, flat_params))
+        else:
+            step, opt_state = self.optimizer.update(grads, ts.opt_state, ts.params)
+            params = jax.tree.map(lambda p, s: keep_unless_learning(p + s, p), ts.params, step)
         opt_state = jax.tree.map(keep_unless_learning, opt_state, ts.opt_state)
         updates = ts.updates + jnp.asarray(learning, jnp.int32)
         if cfg.target_update == "polyak":
@@ -315,7 +323,7 @@ class DQN:
         ts = TrainState(
             params=params,
             target_params=params,
-            opt_state=self.optimizer.init(ravel_pytree(params)[0]),
+            opt_state=self.optimizer.init(ravel_pytree(params)[0] if self.flat_optimizer else params),
             buffer=self.buffer.init(example),
             env_state=env_state,
             key=loop_key,
