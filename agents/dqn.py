@@ -152,6 +152,7 @@ class DQN:
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
                                 transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
         self.flat_optimizer = backend.flat_optimizer(platform)
+        self.unroll = backend.unrolled_inner_loops(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
         self.optimizer = optax.chain(*clip, optax.adam(config.learning_rate))
         vectorized = backend.vectorized_replay(platform)
@@ -351,9 +352,9 @@ class DQN:
 
         def iteration(ts, noise: StepNoise):
             epsilon = jnp.where(ts.env_steps < cfg.learning_starts, 1.0, self.epsilon(ts.env_steps - cfg.learning_starts))
-            ts, collected = repeat(lambda ts, bits: self.collect(ts, epsilon, bits), ts, noise.act)
+            ts, collected = repeat(lambda ts, bits: self.collect(ts, epsilon, bits), ts, noise.act, self.unroll)
             learning = ts.env_steps >= cfg.learning_starts
-            ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample)
+            ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample, self.unroll)
             return ts, (jax.tree.map(jnp.sum, collected), jax.tree.map(jnp.mean, learned), epsilon)
 
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
@@ -384,12 +385,13 @@ class DQN:
         return ts, metrics
 
 
-def repeat(step, ts, xs):
-    """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one row."""
+def repeat(step, ts, xs, unroll: bool = False):
+    """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one
+    row, nor with `unroll`."""
     if xs.shape[0] == 1:
         ts, stats = step(ts, xs[0])
         return ts, jax.tree.map(lambda x: x[None], stats)
-    return jax.lax.scan(step, ts, xs)
+    return jax.lax.scan(step, ts, xs, unroll=unroll)
 
 
 def train(config: DQNConfig, env: Env, key: jax.Array):

@@ -100,7 +100,7 @@ def train_run(
     out = checkpoint.check_writable(out_dir) if out_dir is not None else None
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
-    init = jax.jit(jax.vmap(dqn.init))
+    init = jax.jit(jax.vmap(dqn.init), compiler_options=training_compiler_options())
 
     keys = seed_keys(seed, seeds)
     chunks_done = 0
