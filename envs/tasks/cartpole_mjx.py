@@ -2,7 +2,7 @@
 
 Same observation, actions, reward, reset and termination as the analytic
 `envs.tasks.cartpole`. MuJoCo's Euler integrator is semi-implicit, so the physics
-matches the analytic CartPole with integrator="semi_implicit" (see README).
+matches the analytic CartPole with integrator="semi_implicit" (see docs/tasks.md).
 """
 
 from __future__ import annotations
