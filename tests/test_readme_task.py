@@ -118,14 +118,26 @@ def test_every_documented_make_target_and_module_exists():
             assert importlib.util.find_spec(words[2]), f"{page.relative_to(ROOT)}: {command}"
 
 
+def anchors(page: Path) -> set[str]:
+    """GitHub's anchors for the page's headings."""
+    headings = re.findall(r"^#+ (.+)$", re.sub(r"^```.*?^```", "", page.read_text(), flags=re.S | re.M), flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", h.lower()).replace(" ", "-") for h in headings}
+
+
 def test_every_link_and_repository_path_on_the_pages_exists():
-    """Relative links, and `envs/...`-style paths in code spans, name files that exist."""
+    """Relative links (and their #anchors), and `envs/...`-style paths in code spans, name
+    files and headings that exist."""
     missing = []
     for page in PAGES:
         text = page.read_text()
-        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
-            if not re.match(r"\w+://", target) and not (page.parent / target).exists():
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)(?:#([^)]*))?\)", text):
+            if re.match(r"\w+://", target):
+                continue
+            linked = page.parent / target if target else page
+            if not linked.exists():
                 missing.append(f"{page.relative_to(ROOT)}: link {target}")
+            elif anchor and anchor not in anchors(linked):
+                missing.append(f"{page.relative_to(ROOT)}: link {target}#{anchor}")
         for path in re.findall(r"`((?:envs|agents|benchmarks|tests|assets|docs)/[\w./-]*)`", text):
             if not (ROOT / path).exists():
                 missing.append(f"{page.relative_to(ROOT)}: path {path}")
