@@ -1,4 +1,4 @@
-"""The `mjxsuite` command: train, eval, rollout, bench.
+"""The `mjxsuite` command's train, eval and rollout (`bench` is added by `benchmarks.cli`).
 
 train, eval and rollout use JAX's persistent compilation cache (see
 `agents.compile_cache`): a second run loads its compiled programs from disk, and
@@ -14,9 +14,17 @@ import json
 import os
 import sys
 import typing
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from agents.dqn import DQNConfig
+
+
+class Command(typing.NamedTuple):
+    """A subcommand added to `mjxsuite` from outside this package (see `main`)."""
+
+    add_parser: Callable[[argparse._SubParsersAction], object]  # adds its subparser
+    run: Callable[[argparse.Namespace, list[str]], int]  # (parsed args, unparsed rest) -> exit code
 
 
 def _parse_value(field: dataclasses.Field, text: str):
@@ -193,33 +201,6 @@ def cmd_rollout(args, extra: list[str]) -> int:
     return 0
 
 
-def cmd_bench(args, extra: list[str]) -> int:
-    from agents import benchmark
-
-    if extra:
-        raise SystemExit(f"mjxsuite bench: unexpected arguments {extra}")
-    if args.table:
-        print(benchmark.tables(benchmark.load_records(args.table)))
-    if args.plot:
-        print(f"wrote {benchmark.plot(benchmark.load_records(args.plot), args.out)}")
-    if args.plot or args.table:
-        return 0
-    if args.json:  # fail before an hour of benchmarking, not after (and leave no empty file behind)
-        target = Path(args.json)
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise SystemExit(f"mjxsuite bench: cannot write {target}: {err}")
-        if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
-            raise SystemExit(f"mjxsuite bench: cannot write {target}")
-    records = benchmark.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
-                                  repeats=args.repeats)
-    if args.json:
-        Path(args.json).write_text(json.dumps(records, indent=2))
-        print(f"wrote {len(records)} records to {args.json}")
-    return 0
-
-
 def _use_compile_cache(args) -> None:
     from agents import compile_cache
 
@@ -251,7 +232,8 @@ def import_tasks(modules: list[str]) -> None:
             raise SystemExit(f"mjxsuite: --import {module}: {type(err).__name__}: {err}")
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser(more: Mapping[str, Command] | None = None) -> argparse.ArgumentParser:
+    """The `mjxsuite` argument parser: train, eval and rollout, plus the subcommands in `more`."""
     parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
     sub = parser.add_subparsers(dest="command", required=True)
     cached = argparse.ArgumentParser(add_help=False)
@@ -298,30 +280,25 @@ def main(argv: list[str] | None = None) -> int:
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
 
-    bench = sub.add_parser("bench", help="benchmark env throughput (vs gymnax and MuJoCo Playground), DQN, logging",
-                           description="Runs every benchmark figure of the README (see agents/benchmark.py). "
-                                       "Peers come from the bench extra; a missing one is recorded as skipped.")
-    bench.add_argument("--quick", action="store_true", help="fewer batch sizes, repeats and DQN runs (minutes on a CPU)")
-    bench.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
-    bench.add_argument("--sections", nargs="+", default=["env", "dqn", "logging", "startup"],
-                       choices=["env", "dqn", "logging", "startup"], help="what to run (default: all)")
-    bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=["cartpole", "cartpole-mjx"],
-                       help="our envs in the env section (default: both)")
-    bench.add_argument("--batch", nargs="+", type=int, metavar="N", help="env batch sizes (default: by device)")
-    bench.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=["gymnax", "playground"],
-                       help="peer libraries in the env section (none: ours only)")
-    bench.add_argument("--repeats", type=int, help="timed runs per env figure (default 5, 3 with --quick)")
-    bench.add_argument("--plot", metavar="FILE.json", help="plot throughput against batch size from saved records")
-    bench.add_argument("--out", default="docs/throughput.png", help="where --plot writes (default %(default)s)")
-    bench.add_argument("--table", metavar="FILE.json", help="print markdown tables from saved records")
+    for command in (more or {}).values():
+        command.add_parser(sub)
+    return parser
 
+
+def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = None) -> int:
+    """Run one `mjxsuite` command. `more` adds subcommands by name; the `mjxsuite` script
+    (`benchmarks.cli.main`) adds `bench` this way, so this package never imports `benchmarks`."""
+    more = more or {}
+    parser = build_parser(more)
     args, extra = parser.parse_known_args(argv)
     if args.command == "train" and args.resume and not args.out:
         parser.error("--resume needs --out")
     if args.command in ("train", "eval", "rollout"):
         _use_compile_cache(args)
         import_tasks(args.imports)
-    handler = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout, "bench": cmd_bench}[args.command]
+    handlers = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout,
+                **{name: command.run for name, command in more.items()}}
+    handler = handlers[args.command]
     try:
         return handler(args, extra)
     except (ValueError, FileNotFoundError) as err:

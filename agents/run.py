@@ -46,7 +46,7 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     batched program, "map" one after another (`lax.map`), each as the unbatched program.
     None picks "vmap" on accelerators and "map" on the CPU, whose XLA runs the plain
     matmuls of one network faster than batched ones: on 2 cores, 16 vmapped seeds gave 0.4x
-    the env-steps/s of one seed, 16 mapped seeds 1.06x (README, Results). One seed is
+    the env-steps/s of one seed, 16 mapped seeds 1.06x (docs/results.md). One seed is
     always run unbatched."""
     seed_axis = seed_axis or default_seed_axis()
     if seed_axis not in SEED_AXES:
@@ -95,7 +95,7 @@ def train_run(
     stop_when_solved: bool = False,
     seed_axis: str | None = None,  # "vmap" or "map" (see `seed_batched`); None: by device
 ) -> RunResult:
-    """Train `seeds` DQN agents on `env_name` at once; see the README for the files written to `out_dir`."""
+    """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`."""
     start = time.perf_counter()
     out = checkpoint.check_writable(out_dir) if out_dir is not None else None
     env = envs.make(env_name, **(env_options or {}))

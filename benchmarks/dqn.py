@@ -1,6 +1,6 @@
 """DQN speed: steps/s, updates/s, compile time and wall-clock time-to-solve CartPole-v1.
 
-    python -m agents.bench [--quick] [--json FILE]
+    python -m benchmarks.dqn [--quick] [--json FILE]
 
 Rows:
 - `dqn-solve`: default config, training stops once every seed's greedy evaluation
@@ -31,7 +31,7 @@ import json
 import jax
 import numpy as np
 
-from agents.bench_replay import bench_replay, format_table
+from benchmarks.replay import bench_replay, format_table
 from agents.dqn import DQNConfig
 from agents.run import default_seed_axis, train_run
 

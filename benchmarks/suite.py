@@ -1,13 +1,13 @@
-"""`mjxsuite bench`: every figure in the README's benchmark section, from one command.
+"""`mjxsuite bench`: every figure of docs/results.md, from one command.
 
 Sections (all by default; pick with `--sections`):
 
 - `env`: env-steps/s of `cartpole` and `cartpole-mjx` at batch sizes from 1 up, beside
   gymnax `CartPole-v1` and MuJoCo Playground `CartpoleBalance` (impl="jax"), and the
-  ratios (`envs.bench`, `envs.bench_peers`);
+  ratios (`benchmarks.env_throughput`, `benchmarks.peers`);
 - `dqn`: DQN env-steps/s and updates/s with 1 and 16 vmapped seeds, time-to-solve
-  CartPole-v1 on both backends with and without compile (`agents.bench`);
-- `logging`: writing a 100,000-step rollout to a Rerun file (`agents.bench_logging`);
+  CartPole-v1 on both backends with and without compile (`benchmarks.dqn`);
+- `logging`: writing a 100,000-step rollout to a Rerun file (`benchmarks.rerun_logging`);
 - `startup`: `mjxsuite train --env cartpole-mjx --steps 2000` in fresh processes sharing
   a fresh persistent compilation cache, once cold and three times warm: compile_s of each.
 
@@ -50,14 +50,14 @@ def _cpu_model() -> str | None:
 def meta_record(quick: bool, sections) -> dict:
     import jax
 
-    from envs import bench_peers
+    from benchmarks import peers
 
     device = jax.devices()[0]
     return {
         "kind": "meta", "lib": "mjxsuite", "device": device.device_kind, "platform": device.platform,
         "device_count": jax.device_count(), "cpu_count": len(os.sched_getaffinity(0)), "cpu": _cpu_model(),
         "python": host_platform.python_version(), "jax": jax.__version__,
-        "versions": {p: bench_peers.version(p) for p in ("mujoco", "mujoco-mjx", "brax", "gymnax", "playground")},
+        "versions": {p: peers.version(p) for p in ("mujoco", "mujoco-mjx", "brax", "gymnax", "playground")},
         "quick": quick, "sections": list(sections), "compile_cache": "off (cold compiles)",
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
@@ -65,25 +65,25 @@ def meta_record(quick: bool, sections) -> dict:
 
 def env_section(quick: bool, batch=None, ours=("cartpole", "cartpole-mjx"), peers=("gymnax", "playground"),
                 repeats=None) -> list[dict]:
-    from envs import bench
+    from benchmarks import env_throughput
 
     print("== env throughput: env-steps/s (random actions, auto-reset, median of runs; compile excluded) ==")
-    records = bench.throughput_records(ours=ours, peers=peers, batch=batch, quick=quick, repeats=repeats)
-    ratios = bench.ratio_records(records)
+    records = env_throughput.throughput_records(ours=ours, peers=peers, batch=batch, quick=quick, repeats=repeats)
+    ratios = env_throughput.ratio_records(records)
     for r in ratios:
         print(f"   {r['env']} / {r['peer']} {r['peer_env']} at {r['num_envs']:,} envs: {r['ratio']:.2f}x")
     return records + ratios
 
 
 def dqn_section(quick: bool) -> list[dict]:
-    from agents.bench import dqn_records
+    from benchmarks.dqn import dqn_records
 
     print("== DQN: env-steps/s, updates/s, time-to-solve CartPole-v1 (greedy mean return >= 475) ==")
     return dqn_records(quick)
 
 
 def logging_section(quick: bool) -> list[dict]:
-    from agents.bench_logging import bench_logging
+    from benchmarks.rerun_logging import bench_logging
 
     print("== Rerun logging ==")
     records = bench_logging(quick, train=not quick)
