@@ -17,7 +17,7 @@ import typing
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from agents.dqn import DQNConfig
+from agents.dqn import PRESETS, DQNConfig
 
 
 class Command(typing.NamedTuple):
@@ -88,7 +88,7 @@ def cmd_train(args, extra: list[str]) -> int:
                              f"its own config); drop the other options or start a new --out")
         result = _train(args, config, resume=True)
         return _report(args, config, result)
-    config = config_from_args(DQNConfig(), extra)
+    config = config_from_args(PRESETS[args.preset], extra)
     overrides = {}
     if args.steps is not None:
         overrides["total_steps"] = args.steps
@@ -255,6 +255,9 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--steps", type=int, help="env steps per seed (DQNConfig.total_steps)")
     train.add_argument("--replay", choices=["uniform", "prioritized"])
+    train.add_argument("--preset", choices=sorted(PRESETS), default="default",
+                       help="a named DQNConfig that --FIELD options then change: many-envs is for GPUs "
+                            "(32 envs per agent, batch 512, 4 updates per iteration; docs/training.md)")
     train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
     train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")

@@ -30,6 +30,8 @@ def add_parser(sub) -> None:
     bench.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=["gymnax", "playground"],
                        help="peer libraries in the env section (none: ours only)")
     bench.add_argument("--repeats", type=int, help="timed runs per env figure (default 5, 3 with --quick)")
+    bench.add_argument("--peer-dqn", metavar="FILE", help="a PureJaxRL-style dqn.py (its make_train) to run beside our "
+                       "DQN in the dqn section (needs gymnax and flashbax); without it those rows are skipped")
     bench.add_argument("--plot", metavar="FILE.json", help="plot throughput against batch size from saved records")
     bench.add_argument("--out", default="docs/throughput.png", help="where --plot writes (default %(default)s)")
     bench.add_argument("--table", metavar="FILE.json", help="print markdown tables from saved records")
@@ -55,7 +57,7 @@ def cmd_bench(args, extra: list[str]) -> int:
         if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
             raise SystemExit(f"mjxsuite bench: cannot write {target}")
     records = suite.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
-                              repeats=args.repeats)
+                              repeats=args.repeats, peer_dqn=args.peer_dqn)
     if args.json:
         Path(args.json).write_text(json.dumps(records, indent=2))
         print(f"wrote {len(records)} records to {args.json}")

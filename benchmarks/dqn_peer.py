@@ -30,7 +30,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from agents.bench import throughput_record
+from benchmarks.dqn import throughput_record
+from agents.backend import default_seed_axis
 from agents.dqn import DQNConfig
 
 SEEDS = (1, 16, 256, 2048)
@@ -52,6 +53,13 @@ MATCHED = {
          "EPSILON_ANNEAL_TIME": 250_000, "TARGET_UPDATE_INTERVAL": 500, "TAU": 1.0, "LR": 2.5e-4},
     ),
 }
+
+
+def peer_seeds(quick: bool) -> tuple[int, ...]:
+    """Seed counts to compare: all of `SEEDS` on accelerators; 1 and 16 on the CPU (one with --quick)."""
+    if quick:
+        return (1,)
+    return SEEDS if default_seed_axis() == "vmap" else (1, 16)
 
 
 def load_peer(path: str | Path):

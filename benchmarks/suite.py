@@ -75,11 +75,14 @@ def env_section(quick: bool, batch=None, ours=("cartpole", "cartpole-mjx"), peer
     return records + ratios
 
 
-def dqn_section(quick: bool) -> list[dict]:
+def dqn_section(quick: bool, peer_dqn: str | None = None) -> list[dict]:
     from benchmarks.dqn import dqn_records
+    from benchmarks.dqn_peer import peer_dqn_records, peer_seeds
 
     print("== DQN: env-steps/s, updates/s, time-to-solve CartPole-v1 (greedy mean return >= 475) ==")
-    return dqn_records(quick)
+    records = dqn_records(quick)
+    print("== DQN beside PureJaxRL's at matched configs: env-steps/s, compile excluded ==")
+    return records + peer_dqn_records(peer_dqn, seeds=peer_seeds(quick))
 
 
 def logging_section(quick: bool) -> list[dict]:
@@ -131,7 +134,7 @@ def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int
 
 
 def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
-              peers=("gymnax", "playground"), repeats=None) -> list[dict]:
+              peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
     from agents import compile_cache
 
@@ -142,7 +145,7 @@ def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpol
           f"python {m['python']}{' --quick' if quick else ''}", flush=True)
     runners = {
         "env": lambda: env_section(quick, batch, ours, peers, repeats),
-        "dqn": lambda: dqn_section(quick),
+        "dqn": lambda: dqn_section(quick, peer_dqn),
         "logging": lambda: logging_section(quick),
         "startup": startup_section,
     }
@@ -193,7 +196,7 @@ def throughput_table(records: list[dict]) -> str:
 
 def _default_axis(records: list[dict]) -> str:
     """The seed axis `train_run` uses on the device of these records."""
-    from agents.run import default_seed_axis
+    from agents.backend import default_seed_axis
 
     meta = next((m for m in records if m["kind"] == "meta"), {})
     return default_seed_axis(meta.get("platform", "gpu"))
@@ -207,6 +210,8 @@ def dqn_table(records: list[dict]) -> str:
         if r["kind"] in ("dqn-solve", "dqn-throughput"):
             axis = r.get("seed_axis") or _default_axis(records)  # solve runs use the device's default
             seeds = f"{r['seeds']} ({axis})" if r["seeds"] > 1 else "1"
+            if r.get("preset", "default") != "default":
+                seeds += f", `--preset {r['preset']}`"
             rows.setdefault((r["env"], seeds), {})[r["kind"]] = r
     if not rows:
         return ""
@@ -227,6 +232,22 @@ def dqn_table(records: list[dict]) -> str:
             f"{solve['time_to_solve_excl_compile_s']:.1f} s" if with_compile is not None else "–",
             f"{step:,.0f}" if step is not None else "–",
         ]) + " |")
+    return "\n".join(lines)
+
+
+def peer_dqn_table(records: list[dict]) -> str:
+    """Markdown: our DQN and the PureJaxRL-style peer, env-steps/s by matched config and seed count."""
+    speed = {(r["lib"], r["config"], r["seeds"]): r["steps_per_s"] for r in records
+             if r["kind"] == "dqn-peer" and r.get("steps_per_s")}
+    rows = sorted({(config, seeds) for (_, config, seeds) in speed}, key=lambda k: (k[0] != "1 env", k[1]))
+    if not rows:
+        return ""
+    lines = ["| config | seeds | mjxsuite env-steps/s | PureJaxRL env-steps/s | mjxsuite / PureJaxRL |",
+             "|---|---:|---:|---:|---:|"]
+    for config, seeds in rows:
+        ours, peer = speed.get(("mjxsuite", config, seeds)), speed.get(("purejaxrl", config, seeds))
+        lines.append(f"| {config} | {seeds:,} | {ours:,.0f} | {peer:,.0f} | {ours / peer:.2f}x |" if ours and peer
+                     else f"| {config} | {seeds:,} | {ours or 0:,.0f} | {peer or 0:,.0f} | – |")
     return "\n".join(lines)
 
 
@@ -259,6 +280,13 @@ def tables(records: list[dict]) -> str:
     dqn = dqn_table(records)
     if dqn:
         parts += ["", dqn]
+    peer = peer_dqn_table(records)
+    if peer:
+        parts += ["", "DQN beside PureJaxRL's (`--peer-dqn`), env-steps/s of all seeds together, compile excluded:",
+                  "", peer]
+    for r in records:
+        if r["kind"] == "dqn-peer" and r.get("skipped"):
+            parts.append(f"\nPureJaxRL DQN skipped: {r['skipped']}")
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
             axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}[r["seed_axis"]]
