@@ -65,8 +65,9 @@ def _parse_value(field: dataclasses.Field, text: str):
     return kind(text)
 
 
-def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
-    """Apply `--key value` pairs (dashes or underscores) to a DQNConfig, with clear errors."""
+def config_from_args(base: DQNConfig, pairs: list[str], **given) -> DQNConfig:
+    """Apply `--key value` pairs (dashes or underscores), then the fields `given` by the
+    command's own options (None: not given), to a DQNConfig, with clear errors."""
     fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
     changes = {}
     i = 0
@@ -88,6 +89,7 @@ def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
         except ValueError as err:
             raise UsageError(f"bad value for --{name}: {err}")
         i += 1
+    changes.update({name: value for name, value in given.items() if value is not None})
     try:
         return dataclasses.replace(base, **changes)
     except ValueError as err:
@@ -122,13 +124,7 @@ def cmd_train(args, extra: list[str]) -> int:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
-    config = config_from_args(DQNConfig(), extra)
-    overrides = {}
-    if args.steps is not None:
-        overrides["total_steps"] = args.steps
-    if args.replay is not None:
-        overrides["replay"] = args.replay
-    config = dataclasses.replace(config, **overrides)
+    config = config_from_args(DQNConfig(), extra, total_steps=args.steps, replay=args.replay)
     result = _train(args, config)
     return _report(args, config, result)
 

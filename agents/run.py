@@ -136,17 +136,17 @@ def train_run(
     COUNT.check("checkpoint_every", checkpoint_every)
     NON_NEGATIVE.check("checkpoint_seconds", checkpoint_seconds)
     out = checkpoint.check_writable(out_dir) if out_dir is not None else None
+    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed)
+    if resume:
+        if out is None:
+            raise ValueError("resume needs out_dir, the directory of the run to continue")
+        checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
     init = jax.jit(jax.vmap(dqn.init))
 
     keys = seed_keys(seed, seeds)
-    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed)
     chunks_done = 0
-    if resume:
-        if out is None:
-            raise ValueError("resume needs out_dir, the directory of the run to continue")
-        checkpoint.check_resumable(out, run)
     if resume and (out / checkpoint.STATE_FILE).is_file():
         ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, keys))
     else:  # a run killed before its first checkpoint resumes from the start, as it began
