@@ -167,7 +167,7 @@ def cmd_eval(args, extra: list[str]) -> int:
     from agents.run import compile_cached, load_agent
 
     if extra:
-        raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
+        raise UsageError(f"eval: unexpected arguments {extra}")
     env_name, _, dqn, params = load_agent(args.checkpoint)
     env_options = checkpoint.load_config(args.checkpoint).env_options
     seeds = jax.tree.leaves(params)[0].shape[0]
@@ -192,7 +192,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
     from envs import recording
 
     if extra:
-        raise SystemExit(f"mjxsuite rollout: unexpected arguments {extra}")
+        raise UsageError(f"rollout: unexpected arguments {extra}")
     recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
     if args.env is not None:
         _require_registered(args.env)
@@ -207,11 +207,11 @@ def cmd_rollout(args, extra: list[str]) -> int:
         if args.env is not None and args.env != trained_on:
             other = envs.make(args.env)
             if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
-                raise SystemExit(f"mjxsuite rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
+                raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
             env, env_name, env_options = other, args.env, None
     elif args.env is None:
-        raise SystemExit("mjxsuite rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
+        raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
         env, env_name, env_options = envs.make(args.env), args.env, None
         policy, params, policy_name = recording.random_policy(env), None, "random"
@@ -237,7 +237,7 @@ def cmd_bench(args, extra: list[str]) -> int:
     from agents import benchmark
 
     if extra:
-        raise SystemExit(f"mjxsuite bench: unexpected arguments {extra}")
+        raise UsageError(f"bench: unexpected arguments {extra}")
     if args.table:
         print(benchmark.tables(benchmark.load_records(args.table)))
     if args.plot:
@@ -249,9 +249,9 @@ def cmd_bench(args, extra: list[str]) -> int:
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise SystemExit(f"mjxsuite bench: cannot write {target}: {err}")
+            raise UsageError(f"bench: cannot write {target}: {err}")
         if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
-            raise SystemExit(f"mjxsuite bench: cannot write {target}")
+            raise UsageError(f"bench: cannot write {target}")
     records = benchmark.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
                                   repeats=args.repeats)
     if args.json:

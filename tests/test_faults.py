@@ -76,13 +76,14 @@ sys.exit(main(sys.argv[1:]))
 def start_training(out):
     command = [sys.executable, "-c", SLOW_SAVES, "train", "--env", "cartpole", "--seeds", str(SEEDS), "--out",
                str(out), "--checkpoint-seconds", "0", *CONFIG_ARGS]
-    return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    with open(out.parent / "stderr.txt", "w") as stderr:  # a file, not a pipe nobody reads while it runs
+        return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=stderr)
 
 
-def wait_for(condition, process, timeout=120.0):
+def wait_for(condition, out, process, timeout=120.0):
     deadline = time.monotonic() + timeout
     while not condition():
-        assert process.poll() is None, f"training ended before the kill: {process.stderr.read().decode()}"
+        assert process.poll() is None, f"training ended before the kill: {(out.parent / 'stderr.txt').read_text()}"
         assert time.monotonic() < deadline, "timed out waiting to kill"
         time.sleep(0.01)
 
@@ -100,7 +101,7 @@ def test_kill_9_then_resume_ends_as_the_uninterrupted_run(tmp_path, reference, m
     out = tmp_path / "run"
     process = start_training(out)
     try:
-        wait_for(lambda: KILL_MOMENTS[moment](out), process)
+        wait_for(lambda: KILL_MOMENTS[moment](out), out, process)
         time.sleep(random.Random(moment).uniform(0.0, 0.3))  # somewhere in the next rename or two
     finally:
         process.send_signal(signal.SIGKILL)
