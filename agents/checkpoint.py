@@ -158,11 +158,10 @@ POLICY_FIX = "train the agent again, or use another run directory"
 
 
 def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int) -> None:
-    """The whole (seed-batched) train state, buffer included, so a resumed run continues exactly.
-
-    The policy file goes first: a kill between the two renames leaves a train state one
-    checkpoint older, which a resume replays to the same parameters; the other order
-    would leave an eval reading parameters the train state has not reached."""
+    """The whole (seed-batched) train state, buffer included, so a resumed run continues
+    exactly, and the best parameters for eval. A kill between the renames leaves the two
+    files one save apart, each whole: a resume reads only the train state (with its own
+    chunk count) and rewrites the policy file at its next save."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
     _atomic_write(out_dir / POLICY_FILE, _pack("best_params", train_state.best_params,
                                                {"env": env, "best_return": best_return}))
