@@ -24,7 +24,7 @@ test-slow: $(BIN)/.installed  ## long training tests: 16 seeds to 50k steps on b
 # `make bench BENCH_TAG=gpu` on a GPU machine
 BENCH_TAG ?= cpu
 
-bench: $(BIN)/.installed  ## every benchmark figure of the README -> docs/bench-$(BENCH_TAG).json, docs/throughput-$(BENCH_TAG).png
+bench: $(BIN)/.installed  ## every benchmark figure of docs/results.md -> docs/bench-$(BENCH_TAG).json, docs/throughput-$(BENCH_TAG).png
 	$(BIN)/python -m pip install -q -e ".[bench]"
 	$(BIN)/python -m pip install -q --no-deps gymnax==1.0.1 playground==0.2.0
 	$(BIN)/mjxsuite bench --json docs/bench-$(BENCH_TAG).json

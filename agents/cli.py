@@ -1,4 +1,4 @@
-"""The `mjxsuite` command: train, eval, rollout, bench.
+"""The `mjxsuite` command's train, eval and rollout (`bench` is added by `benchmarks.cli`).
 
 train, eval and rollout use JAX's persistent compilation cache (see
 `agents.compile_cache`): a second run loads its compiled programs from disk, and
@@ -18,9 +18,10 @@ import json
 import os
 import sys
 import typing
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from agents.dqn import DQNConfig
+from agents.dqn import PRESETS, DQNConfig
 from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
@@ -50,6 +51,13 @@ def ranged(kind: type, valid: Range):
         return value
 
     return parse
+
+
+class Command(typing.NamedTuple):
+    """A subcommand added to `mjxsuite` from outside this package (see `main`)."""
+
+    add_parser: Callable[[argparse._SubParsersAction], object]  # adds its subparser
+    run: Callable[[argparse.Namespace, list[str]], int]  # (parsed args, unparsed rest) -> exit code
 
 
 def _parse_value(field: dataclasses.Field, text: str):
@@ -110,7 +118,8 @@ def cmd_train(args, extra: list[str]) -> int:
 
         # The run's env, seeds, seed and config come from --out; train_run refuses any given that differ.
         saved = checkpoint.load_config(args.out)
-        given = [flag for flag, value in (("--steps", args.steps), ("--replay", args.replay)) if value is not None]
+        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset))
+        given = [flag for flag, value in own if value is not None]
         if extra or given:
             raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
                              f"drop {' '.join(given + extra)} or start a new --out")
@@ -124,7 +133,7 @@ def cmd_train(args, extra: list[str]) -> int:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
-    config = config_from_args(DQNConfig(), extra, total_steps=args.steps, replay=args.replay)
+    config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
     result = _train(args, config)
     return _report(args, config, result)
 
@@ -233,33 +242,6 @@ def cmd_rollout(args, extra: list[str]) -> int:
     return 0
 
 
-def cmd_bench(args, extra: list[str]) -> int:
-    from agents import benchmark
-
-    if extra:
-        raise UsageError(f"bench: unexpected arguments {extra}")
-    if args.table:
-        print(benchmark.tables(benchmark.load_records(args.table)))
-    if args.plot:
-        print(f"wrote {benchmark.plot(benchmark.load_records(args.plot), args.out)}")
-    if args.plot or args.table:
-        return 0
-    if args.json:  # fail before an hour of benchmarking, not after (and leave no empty file behind)
-        target = Path(args.json)
-        try:
-            target.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise UsageError(f"bench: cannot write {target}: {err}")
-        if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
-            raise UsageError(f"bench: cannot write {target}")
-    records = benchmark.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
-                                  repeats=args.repeats)
-    if args.json:
-        Path(args.json).write_text(json.dumps(records, indent=2))
-        print(f"wrote {len(records)} records to {args.json}")
-    return 0
-
-
 def _use_compile_cache(args) -> None:
     from agents import compile_cache
 
@@ -291,7 +273,8 @@ def import_tasks(modules: list[str]) -> None:
             raise UsageError(f"--import {module}: {type(err).__name__}: {err}")
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser(more: Mapping[str, Command] | None = None) -> argparse.ArgumentParser:
+    """The `mjxsuite` argument parser: train, eval and rollout, plus the subcommands in `more`."""
     parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
     sub = parser.add_subparsers(dest="command", required=True)
     cached = argparse.ArgumentParser(add_help=False)
@@ -313,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     train.add_argument("--seed", type=int, help="random seed (default 0)")
     train.add_argument("--steps", type=ranged(int, COUNT), help="env steps per seed (DQNConfig.total_steps)")
     train.add_argument("--replay", choices=["uniform", "prioritized"])
+    train.add_argument("--preset", choices=sorted(PRESETS),
+                       help="a named DQNConfig (default: default) that --FIELD options then change: many-envs is for GPUs "
+                            "(32 envs per agent, batch 512, 4 updates per iteration; docs/training.md)")
     train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
     train.add_argument("--resume", action="store_true",
                        help="continue the run saved in --out from its last checkpoint (env, seeds and config from there)")
@@ -345,27 +331,22 @@ def main(argv: list[str] | None = None) -> int:
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
 
-    bench = sub.add_parser("bench", help="benchmark env throughput (vs gymnax and MuJoCo Playground), DQN, logging",
-                           description="Runs every benchmark figure of the README (see agents/benchmark.py). "
-                                       "Peers come from the bench extra; a missing one is recorded as skipped.")
-    bench.add_argument("--quick", action="store_true", help="fewer batch sizes, repeats and DQN runs (minutes on a CPU)")
-    bench.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
-    bench.add_argument("--sections", nargs="+", default=["env", "dqn", "logging", "startup"],
-                       choices=["env", "dqn", "logging", "startup"], help="what to run (default: all)")
-    bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=["cartpole", "cartpole-mjx"],
-                       help="our envs in the env section (default: both)")
-    bench.add_argument("--batch", nargs="+", type=int, metavar="N", help="env batch sizes (default: by device)")
-    bench.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=["gymnax", "playground"],
-                       help="peer libraries in the env section (none: ours only)")
-    bench.add_argument("--repeats", type=int, help="timed runs per env figure (default 5, 3 with --quick)")
-    bench.add_argument("--plot", metavar="FILE.json", help="plot throughput against batch size from saved records")
-    bench.add_argument("--out", default="docs/throughput.png", help="where --plot writes (default %(default)s)")
-    bench.add_argument("--table", metavar="FILE.json", help="print markdown tables from saved records")
+    for command in (more or {}).values():
+        command.add_parser(sub)
+    return parser
 
+
+def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = None) -> int:
+    """Run one `mjxsuite` command. `more` adds subcommands by name; the `mjxsuite` script
+    (`benchmarks.cli.main`) adds `bench` this way, so this package never imports `benchmarks`."""
+    more = more or {}
+    parser = build_parser(more)
     args, extra = parser.parse_known_args(argv)
     if args.command == "train" and args.resume and not args.out:
         parser.error("--resume needs --out")
-    handler = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout, "bench": cmd_bench}[args.command]
+    handlers = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout,
+                **{name: command.run for name, command in more.items()}}
+    handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
 
     try:

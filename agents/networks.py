@@ -45,10 +45,13 @@ class QNetwork(nn.Module):
     num_actions: int
     hidden: Sequence[int] = (64, 64)
     dueling: bool = False
+    transposed_kernel_gradient: bool = True  # `_matmul` (for XLA:CPU); False: the plain product
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         def dense(features):
+            if not self.transposed_kernel_gradient:
+                return nn.Dense(features)
             return nn.Dense(features, dot_general=_dense_dot_general)
 
         x = obs

@@ -30,6 +30,13 @@ Why the code looks the way it does (all measured on XLA:CPU, 2 cores, inside a
 * Uniform indices come from raw `random.bits` reduced modulo `size`: half the
   random bits of `random.randint`, whose extra work only removes a modulo bias
   of at most `capacity / 2**32` (< 3e-4 for a million items).
+* On accelerators every one of those loops is a `while` whose iterations each launch
+  kernels, and under `vmap` (seeds) a loop whose trip count differs between seeds
+  selects over the whole carry, i.e. the whole buffer, on every iteration (an H100
+  spent 112 us per add on a 256-seed buffer of 10k items). So a buffer made with
+  `vectorized=True` (what `agents.backend` picks off the CPU) reads with one gather,
+  writes with one scatter and rebuilds sum-tree ancestors level by level. Both ways
+  compute the same values bit for bit (`tests/test_replay.py` checks).
 * Both buffers also sample from random bits the caller drew (`sample_from_bits`):
   XLA:CPU lowers `jax.random` as a rolled loop of tiny kernels, so a training loop
   is faster drawing the bits of many samples in one call, outside its scan.
@@ -128,10 +135,37 @@ def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, keep=Non
     return jax.lax.fori_loop(0, b, put_row, data)
 
 
+def _scatter_write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask=None) -> Any:
+    """`_write` as one scatter per leaf: kept row k goes to slot (insert_pos + k) % capacity,
+    the others to distinct out-of-bounds slots, which the scatter drops."""
+    b = _batch_size(batch, capacity)
+    rows = jnp.arange(b, dtype=jnp.int32)
+    if mask is None:
+        slots = (insert_pos + rows) % capacity
+    else:
+        mask = jnp.asarray(mask, bool).reshape(-1)
+        kept_before = jnp.cumsum(mask, dtype=jnp.int32) - 1
+        slots = jnp.where(mask, (insert_pos + kept_before) % capacity, capacity + rows)
+    return jax.tree.map(
+        lambda buf, x: buf.at[slots].set(x.astype(buf.dtype), mode="drop", unique_indices=True), data, batch
+    )
+
+
 def _advance(capacity: int, insert_pos, size, count):
     new_pos = ((insert_pos + count) % capacity).astype(jnp.int32)
     new_size = jnp.minimum(size + count, capacity).astype(jnp.int32)
     return new_pos, new_size
+
+
+def _store(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask, vectorized: bool):
+    """Writes `batch` (its rows where `mask` holds) from `insert_pos` on: `(data, rows stored)`."""
+    count = _batch_size(batch, capacity)
+    if mask is not None:
+        count = jnp.asarray(mask, bool).sum(dtype=jnp.int32)
+    if vectorized:
+        return _scatter_write(data, batch, capacity, insert_pos, mask), count
+    keep = None if mask is None else _kept_rows(mask)
+    return _write(data, batch, capacity, insert_pos, keep), count
 
 
 def _kept_rows(mask: jax.Array):
@@ -146,10 +180,11 @@ def _kept_rows(mask: jax.Array):
     return jnp.argsort(~mask, stable=True).astype(jnp.int32), count
 
 
-def _read(data: Any, indices: jax.Array) -> Any:
-    """`data[indices]` for every leaf; indices must be in bounds."""
+def _read(data: Any, indices: jax.Array, vectorized: bool = False) -> Any:
+    """`data[indices]` for every leaf; indices must be in bounds. `vectorized`: one gather per leaf."""
     leaves, treedef = jax.tree.flatten(data)
-    big = [i for i, x in enumerate(leaves) if x.size * x.dtype.itemsize >= _SPLIT_BYTES]
+    split_bytes = float("inf") if vectorized else _SPLIT_BYTES
+    big = [i for i, x in enumerate(leaves) if x.size * x.dtype.itemsize >= split_bytes]
     out = [
         None if i in big else x.at[indices].get(mode="promise_in_bounds")
         for i, x in enumerate(leaves)
@@ -189,9 +224,11 @@ def _uniform_indices(bits: jax.Array, size: jax.Array) -> jax.Array:
 
 @dataclasses.dataclass(frozen=True)
 class UniformReplay:
-    """Uniform FIFO ring buffer; wrap-around overwrites the oldest items."""
+    """Uniform FIFO ring buffer; wrap-around overwrites the oldest items. `vectorized`:
+    gather and scatter instead of loops (for accelerators; see the module doc)."""
 
     capacity: int
+    vectorized: bool = False
 
     def __post_init__(self):
         if self.capacity < 1:
@@ -207,12 +244,7 @@ class UniformReplay:
 
     def add(self, state: ReplayState, batch: Any, mask: jax.Array | None = None) -> ReplayState:
         """`batch` has a static leading dim B <= capacity; items where `mask` is False are not stored."""
-        count = _batch_size(batch, self.capacity)
-        keep = None
-        if mask is not None:
-            keep = _kept_rows(mask)
-            count = keep[1]
-        data = _write(state.data, batch, self.capacity, state.insert_pos, keep)
+        data, count = _store(state.data, batch, self.capacity, state.insert_pos, mask, self.vectorized)
         pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
         return ReplayState(data=data, insert_pos=pos, size=size)
 
@@ -223,7 +255,7 @@ class UniformReplay:
     def sample_from_bits(self, state: ReplayState, bits: jax.Array):
         """`sample` with one uint32 of random bits per item drawn by the caller."""
         idx = _uniform_indices(bits, state.size)
-        return _read(state.data, idx), idx
+        return _read(state.data, idx, self.vectorized), idx
 
     def can_sample(self, state: ReplayState, min_size: int = 1) -> jax.Array:
         return state.size >= min_size
@@ -253,6 +285,7 @@ class PrioritizedReplay:
     capacity: int
     alpha: float = 0.6
     eps: float = 1e-6
+    vectorized: bool = False  # gather, scatter and level-by-level tree rebuilds (see the module doc)
 
     def __post_init__(self):
         if self.capacity < 1:
@@ -307,20 +340,41 @@ class PrioritizedReplay:
             )
             return tree, min_tree
 
+        if self.vectorized:
+            return self._set_leaves_by_level(tree, min_tree, indices, values, count)
         if count is None:
             if indices.shape[0] == 1:
                 return set_leaf(0, (tree, min_tree))
             count = indices.shape[0]
         return jax.lax.fori_loop(0, count, set_leaf, (tree, min_tree))
 
+    def _set_leaves_by_level(self, tree, min_tree, indices, values, count=None):
+        """`_set_leaves` without loops over items: the leaves in one scatter (of duplicate
+        indices the last item wins, as in the loop), then each level's touched parents
+        recomputed from their children in one gather and one scatter. Parents shared by
+        several items get the same value from each, so the result equals the loop's."""
+        b = indices.shape[0]
+        items = jnp.arange(b, dtype=jnp.int32)
+        valid = items < (b if count is None else count)
+        written_later = (indices[None, :] == indices[:, None]) & (items[None, :] > items[:, None]) & valid[None, :]
+        wins = valid & ~written_later.any(axis=1)
+        out_of_bounds = 2 * self.tree_capacity + items  # distinct, dropped by the scatters
+        node = jnp.where(wins, indices + self.tree_capacity, out_of_bounds)
+        tree = tree.at[node].set(values, mode="drop")
+        min_tree = min_tree.at[node].set(values, mode="drop")
+        for _ in range(self.depth):
+            node = jnp.where(wins, node >> 1, out_of_bounds)
+            left, right = 2 * node, 2 * node + 1
+            kids = tree.at[left].get(mode="fill", fill_value=0), tree.at[right].get(mode="fill", fill_value=0)
+            mkids = min_tree.at[left].get(mode="fill", fill_value=0), min_tree.at[right].get(mode="fill", fill_value=0)
+            tree = tree.at[node].set(kids[0] + kids[1], mode="drop")
+            min_tree = min_tree.at[node].set(jnp.minimum(mkids[0], mkids[1]), mode="drop")
+        return tree, min_tree
+
     def add(self, state: PrioritizedState, batch: Any, mask: jax.Array | None = None) -> PrioritizedState:
         """New items get `max_priority` (leaf `max_priority**alpha`); items where `mask` is False are not stored."""
-        b = count = _batch_size(batch, self.capacity)
-        keep = None
-        if mask is not None:
-            keep = _kept_rows(mask)
-            count = keep[1]
-        data = _write(state.data, batch, self.capacity, state.insert_pos, keep)
+        b = _batch_size(batch, self.capacity)
+        data, count = _store(state.data, batch, self.capacity, state.insert_pos, mask, self.vectorized)
         slots = (state.insert_pos + jnp.arange(b, dtype=jnp.int32)) % self.capacity
         leaf = jnp.broadcast_to(state.max_priority**self.alpha, (b,))
         tree, min_tree = self._set_leaves(
@@ -353,7 +407,8 @@ class PrioritizedReplay:
         node = jnp.zeros(query.shape, jnp.int32)
         if self.depth == 0:  # capacity 1: the root is the only leaf
             return node
-        return jax.lax.fori_loop(0, self.depth, step, (query, node))[1]
+        # Unrolled on accelerators: a loop's every iteration would launch its kernels anew.
+        return jax.lax.fori_loop(0, self.depth, step, (query, node), unroll=self.vectorized)[1]
 
     def sample(self, state: PrioritizedState, key: jax.Array, batch_size: int, beta):
         """Returns `(batch, indices, weights)`; see the class doc for the weights."""
@@ -370,7 +425,7 @@ class PrioritizedReplay:
         leaves = state.tree[self.tree_capacity :]
         leaf = leaves.at[idx].get(mode="promise_in_bounds")
         weights = (leaf / state.min_tree[1]) ** (-jnp.asarray(beta, jnp.float32))
-        return _read(state.data, idx), idx, weights
+        return _read(state.data, idx, self.vectorized), idx, weights
 
     def update_priorities(
         self, state: PrioritizedState, indices: jax.Array, priorities: jax.Array

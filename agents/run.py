@@ -16,6 +16,7 @@ from tqdm.auto import tqdm
 
 import envs
 from agents import checkpoint, export_cache
+from agents.backend import default_seed_axis, training_compiler_options
 from agents.dqn import DQN, DQNConfig
 from envs.ranges import COUNT, NON_NEGATIVE
 
@@ -48,17 +49,12 @@ def seed_keys(seed: int, seeds: int) -> jax.Array:
 SEED_AXES = ("vmap", "map")
 
 
-def default_seed_axis(platform: str | None = None) -> str:
-    """How `train_run` batches seeds on `platform` (default: JAX's backend); see `seed_batched`."""
-    return "map" if (platform or jax.default_backend()) == "cpu" else "vmap"
-
-
 def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Callable:
     """`fn` over a leading seed axis, as `seed_axis` says: "vmap" runs the seeds as one
     batched program, "map" one after another (`lax.map`), each as the unbatched program.
     None picks "vmap" on accelerators and "map" on the CPU, whose XLA runs the plain
     matmuls of one network faster than batched ones: on 2 cores, 16 vmapped seeds gave 0.4x
-    the env-steps/s of one seed, 16 mapped seeds 1.06x (README, Results). One seed is
+    the env-steps/s of one seed, 16 mapped seeds 1.06x (docs/results.md). One seed is
     always run unbatched."""
     seed_axis = seed_axis or default_seed_axis()
     if seed_axis not in SEED_AXES:
@@ -82,23 +78,6 @@ def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int
     return export_cache.compile_env_program(program, fn, args, dqn.env, env_name, env_options,
                                             extra=dqn_key_parts(dqn, seeds), donate=donate,
                                             compiler_options=training_compiler_options())
-
-
-# XLA's default command buffers (CUDA graphs) cover runs of plain kernels, not the
-# `while` loops and conditionals a training chunk is made of (its scan, the greedy
-# evaluation episode, the replay's branches), so on a GPU every iteration launched
-# its small kernels one by one. With WHILE and CONDITIONAL added to XLA's default
-# list, an H200 ran DQN 20-40% faster and 16 seeds in 1.24-1.34x the time of one
-# (1.42-1.89x without), training to the same parameters. Set per program: env
-# rollouts, which these loops would slow down, keep XLA's defaults.
-GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
-
-
-def training_compiler_options() -> dict:
-    """XLA options for the training programs: CUDA graphs for loops on a GPU, nothing elsewhere."""
-    if jax.default_backend() != "gpu":
-        return {}
-    return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS}
 
 
 def dqn_key_parts(dqn: DQN, seeds: int) -> dict:
@@ -126,7 +105,7 @@ def train_run(
     checkpoint_every: int = CHECKPOINT_EVERY,  # chunks between checkpoints in `out_dir`...
     checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds (0: every checkpoint_every)
 ) -> RunResult:
-    """Train `seeds` DQN agents on `env_name` at once; see the README for the files written to `out_dir`.
+    """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`.
 
     With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
     options, else ValueError) from its last checkpoint, or from the start if it was killed
@@ -143,7 +122,7 @@ def train_run(
         checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
-    init = jax.jit(jax.vmap(dqn.init))
+    init = jax.jit(jax.vmap(dqn.init), compiler_options=training_compiler_options())
 
     keys = seed_keys(seed, seeds)
     chunks_done = 0

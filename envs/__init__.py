@@ -1,24 +1,30 @@
-"""mjxsuite environments: a functional env API, analytic and MJX-backed tasks, and wrappers."""
+"""mjxsuite environments: a functional env API, analytic and MJX-backed tasks, and wrappers.
+
+The API sits at the top of the package (`core`, `registry`, `wrappers`, `episode_keys`,
+`assets`, `mjx_env`, `recording`); the tasks live in `envs.tasks` (one file each, their
+MJCF in `assets/`), the Brax and Gymnasium adapters in `envs.interop`. Those two import
+the API modules, never this package: only this file gathers the public names and
+registers the built-in tasks. See ARCHITECTURE.md."""
 
 import functools
 
-from envs.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
-from envs.acrobot_mjx import AcrobotMjx
-from envs.brax_interop import BraxEnv, to_brax
-from envs.cartpole import CartPole, CartPolePhysics, CartPoleRules
-from envs.cartpole_mjx import CartPoleMjx
-from envs.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
 from envs.core import Env, State, Wrapper
+from envs.interop.brax import BraxEnv, to_brax
 from envs.mjx_env import MjxEnv
-from envs.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
 from envs.registry import make, names, options, register
+from envs.tasks.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
+from envs.tasks.acrobot_mjx import AcrobotMjx
+from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules
+from envs.tasks.cartpole_mjx import CartPoleMjx
+from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
+from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 
 def to_gymnasium(name: str, num_envs: int | None = None, **kwargs):
     """A registered env as a `gymnasium.Env`, or with `num_envs` a `gymnasium.vector.VectorEnv`
-    (see `envs.gym_interop`). Gymnasium is optional, so it is imported only here."""
-    from envs.gym_interop import to_gymnasium as bridge
+    (see `envs.interop.gymnasium`). Gymnasium is optional, so it is imported only here."""
+    from envs.interop.gymnasium import to_gymnasium as bridge
 
     return bridge(name, num_envs, **kwargs)
 

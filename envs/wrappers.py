@@ -109,7 +109,7 @@ class BatchedAutoReset(Wrapper):
     - more ended: every env, as `AutoReset` does.
 
     `reset_by_index` defaults to True on the CPU and False on accelerators, where
-    the select over all envs is cheaper than a conditional (measured: see README).
+    the select over all envs is cheaper than a conditional (measured: see docs/results.md).
     `max_resets` defaults to a sixteenth of the batch; random play on CartPole
     ends about one episode in twenty per step. Inside a `vmap` over seeds the switch
     itself becomes a select (every branch runs), so keep the batch in this wrapper.

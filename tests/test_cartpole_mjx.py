@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import envs
-from envs.cartpole import CartPolePhysics, integrate
+from envs.tasks.cartpole import CartPolePhysics, integrate
 
 STEPS = 100
 

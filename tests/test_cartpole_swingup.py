@@ -16,7 +16,7 @@ import pytest
 
 import envs
 from envs.assets import asset_path
-from envs.cartpole_swingup_mjx import gaussian_tolerance, quadratic_tolerance
+from envs.tasks.cartpole_swingup_mjx import gaussian_tolerance, quadratic_tolerance
 
 N_ENVS, N_STEPS = 16, 1000
 UPRIGHT_ROW = N_ENVS - 1  # the row that starts exactly upright, centred and still

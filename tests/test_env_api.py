@@ -116,3 +116,28 @@ def test_physics_can_be_vmapped_for_domain_randomisation():
 
     theta_dot = np.asarray(step(physics))[:, 3]
     assert theta_dot[0] < theta_dot[1] < theta_dot[2]  # stronger gravity, faster fall
+
+
+def test_batched_auto_reset_gives_the_same_states_as_vmapped_auto_reset():
+    """Every branch (no env ended, a few reset by index, all) against VmapWrapper(AutoReset)."""
+    num_envs = 64
+    env = envs.make("cartpole")
+    reference = envs.VmapWrapper(envs.AutoReset(env), num_envs)
+    by_index = envs.BatchedAutoReset(env, num_envs, max_resets=2, reset_by_index=True)
+    selected = envs.BatchedAutoReset(env, num_envs, reset_by_index=False)
+
+    def run(wrapped):
+        def body(state, key):
+            action = jax.random.randint(key, (num_envs,), 0, 2)
+            state = wrapped.step(state, action)
+            return state, (state.obs, state.info["final_obs"], state.done)
+
+        keys = jax.random.split(jax.random.PRNGKey(1), 200)
+        return jax.jit(lambda: jax.lax.scan(body, wrapped.reset(jax.random.PRNGKey(0)), keys))()
+
+    expected = run(reference)
+    ended = np.asarray(expected[1][2]).sum(axis=1)
+    assert (ended == 0).any() and ((ended > 0) & (ended <= 2)).any() and (ended > 2).any()
+    for wrapped in (by_index, selected):
+        for a, b in zip(jax.tree.leaves(run(wrapped)), jax.tree.leaves(expected)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

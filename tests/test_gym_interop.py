@@ -341,7 +341,7 @@ def test_step_before_reset_and_after_the_end_follow_gymnasium():
 # ---- optional pieces: gymnasium missing, rendering -----------------------------------
 def test_missing_gymnasium_is_a_clear_import_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "gymnasium", None)  # makes `import gymnasium` fail
-    monkeypatch.delitem(sys.modules, "envs.gym_interop")
+    monkeypatch.delitem(sys.modules, "envs.interop.gymnasium")
     with pytest.raises(ImportError, match=r'pip install "mjxsuite\[gymnasium\]"'):
         envs.to_gymnasium("cartpole")
 

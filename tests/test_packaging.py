@@ -12,6 +12,7 @@ def test_non_editable_install_ships_the_assets(tmp_path):
     subprocess.run([sys.executable, "-m", "pip", "install", "-q", "--no-deps", "--target", str(target), str(ROOT)],
                    check=True, capture_output=True, text=True)
     assert (target / "envs" / "assets" / "cartpole.xml").is_file()
+    assert (target / "envs" / "tasks" / "cartpole_mjx.py").is_file() and (target / "benchmarks" / "cli.py").is_file()
     script = (
         "import envs, envs.assets as a, jax; "
         "assert envs.__file__.startswith(%r), envs.__file__; "
@@ -26,7 +27,7 @@ def test_non_editable_install_ships_the_assets(tmp_path):
 def test_importing_the_suite_starts_no_jax_backend():
     """Users set JAX's config (platform, x64) after importing us; an import that touched a
     device would have fixed it already, and slowed every start."""
-    script = ("import jax._src.xla_bridge as xb, envs, agents.run, agents.cli; "
+    script = ("import jax._src.xla_bridge as xb, envs, agents.run, agents.cli, benchmarks.cli; "
               "print(xb.backends_are_initialized())")
     out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False", out.stderr

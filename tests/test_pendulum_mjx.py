@@ -10,7 +10,7 @@ import pytest
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 
 import envs
-from envs.pendulum_mjx import DISCRETE_TORQUE_BINS
+from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS
 
 EPISODE = 200
 G, M, L, DT, MAX_SPEED, MAX_TORQUE = 10.0, 1.0, 1.0, 0.05, 8.0, 2.0

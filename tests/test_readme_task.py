@@ -1,16 +1,23 @@
-"""The README's "Add your own task" section, run literally: its files are written to a
-fresh directory and its commands run there, as a user would, touching no suite internals."""
+"""The README and the docs pages, run: the "Add your own task" section literally (its files
+written to a fresh directory and its commands run there, as a user would), every
+```` ```python run ```` block of every page, every `mjxsuite` command line parsed by the real
+command-line parser, every `make` target, and every link and repository path they name."""
 
+import importlib.util
 import json
 import os
 import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from test_recording import Contents
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = [README, ROOT / "ARCHITECTURE.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 
 def readme_section(title: str) -> str:
@@ -51,3 +58,87 @@ def test_add_your_own_task_section_works_as_written(tmp_path):
     contents = Contents(tmp_path / "puck.rrd")
     assert {"world/env_0/puck", "world/env_3/goal", "env/0/reward", "env/0/obs/obs_0"} <= contents.entities
     assert contents.rows["env/0/reward"] == contents.rows["world/env_0/puck"] > 0
+
+
+def page_blocks(language: str) -> list[tuple[Path, str, str]]:
+    """(page, info string, body) of every fenced block of that language on every page."""
+    return [(page, info, body) for page in PAGES for info, body in code_blocks(page.read_text())
+            if info.split(" ")[0] == language]
+
+
+RUN_BLOCKS = [(page, body) for page, info, body in page_blocks("python") if info.split()[1:2] == ["run"]]
+
+
+@pytest.mark.parametrize("page,body", RUN_BLOCKS, ids=[f"{p.relative_to(ROOT)}:{i}" for i, (p, _) in
+                                                    enumerate(RUN_BLOCKS)])
+def test_python_blocks_marked_run_run(tmp_path, page, body):
+    (tmp_path / "example.py").write_text(body)
+    done = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, f"{page.relative_to(ROOT)}:\n{body}\n{done.stderr[-3000:]}"
+
+
+def command_lines(program: str) -> list[tuple[Path, str]]:
+    """Lines of bash blocks that run `program`, without their trailing comments."""
+    lines = []
+    for page, _, body in page_blocks("bash"):
+        for line in body.splitlines():
+            words = shlex.split(line, comments=True)
+            if words[:1] == [program]:
+                lines.append((page, shlex.join(words)))
+    return lines
+
+
+def test_every_documented_mjxsuite_command_line_parses():
+    """Subcommand, options and config fields are all accepted (nothing runs)."""
+    from agents.cli import config_from_args
+    from agents.dqn import DQNConfig
+    from benchmarks.cli import build_parser
+
+    commands = command_lines("mjxsuite")
+    assert len(commands) >= 15 and {"train", "eval", "rollout", "bench"} <= {c.split()[1] for _, c in commands}
+    for page, command in commands:
+        where = f"{page.relative_to(ROOT)}: {command}"
+        try:
+            args, extra = build_parser().parse_known_args(shlex.split(command)[1:])
+            if args.command == "train":
+                config_from_args(DQNConfig(), extra)
+            else:
+                assert not extra, f"{where}: unknown arguments {extra}"
+        except SystemExit as err:  # argparse's and config_from_args's way to refuse
+            pytest.fail(f"{where}: refused ({err})")
+
+
+def test_every_documented_make_target_and_module_exists():
+    targets = set(re.findall(r"^([\w-]+):", (ROOT / "Makefile").read_text(), flags=re.M))
+    makes = command_lines("make")
+    assert makes and all(c.split()[1] in targets for _, c in makes), makes
+    for page, command in command_lines("python"):
+        words = command.split()
+        if words[1] == "-m":
+            assert importlib.util.find_spec(words[2]), f"{page.relative_to(ROOT)}: {command}"
+
+
+def anchors(page: Path) -> set[str]:
+    """GitHub's anchors for the page's headings."""
+    headings = re.findall(r"^#+ (.+)$", re.sub(r"^```.*?^```", "", page.read_text(), flags=re.S | re.M), flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", h.lower()).replace(" ", "-") for h in headings}
+
+
+def test_every_link_and_repository_path_on_the_pages_exists():
+    """Relative links (and their #anchors), and `envs/...`-style paths in code spans, name
+    files and headings that exist."""
+    missing = []
+    for page in PAGES:
+        text = page.read_text()
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)(?:#([^)]*))?\)", text):
+            if re.match(r"\w+://", target):
+                continue
+            linked = page.parent / target if target else page
+            if not linked.exists():
+                missing.append(f"{page.relative_to(ROOT)}: link {target}")
+            elif anchor and anchor not in anchors(linked):
+                missing.append(f"{page.relative_to(ROOT)}: link {target}#{anchor}")
+        for path in re.findall(r"`((?:envs|agents|benchmarks|tests|assets|docs)/[\w./-]*)`", text):
+            if not (ROOT / path).exists():
+                missing.append(f"{page.relative_to(ROOT)}: path {path}")
+    assert not missing, "\n".join(missing)

@@ -2,11 +2,11 @@
 
 Each `*_rollout` returns `run(key) -> (total reward, final observations)`: `steps` steps of `num_envs`
 auto-resetting envs under uniformly random actions, as one `lax.scan` — the same
-loop `envs.bench.rollout_fn` runs for our envs, so the three are timed alike.
+loop `benchmarks.env_throughput.rollout_fn` runs for our envs, so the three are timed alike.
 Returning both keeps XLA from dropping work whose result nobody reads.
 
 Both peers are optional (the `bench` extra): a missing one raises `PeerMissing`
-with the reason, and `envs.bench` records it as skipped.
+with the reason, and `benchmarks.env_throughput` records it as skipped.
 
 - gymnax 1.0.1 `CartPole-v1`: the analytic Gymnasium equations. Its `step` takes
   a key per env and auto-resets with a select between the stepped and a freshly

@@ -9,9 +9,9 @@ alternating, so their ratio is not skewed by a change in the machine's speed.
 
 Pairs compared: our analytic `cartpole` with gymnax `CartPole-v1`, our
 `cartpole-mjx` with MuJoCo Playground `CartpoleBalance` (impl="jax"); see
-`envs.bench_peers`. The batch sizes depend on the device (`batch_sizes`).
+`benchmarks.peers`. The batch sizes depend on the device (`batch_sizes`).
 
-    python -m envs.bench [--quick] [--envs cartpole cartpole-mjx] [--peers gymnax playground]
+    python -m benchmarks.env_throughput [--quick] [--envs cartpole cartpole-mjx] [--peers gymnax playground]
                          [--batch 1 256 4096] [--json FILE]
 
 `mjxsuite bench` runs this together with the DQN and logging figures.
@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 
 import envs
-from envs import bench_peers
-from envs.bench_peers import random_actions
+from benchmarks import peers as peer_libs
+from benchmarks.peers import random_actions
 
 OURS = ("cartpole", "cartpole-mjx")
 PEER_OF = {"cartpole": "gymnax", "cartpole-mjx": "playground"}  # the like-for-like comparison
@@ -105,14 +105,14 @@ def _record(lib: str, env_name: str, num_envs: int, steps: int, repeats: int) ->
 def _compile(lib: str, env_name: str, num_envs: int, steps: int):
     """(compiled run, compile seconds, None), or (None, None, why it cannot run)."""
     try:
-        run = rollout_fn(env_name, num_envs, steps) if lib == "mjxsuite" else bench_peers.ROLLOUTS[lib](num_envs, steps)
+        run = rollout_fn(env_name, num_envs, steps) if lib == "mjxsuite" else peer_libs.ROLLOUTS[lib](num_envs, steps)
         key = jax.random.PRNGKey(0)
         start = time.perf_counter()
         compiled = run.lower(key).compile()
         compile_s = time.perf_counter() - start
         jax.block_until_ready(compiled(key))  # warm-up: first-touch allocations
         return compiled, compile_s, None
-    except bench_peers.PeerMissing as missing:
+    except peer_libs.PeerMissing as missing:
         return None, None, str(missing)
     except Exception as err:  # out of memory at a large batch: record it, the caller stops growing
         if not _out_of_memory(err):
@@ -164,10 +164,10 @@ def throughput_records(ours=OURS, peers=("gymnax", "playground"), batch=None, qu
     peer listed without its counterpart runs alone. A lib skipped once (missing, out of memory)
     is not tried at larger sizes."""
     repeats = repeats or (3 if quick else 5)
-    groups = [[("mjxsuite", name)] + ([(PEER_OF[name], bench_peers.PEER_ENVS[PEER_OF[name]])]
+    groups = [[("mjxsuite", name)] + ([(PEER_OF[name], peer_libs.PEER_ENVS[PEER_OF[name]])]
                                       if PEER_OF[name] in peers else []) for name in ours]
     paired = {PEER_OF[name] for name in ours}
-    groups += [[(peer, bench_peers.PEER_ENVS[peer])] for peer in peers if peer not in paired]
+    groups += [[(peer, peer_libs.PEER_ENVS[peer])] for peer in peers if peer not in paired]
     records = []
     if print_rows:
         print(f"{'lib':<11}{'env':<17}{'num_envs':>9}{'env-steps/s':>15}{'compile s':>11}")
@@ -201,7 +201,7 @@ def ratio_records(records: list[dict]) -> list[dict]:
         peer = PEER_OF.get(env_name)
         theirs = speed.get((peer, num_envs))
         if theirs:
-            rows.append({"kind": "env-ratio", "env": env_name, "peer": peer, "peer_env": bench_peers.PEER_ENVS[peer],
+            rows.append({"kind": "env-ratio", "env": env_name, "peer": peer, "peer_env": peer_libs.PEER_ENVS[peer],
                          "num_envs": num_envs, "ratio": ours / theirs, "device": device_name()})
     return rows
 
@@ -229,7 +229,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="fewer batch sizes and repeats")
     parser.add_argument("--envs", nargs="+", default=list(OURS), choices=list(OURS))
-    parser.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=list(bench_peers.ROLLOUTS))
+    parser.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=list(peer_libs.ROLLOUTS))
     parser.add_argument("--batch", nargs="+", type=int, help="batch sizes (default: by device)")
     parser.add_argument("--repeats", type=int)
     parser.add_argument("--json", help="also write the records to this file")

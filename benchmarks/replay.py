@@ -14,7 +14,7 @@ flashbax counterparts: `make_item_buffer` (uniform) and
 `make_prioritised_item_buffer` (prioritised), i.e. independent items like
 ours; `ratio` is flashbax time / our time (> 1 means we are faster).
 
-Run: ``python -m agents.bench_replay`` (``pip install flashbax==0.1.3``).
+Run: ``python -m benchmarks.replay`` (``pip install flashbax==0.1.3``).
 """
 
 from __future__ import annotations

@@ -33,7 +33,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs import wrappers
 from envs.core import Env, Wrapper
 from envs.registry import make
 from envs.wrappers import TimeLimit
@@ -106,7 +105,7 @@ def to_brax(name_or_env: str | Env, **overrides: Any) -> BraxEnv:
     # adds its own (`brax.envs.wrappers.training.wrap`), and the two would clash.
     layer = env
     while isinstance(layer, Wrapper):
-        if type(layer).__module__ == wrappers.__name__:
+        if type(layer).__module__ == TimeLimit.__module__:  # any of envs.wrappers
             raise ValueError(
                 f"to_brax({label}): the env is already wrapped in {type(layer).__name__}; Brax's "
                 "trainer adds its own time limit, auto-reset and vmap. Pass the env from "

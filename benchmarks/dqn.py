@@ -1,6 +1,6 @@
 """DQN speed: steps/s, updates/s, compile time and wall-clock time-to-solve CartPole-v1.
 
-    python -m agents.bench [--quick] [--json FILE]
+    python -m benchmarks.dqn [--quick] [--json FILE]
 
 Rows:
 - `dqn-solve`: default config, training stops once every seed's greedy evaluation
@@ -31,9 +31,10 @@ import json
 import jax
 import numpy as np
 
-from agents.bench_replay import bench_replay, format_table
-from agents.dqn import DQNConfig
-from agents.run import default_seed_axis, train_run
+from benchmarks.replay import bench_replay, format_table
+from agents.dqn import PRESETS, DQNConfig
+from agents.backend import default_seed_axis
+from agents.run import train_run
 
 ARTICLE = DQNConfig(
     total_steps=20_000, num_envs=1, hidden=(64, 64, 64), batch_size=32, buffer_size=512, gamma=0.9,
@@ -45,7 +46,7 @@ ARTICLE = DQNConfig(
 SOLVE_SEEDS = 5  # one-seed time-to-solve: median over this many runs
 
 
-def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1) -> dict:
+def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1, preset: str = "default") -> dict:
     """Time-to-solve of `seeds` seeds trained together; with `runs` > 1, of that many separate runs
     (seed 0, 1, ...), reporting the median and every run."""
     results = [train_run(env, config, seeds=seeds, seed=seed, progress=False, stop_when_solved=True)
@@ -55,7 +56,7 @@ def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1) -> dict
     excl = [t - r.compile_s for t, r in zip(solve_times, results) if t is not None]
     solve_steps = [s for r in results for s in (r.solve_step or []) if s is not None]
     return {
-        "lib": "mjxsuite", "kind": "dqn-solve", "env": env, "seeds": seeds, "runs": runs,
+        "lib": "mjxsuite", "kind": "dqn-solve", "env": env, "seeds": seeds, "runs": runs, "preset": preset,
         "device": jax.devices()[0].device_kind,
         "compile_s": float(np.median([r.compile_s for r in results])),
         "solved": f"{sum(len([s for s in r.solve_wall_s if s is not None]) for r in results)}/{seeds * runs}",
@@ -114,6 +115,13 @@ def dqn_records(quick: bool = False, print_rows: bool = True, replay: bool = Tru
         if print_rows:
             for r in rows:
                 print(_describe(r), flush=True)
+    if not quick and default_seed_axis() == "vmap":  # accelerators: many seeds, and the many-env preset
+        rows = [throughput_record(env, seeds, DQNConfig()) for env in ("cartpole", "cartpole-mjx") for seeds in (256, 2048)]
+        rows += [solve_record(env, 16, PRESETS["many-envs"], preset="many-envs") for env in ("cartpole", "cartpole-mjx")]
+        records += rows
+        if print_rows:
+            for r in rows:
+                print(_describe(r), flush=True)
     scaling = seed_scaling_records(records)
     records += scaling
     if print_rows:
@@ -144,7 +152,8 @@ def _describe(r: dict) -> str:
     runs = f" (median of {r['runs']} runs: {', '.join(f'{t:.1f}' if t else '–' for t in r['time_to_solve_runs_s'])} s)"
     solve = (f"time-to-solve {r['time_to_solve_s']:.1f}s with compile, {r['time_to_solve_excl_compile_s']:.1f}s without"
              if r["time_to_solve_s"] is not None else "time-to-solve n/a")
-    return (f"{r['env']:<13} seeds {r['seeds']:>2}: solved {r['solved']}, {solve}{runs if r['runs'] > 1 else ''}; "
+    preset = f" ({r['preset']} preset)" if r.get("preset", "default") != "default" else ""
+    return (f"{r['env']:<13} seeds {r['seeds']:>2}{preset}: solved {r['solved']}, {solve}{runs if r['runs'] > 1 else ''}; "
             f"median solve step {r['median_solve_step']}")
 
 

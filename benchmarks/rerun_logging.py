@@ -1,6 +1,6 @@
 """What Rerun logging costs.
 
-    python -m agents.bench_logging [--quick] [--json FILE]
+    python -m benchmarks.rerun_logging [--quick] [--json FILE]
 
 Rows:
 - `log-rollout`: logging a 100,000-step CartPole rollout of one env to a fresh .rrd:

@@ -1,13 +1,13 @@
-"""`mjxsuite bench`: every figure in the README's benchmark section, from one command.
+"""`mjxsuite bench`: every figure of docs/results.md, from one command.
 
 Sections (all by default; pick with `--sections`):
 
 - `env`: env-steps/s of `cartpole` and `cartpole-mjx` at batch sizes from 1 up, beside
   gymnax `CartPole-v1` and MuJoCo Playground `CartpoleBalance` (impl="jax"), and the
-  ratios (`envs.bench`, `envs.bench_peers`);
+  ratios (`benchmarks.env_throughput`, `benchmarks.peers`);
 - `dqn`: DQN env-steps/s and updates/s with 1 and 16 vmapped seeds, time-to-solve
-  CartPole-v1 on both backends with and without compile (`agents.bench`);
-- `logging`: writing a 100,000-step rollout to a Rerun file (`agents.bench_logging`);
+  CartPole-v1 on both backends with and without compile (`benchmarks.dqn`);
+- `logging`: writing a 100,000-step rollout to a Rerun file (`benchmarks.rerun_logging`);
 - `startup`: `mjxsuite train --env cartpole-mjx --steps 2000` in fresh processes sharing
   a fresh persistent compilation cache, once cold and three times warm: compile_s of each.
 
@@ -50,14 +50,14 @@ def _cpu_model() -> str | None:
 def meta_record(quick: bool, sections) -> dict:
     import jax
 
-    from envs import bench_peers
+    from benchmarks import peers
 
     device = jax.devices()[0]
     return {
         "kind": "meta", "lib": "mjxsuite", "device": device.device_kind, "platform": device.platform,
         "device_count": jax.device_count(), "cpu_count": len(os.sched_getaffinity(0)), "cpu": _cpu_model(),
         "python": host_platform.python_version(), "jax": jax.__version__,
-        "versions": {p: bench_peers.version(p) for p in ("mujoco", "mujoco-mjx", "brax", "gymnax", "playground")},
+        "versions": {p: peers.version(p) for p in ("mujoco", "mujoco-mjx", "brax", "gymnax", "playground")},
         "quick": quick, "sections": list(sections), "compile_cache": "off (cold compiles)",
         "date": time.strftime("%Y-%m-%d %H:%M:%S"),
     }
@@ -65,25 +65,28 @@ def meta_record(quick: bool, sections) -> dict:
 
 def env_section(quick: bool, batch=None, ours=("cartpole", "cartpole-mjx"), peers=("gymnax", "playground"),
                 repeats=None) -> list[dict]:
-    from envs import bench
+    from benchmarks import env_throughput
 
     print("== env throughput: env-steps/s (random actions, auto-reset, median of runs; compile excluded) ==")
-    records = bench.throughput_records(ours=ours, peers=peers, batch=batch, quick=quick, repeats=repeats)
-    ratios = bench.ratio_records(records)
+    records = env_throughput.throughput_records(ours=ours, peers=peers, batch=batch, quick=quick, repeats=repeats)
+    ratios = env_throughput.ratio_records(records)
     for r in ratios:
         print(f"   {r['env']} / {r['peer']} {r['peer_env']} at {r['num_envs']:,} envs: {r['ratio']:.2f}x")
     return records + ratios
 
 
-def dqn_section(quick: bool) -> list[dict]:
-    from agents.bench import dqn_records
+def dqn_section(quick: bool, peer_dqn: str | None = None) -> list[dict]:
+    from benchmarks.dqn import dqn_records
+    from benchmarks.dqn_peer import peer_dqn_records, peer_seeds
 
     print("== DQN: env-steps/s, updates/s, time-to-solve CartPole-v1 (greedy mean return >= 475) ==")
-    return dqn_records(quick)
+    records = dqn_records(quick)
+    print("== DQN beside PureJaxRL's at matched configs: env-steps/s, compile excluded ==")
+    return records + peer_dqn_records(peer_dqn, seeds=peer_seeds(quick))
 
 
 def logging_section(quick: bool) -> list[dict]:
-    from agents.bench_logging import bench_logging
+    from benchmarks.rerun_logging import bench_logging
 
     print("== Rerun logging ==")
     records = bench_logging(quick, train=not quick)
@@ -131,7 +134,7 @@ def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int
 
 
 def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
-              peers=("gymnax", "playground"), repeats=None) -> list[dict]:
+              peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
     from agents import compile_cache
 
@@ -142,7 +145,7 @@ def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpol
           f"python {m['python']}{' --quick' if quick else ''}", flush=True)
     runners = {
         "env": lambda: env_section(quick, batch, ours, peers, repeats),
-        "dqn": lambda: dqn_section(quick),
+        "dqn": lambda: dqn_section(quick, peer_dqn),
         "logging": lambda: logging_section(quick),
         "startup": startup_section,
     }
@@ -193,7 +196,7 @@ def throughput_table(records: list[dict]) -> str:
 
 def _default_axis(records: list[dict]) -> str:
     """The seed axis `train_run` uses on the device of these records."""
-    from agents.run import default_seed_axis
+    from agents.backend import default_seed_axis
 
     meta = next((m for m in records if m["kind"] == "meta"), {})
     return default_seed_axis(meta.get("platform", "gpu"))
@@ -207,6 +210,8 @@ def dqn_table(records: list[dict]) -> str:
         if r["kind"] in ("dqn-solve", "dqn-throughput"):
             axis = r.get("seed_axis") or _default_axis(records)  # solve runs use the device's default
             seeds = f"{r['seeds']} ({axis})" if r["seeds"] > 1 else "1"
+            if r.get("preset", "default") != "default":
+                seeds += f", `--preset {r['preset']}`"
             rows.setdefault((r["env"], seeds), {})[r["kind"]] = r
     if not rows:
         return ""
@@ -227,6 +232,22 @@ def dqn_table(records: list[dict]) -> str:
             f"{solve['time_to_solve_excl_compile_s']:.1f} s" if with_compile is not None else "–",
             f"{step:,.0f}" if step is not None else "–",
         ]) + " |")
+    return "\n".join(lines)
+
+
+def peer_dqn_table(records: list[dict]) -> str:
+    """Markdown: our DQN and the PureJaxRL-style peer, env-steps/s by matched config and seed count."""
+    speed = {(r["lib"], r["config"], r["seeds"]): r["steps_per_s"] for r in records
+             if r["kind"] == "dqn-peer" and r.get("steps_per_s")}
+    rows = sorted({(config, seeds) for (_, config, seeds) in speed}, key=lambda k: (k[0] != "1 env", k[1]))
+    if not rows:
+        return ""
+    lines = ["| config | seeds | mjxsuite env-steps/s | PureJaxRL env-steps/s | mjxsuite / PureJaxRL |",
+             "|---|---:|---:|---:|---:|"]
+    for config, seeds in rows:
+        ours, peer = speed.get(("mjxsuite", config, seeds)), speed.get(("purejaxrl", config, seeds))
+        lines.append(f"| {config} | {seeds:,} | {ours:,.0f} | {peer:,.0f} | {ours / peer:.2f}x |" if ours and peer
+                     else f"| {config} | {seeds:,} | {ours or 0:,.0f} | {peer or 0:,.0f} | – |")
     return "\n".join(lines)
 
 
@@ -259,6 +280,13 @@ def tables(records: list[dict]) -> str:
     dqn = dqn_table(records)
     if dqn:
         parts += ["", dqn]
+    peer = peer_dqn_table(records)
+    if peer:
+        parts += ["", "DQN beside PureJaxRL's (`--peer-dqn`), env-steps/s of all seeds together, compile excluded:",
+                  "", peer]
+    for r in records:
+        if r["kind"] == "dqn-peer" and r.get("skipped"):
+            parts.append(f"\nPureJaxRL DQN skipped: {r['skipped']}")
     for r in records:
         if r["kind"] == "dqn-seed-scaling":
             axis = {"vmap": "vmapped ", "map": "mapped (`lax.map`) "}[r["seed_axis"]]

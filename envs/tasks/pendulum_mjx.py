@@ -24,7 +24,7 @@ from envs.ranges import NON_NEGATIVE, POSITIVE, Range
 
 # Torque bins of `pendulum-mjx-discrete`: -2, -1.5, ..., 2 N m. An odd count keeps
 # zero torque (to hold the pendulum still once upright) and the full +-2 N m (to swing
-# it up). DQN learned as fast with 5 bins as with 9 (README); 9 give finer balancing.
+# it up). DQN learned as fast with 5 bins as with 9 (docs/tasks.md); 9 give finer balancing.
 DISCRETE_TORQUE_BINS = 9
 
 

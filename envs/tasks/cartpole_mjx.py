@@ -1,8 +1,8 @@
 """CartPole-v1 as an MJCF model (assets/cartpole.xml) stepped by MJX.
 
 Same observation, actions, reward, reset and termination as the analytic
-`envs.cartpole`. MuJoCo's Euler integrator is semi-implicit, so the physics
-matches the analytic CartPole with integrator="semi_implicit" (see README).
+`envs.tasks.cartpole`. MuJoCo's Euler integrator is semi-implicit, so the physics
+matches the analytic CartPole with integrator="semi_implicit" (see docs/tasks.md).
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.cartpole import CartPoleRules
 from envs.mjx_env import MjxEnv, mjx
+from envs.tasks.cartpole import CartPoleRules
 
 
 class CartPoleMjx(MjxEnv):

@@ -52,8 +52,8 @@ except ImportError as err:  # gymnasium is an optional extra
         f"(which installs gymnasium==1.4.0); importing it failed with: {err}"
     ) from err
 
-import envs
 from envs.core import Env, State
+from envs.registry import make
 from envs.wrappers import AutoReset, VmapWrapper
 
 # Packed per-env step results after the observation: reward, terminated, truncated, nan.
@@ -135,7 +135,7 @@ class GymnasiumEnv(gymnasium.Env):
 
     def __init__(self, name: str, render_mode: str | None = None, **overrides: Any):
         self.name = name
-        self.env = envs.make(name, **overrides)  # TimeLimit(task): truncation from the registry
+        self.env = make(name, **overrides)  # TimeLimit(task): truncation from the registry
         self.episode_length: int = self.env.episode_length
         self.observation_space, self.action_space = _single_spaces(self.env)
 
@@ -158,7 +158,7 @@ class GymnasiumEnv(gymnasium.Env):
         # gymnasium.make(self.spec) (used by check_env and RecordVideo) builds the same env again.
         self.spec = EnvSpec(
             id=f"mjxsuite/{name}",
-            entry_point="envs.gym_interop:GymnasiumEnv",
+            entry_point="envs.interop.gymnasium:GymnasiumEnv",
             kwargs={"name": name, **overrides},
             nondeterministic=False,
         )
@@ -255,7 +255,7 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
             raise ValueError(f"env {name!r}: num_envs must be a positive int, got {num_envs!r}")
         self.name = name
         self.num_envs = num_envs
-        self.env = envs.make(name, **overrides)
+        self.env = make(name, **overrides)
         self.episode_length: int = self.env.episode_length
         self._batched = VmapWrapper(AutoReset(self.env), num_envs)
         self.single_observation_space, self.single_action_space = _single_spaces(self.env)

@@ -1,7 +1,7 @@
 """Acrobot-v1 as an MJCF model (assets/acrobot.xml) stepped by MJX.
 
 Same observation, actions, reward, reset and termination as the analytic
-`envs.acrobot`. MuJoCo's RK4 integrator with ctrl held over the step is
+`envs.tasks.acrobot`. MuJoCo's RK4 integrator with ctrl held over the step is
 Gymnasium's rk4; the velocity clip and angle wrap Gymnasium applies after each
 step happen in `post_step`.
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.acrobot import AcrobotRules, observation, wrap_angle
 from envs.mjx_env import MjxEnv, mjx
+from envs.tasks.acrobot import AcrobotRules, observation, wrap_angle
 
 
 class AcrobotMjx(MjxEnv):

@@ -1,0 +1,85 @@
+"""The package layout of ARCHITECTURE.md, read from the source: who may import whom.
+
+Rooms: the env API (`envs/*.py`), `envs/__init__.py` (gathers the public names and
+registers the tasks), `envs.tasks`, `envs.interop`, `agents`, `benchmarks`. A lower room
+never imports back up: tasks and adapters import the API modules, never the `envs`
+package; `agents` uses the env API, never a concrete task; nothing in `envs` or `agents`
+imports `benchmarks`.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("envs", "agents", "benchmarks")
+
+# room -> the rooms it may import from
+ALLOWED = {
+    "envs.api": {"envs.api"},
+    "envs.tasks": {"envs.api", "envs.tasks"},
+    "envs.interop": {"envs.api"},
+    "envs (package)": {"envs.api", "envs.tasks", "envs.interop"},
+    "agents": {"envs (package)", "envs.api", "agents"},
+    "benchmarks": {"envs (package)", "envs.api", "agents", "benchmarks"},
+}
+
+
+def room_of_file(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    if parts[0] != "envs":
+        return parts[0]
+    if parts == ("envs", "__init__"):
+        return "envs (package)"
+    return {"tasks": "envs.tasks", "interop": "envs.interop"}.get(parts[1], "envs.api") if len(parts) > 2 \
+        else "envs.api"
+
+
+def room_of_module(name: str) -> str | None:
+    parts = name.split(".")
+    if parts[0] not in PACKAGES:
+        return None  # a third-party or standard-library module
+    if parts[0] != "envs":
+        return parts[0]
+    if len(parts) == 1:
+        return "envs (package)"
+    return {"tasks": "envs.tasks", "interop": "envs.interop"}.get(parts[1], "envs.api")
+
+
+def imported_modules(path: Path) -> list[tuple[int, str]]:
+    """(line, module) of every import in the file, function-level ones included."""
+    package = ".".join(path.relative_to(ROOT).parent.parts)
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package.rsplit(".", node.level - 1)[0] if node.level else ""
+            module = ".".join(p for p in (base, node.module or "") if p)
+            found.append((node.lineno, module))
+    return found
+
+
+SOURCES = sorted(p for package in PACKAGES for p in (ROOT / package).rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_import_stays_within_what_its_room_may_use(path):
+    room = room_of_file(path)
+    wrong = [f"{path.relative_to(ROOT)}:{line} imports {module} ({room_of_module(module)})"
+             for line, module in imported_modules(path)
+             if room_of_module(module) not in (None, *ALLOWED[room])]
+    assert not wrong, f"{room} may import only {sorted(ALLOWED[room])}:\n" + "\n".join(wrong)
+
+
+def test_the_rules_see_every_room_and_catch_an_import_back_up():
+    assert {room_of_file(p) for p in SOURCES} == set(ALLOWED)
+    assert room_of_module("envs") not in ALLOWED["envs.tasks"] | ALLOWED["envs.interop"]
+    assert room_of_module("benchmarks.suite") not in ALLOWED["envs (package)"] | ALLOWED["agents"]
+    assert room_of_module("envs.tasks.cartpole") not in ALLOWED["agents"]
+
+
+def test_no_benchmark_code_in_the_library():
+    named = [p for package in ("envs", "agents") for p in (ROOT / package).rglob("bench*")]
+    assert not named, named
