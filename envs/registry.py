@@ -7,6 +7,7 @@ import inspect
 from typing import Any, Callable
 
 from envs.core import Env
+from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
 
 _REGISTRY: dict[str, tuple[Callable[..., Env], int]] = {}
@@ -48,7 +49,7 @@ def make(name: str, **overrides: Any) -> Env:
     unknown = sorted(set(overrides) - set(valid))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for env {name!r}; valid options: {sorted(valid)}")
-    episode_length = overrides.pop("episode_length", valid["episode_length"])
+    episode_length = COUNT.check("episode_length", overrides.pop("episode_length", valid["episode_length"]))
     kwargs: dict[str, Any] = {}
     for param in inspect.signature(factory).parameters.values():
         if param.name in overrides:
@@ -58,7 +59,9 @@ def make(name: str, **overrides: Any) -> Env:
             changes = {k: overrides.pop(k) for k in list(overrides) if k in fields}
             if changes:
                 kwargs[param.name] = dataclasses.replace(param.default, **changes)
-    return TimeLimit(factory(**kwargs), int(episode_length))
+    for value in kwargs.values():  # out-of-range physics or rules are refused here, before anything compiles
+        check_fields(value, getattr(value, "RANGES", {}))
+    return TimeLimit(factory(**kwargs), episode_length)
 
 
 def _lookup(name: str) -> tuple[Callable[..., Env], int]:
