@@ -50,13 +50,6 @@ def transposed_kernel_gradient(platform: str | None = None) -> bool:
     return on_cpu(platform)
 
 
-def first_layer_as_sums(platform: str | None = None) -> bool:
-    """The Q-network's first layer, over a few observation features, as a sum of broadcast
-    products (`agents.networks`) off the CPU: with many seeds the GPU step is bound by
-    memory traffic, and a dot writes the layer's output before the bias and ReLU read it."""
-    return not on_cpu(platform)
-
-
 # XLA's default command buffers (CUDA graphs) cover runs of plain kernels, not the
 # `while` loops and conditionals a training chunk is made of (its scan, the greedy
 # evaluation episode), so on a GPU every iteration launched its small kernels one by

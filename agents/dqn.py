@@ -185,8 +185,7 @@ class DQN:
         self.env = env
         self.train_env = wrap_for_training(env, config.num_envs)
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
-                                transposed_kernel_gradient=backend.transposed_kernel_gradient(platform),
-                                first_layer_as_sums=backend.first_layer_as_sums(platform))
+                                transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
         self.flat_optimizer = backend.flat_optimizer(platform)
         self.unroll = backend.unrolled_inner_loops(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []

@@ -41,34 +41,22 @@ def _dense_dot_general(x, kernel, dimension_numbers, precision=None, preferred_e
     return _matmul(x, kernel)
 
 
-def _sum_of_products(x, kernel, dimension_numbers, precision=None, preferred_element_type=None):
-    """`x @ kernel` for a kernel of few rows as a sum of broadcast products: elementwise work
-    that XLA fuses with the bias and the ReLU into one kernel, where a dot writes its
-    result to memory first."""
-    if dimension_numbers != (((x.ndim - 1,), (0,)), ((), ())):
-        raise ValueError(f"_sum_of_products only computes x @ kernel; got dimension numbers {dimension_numbers}")
-    return sum(x[..., k : k + 1] * kernel[k] for k in range(kernel.shape[0]))
-
-
 class QNetwork(nn.Module):
     num_actions: int
     hidden: Sequence[int] = (64, 64)
     dueling: bool = False
     transposed_kernel_gradient: bool = True  # `_matmul` (for XLA:CPU); False: the plain product
-    first_layer_as_sums: bool = False  # `_sum_of_products` for an input of at most 8 features
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
-        def dense(features, first=False):
-            if first and self.first_layer_as_sums and obs.shape[-1] <= 8:
-                return nn.Dense(features, dot_general=_sum_of_products)
+        def dense(features):
             if not self.transposed_kernel_gradient:
                 return nn.Dense(features)
             return nn.Dense(features, dot_general=_dense_dot_general)
 
         x = obs
-        for i, width in enumerate(self.hidden):
-            x = nn.relu(dense(width, first=i == 0)(x))
+        for width in self.hidden:
+            x = nn.relu(dense(width)(x))
         if not self.dueling:
             return dense(self.num_actions)(x)
         # Dueling head (Wang et al. 2016): Q = V + A - mean(A).
