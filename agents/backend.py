@@ -60,6 +60,14 @@ def transposed_kernel_gradient(platform: str | None = None) -> bool:
 GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
 
 
+def init_compiler_options(platform: str | None = None) -> dict:
+    """XLA options for a run's init program, which runs once: no GEMM autotuning on a GPU
+    (autotuning its one forward pass took most of its ~2 s compile on an H100)."""
+    if (platform or jax.default_backend()) != "gpu":
+        return {}
+    return {"xla_gpu_autotune_level": 0}
+
+
 def training_compiler_options(platform: str | None = None) -> dict:
     """XLA options for the training programs: CUDA graphs for loops on a GPU, nothing elsewhere.
 

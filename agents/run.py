@@ -16,7 +16,7 @@ from tqdm.auto import tqdm
 
 import envs
 from agents import checkpoint, export_cache
-from agents.backend import default_seed_axis, training_compiler_options
+from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig
 from envs.ranges import COUNT, NON_NEGATIVE
 
@@ -122,14 +122,17 @@ def train_run(
         checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
-    init = jax.jit(jax.vmap(dqn.init), compiler_options=training_compiler_options())
+    init = jax.jit(jax.vmap(dqn.init), compiler_options=init_compiler_options())
 
     keys = seed_keys(seed, seeds)
     chunks_done = 0
+    init_compile_s = 0.0
     if resume and (out / checkpoint.STATE_FILE).is_file():
         ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, keys))
     else:  # a run killed before its first checkpoint resumes from the start, as it began
+        tick = time.perf_counter()
         ts = init(keys)
+        init_compile_s = time.perf_counter() - tick  # compiling the init program (its run is queued)
         if out is not None:
             checkpoint.start_run(out, run)
     if out is not None:
@@ -139,7 +142,7 @@ def train_run(
     seed_axis = seed_axis or default_seed_axis()
     chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", seed_batched(dqn.chunk, seeds, seed_axis), (ts,),
                            dqn, seeds, env_name, env_options, donate=True)
-    compile_s = time.perf_counter() - compile_start
+    compile_s = init_compile_s + time.perf_counter() - compile_start
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * seeds)
     bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
