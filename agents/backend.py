@@ -2,8 +2,10 @@
 
 The CPU and accelerators want different shapes of the same computation: XLA:CPU runs
 small sequential loops and one network at a time fastest, while on a GPU every loop
-iteration launches kernels anew, so there one batched kernel beats a loop. Everything
-chosen here computes the same values either way; only the speed differs.
+iteration launches kernels anew, so there one batched kernel beats a loop. The replay
+choice computes the same values bit for bit either way; the optimizer, matmul and loop
+choices round differently (`tests/test_dqn.py` says how). Why each choice, with the
+measurements: docs/results.md, "DQN on the GPU".
 """
 
 from __future__ import annotations
@@ -37,9 +39,9 @@ def flat_optimizer(platform: str | None = None) -> bool:
 
 def unrolled_inner_loops(platform: str | None = None) -> bool:
     """Whether a training iteration's few env steps and gradient steps are unrolled rather
-    than looped: a loop inside the chunk's loop ran outside XLA's CUDA graphs on an H100,
-    leaving the GPU idle three quarters of the time (4 updates per iteration); the CPU
-    keeps its loops (smaller programs, same values)."""
+    than looped inside the chunk's loop: with 4 updates per iteration an H100 sat idle
+    most of the time between them, and unrolling gave 10% more env-steps/s; the CPU keeps
+    its loops (smaller programs)."""
     return not on_cpu(platform)
 
 
