@@ -17,6 +17,7 @@ import typing
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from agents import env_options
 from agents.dqn import PRESETS, DQNConfig
 
 
@@ -82,12 +83,14 @@ def cmd_train(args, extra: list[str]) -> int:
     if args.resume:
         from agents import checkpoint
 
-        saved_env, saved_seeds, config, _ = checkpoint.load_config(args.out)
-        if extra or args.steps or args.replay or saved_env != args.env or saved_seeds != args.seeds:
+        saved_env, saved_seeds, config, saved_options = checkpoint.load_config(args.out)
+        if (extra or args.steps or args.replay or saved_env != args.env or saved_seeds != args.seeds
+                or env_options.given(args)):
             raise SystemExit(f"mjxsuite: --resume continues the saved run ({saved_env}, {saved_seeds} seeds, "
-                             f"its own config); drop the other options or start a new --out")
-        result = _train(args, config, resume=True)
+                             f"its own config and env options); drop the other options or start a new --out")
+        result = _train(args, config, resume=True, env_options=saved_options)
         return _report(args, config, result)
+    options = env_options.from_args(args.env, args)
     config = config_from_args(PRESETS[args.preset], extra)
     overrides = {}
     if args.steps is not None:
@@ -95,7 +98,7 @@ def cmd_train(args, extra: list[str]) -> int:
     if args.replay is not None:
         overrides["replay"] = args.replay
     config = dataclasses.replace(config, **overrides)
-    result = _train(args, config)
+    result = _train(args, config, env_options=options)
     return _report(args, config, result)
 
 
@@ -108,7 +111,7 @@ def _train(args, config: DQNConfig, **kwargs):
     from agents.recording import TrainingLogger
 
     logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
-                            rollout_every=args.rerun_every)
+                            rollout_every=args.rerun_every, env_options=kwargs.get("env_options"))
     try:
         return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger,
                          **kwargs)
@@ -132,23 +135,29 @@ def cmd_eval(args, extra: list[str]) -> int:
     import jax
     import numpy as np
 
+    import envs
+
     from agents import checkpoint
     from agents.run import compile_cached, load_agent
 
     if extra:
         raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
     env_name, _, dqn, params = load_agent(args.checkpoint)
-    env_options = checkpoint.load_config(args.checkpoint)[3]
+    options = checkpoint.load_config(args.checkpoint)[3]
+    if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
+        options = {**options, **env_options.from_args(env_name, args)}
+        dqn = type(dqn)(dqn.config, envs.make(env_name, **options))
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
     evaluate = compile_cached(f"DQN.evaluate, {args.episodes} episodes",
                               jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)), (params, keys), dqn, seeds,
-                              env_name, env_options)
+                              env_name, options)
     returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
     for i, mean in enumerate(means):
         print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
-    print(json.dumps({"env": env_name, "episodes": args.episodes, "mean_return": means.tolist()}))
+    print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes,
+                      "mean_return": means.tolist()}))
     return 0
 
 
@@ -170,22 +179,26 @@ def cmd_rollout(args, extra: list[str]) -> int:
         from agents.recording import load_greedy
 
         trained_on, env, policy, params = load_greedy(args.checkpoint)
-        _, _, config, env_options = checkpoint.load_config(args.checkpoint)
+        _, _, config, options = checkpoint.load_config(args.checkpoint)
         env_name, policy_name = trained_on, {"greedy": config}
         if args.env is not None and args.env != trained_on:
-            other = envs.make(args.env)
+            other = envs.make(args.env, **env_options.from_args(args.env, args))
             if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
                 raise SystemExit(f"mjxsuite rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
-            env, env_name, env_options = other, args.env, None
+            env, env_name, options = other, args.env, env_options.from_args(args.env, args)
+        elif env_options.given(args):  # the saved env with other options (e.g. --randomize ranges)
+            options = {**options, **env_options.from_args(env_name, args)}
+            env = envs.make(env_name, **options)
     elif args.env is None:
         raise SystemExit("mjxsuite rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
-        env, env_name, env_options = envs.make(args.env), args.env, None
+        options = env_options.from_args(args.env, args)
+        env, env_name = envs.make(args.env, **options), args.env
         policy, params, policy_name = recording.random_policy(env), None, "random"
     episodes = args.episodes or (None if args.steps else 1)
     steps = args.steps or episodes * getattr(env, "episode_length", 1000)
-    rollout = collect_rollout_cached(env, env_name, env_options, policy, policy_name, jax.random.PRNGKey(args.seed),
+    rollout = collect_rollout_cached(env, env_name, options, policy, policy_name, jax.random.PRNGKey(args.seed),
                                      num_envs=args.num_envs, steps=steps, params=params, scene_envs=args.scene_envs)
     if episodes:
         rollout = recording.trim_to_episodes(rollout, episodes)
@@ -251,6 +264,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                            parents=[cached, tasks],
                            epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
     train.add_argument("--env", required=True, help="registered env name, e.g. cartpole or cartpole-mjx")
+    env_options.add_arguments(train)
     train.add_argument("--seeds", type=int, default=1, help="agents trained at once (vmapped)")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--steps", type=int, help="env steps per seed (DQNConfig.total_steps)")
@@ -269,6 +283,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=int, default=64)
     evaluate.add_argument("--seed", type=int, default=123)
+    env_options.add_arguments(evaluate)  # given, they change the saved env options for this evaluation
 
     rollout = sub.add_parser("rollout", help="log a rollout (random, or greedy from a checkpoint) to a Rerun file",
                              parents=[cached, tasks])
@@ -282,6 +297,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     rollout.add_argument("--seed", type=int, default=0)
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    env_options.add_arguments(rollout)  # with --checkpoint, they change the saved env options
 
     for command in (more or {}).values():
         command.add_parser(sub)
