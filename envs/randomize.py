@@ -201,7 +201,7 @@ class Randomize(Wrapper):
             raise ValueError(f"randomize: per={per!r}; choose one of {PER}")
         if env.impl != "jax":
             raise ValueError(f"randomize: task {env.name} steps with impl={env.impl!r}; per-env model values "
-                             "work with impl='jax' (MJX's Warp models take no per-env values through vmap)")
+                             "run with impl='jax' only (per-env Warp models would need MJX's batch_sizes)")
         super().__init__(env)
         self.variations = parse_ranges(env, ranges)
         self.per = per
