@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import envs
-from agents import DQNConfig
+from agents import checkpoint
 from agents.run import load_agent, train_run
 from benchmarks.cli import main as cli_main
 
@@ -94,8 +94,8 @@ def test_drawn_values_stay_in_range_and_differ_across_envs(randomized_rollout):
 
 @pytest.mark.parametrize("per", ["episode", "env"])
 def test_auto_reset_redraws_per_episode_or_keeps_per_env(per):
-    batch = envs.wrap_for_training(envs.make("cartpole-mjx", randomize={"body_mass:pole": (0.05, 0.5)},
-                                             randomize_per=per), 32)
+    env = envs.make("cartpole-mjx", randomize={"body_mass:pole": (0.05, 0.5)}, randomize_per=per)
+    batch = envs.BatchedAutoReset(env, 32, max_resets=4)  # as training; both of its reset paths run
     state = batch.reset(jax.random.PRNGKey(0))
     before = np.asarray(state.info["randomized"]["body_mass:pole"])
     step = jax.jit(batch.step)
@@ -166,39 +166,34 @@ def test_warp_without_a_cuda_gpu_says_so():
 
 
 def test_env_options_and_ranges_round_trip_through_the_saved_run(tmp_path, capsys):
-    small = ["--steps", "200", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "4",
+    small = ["--steps", "300", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "4",
              "--hidden", "16"]
-    out = tmp_path / "cp"
+    whole, part = tmp_path / "whole", tmp_path / "part"
     assert cli_main(["train", "--env", "cartpole", "--env-opt", "integrator=semi_implicit",
-                     "--env-opt", "episode_length=50", "--out", str(out), *small]) == 0
-    saved = json.loads((out / "config.json").read_text())["env_options"]
-    assert saved == {"integrator": "semi_implicit", "episode_length": 50}
-    assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "2"]) == 0
+                     "--env-opt", "masspole=0.3", "--env-opt", "episode_length=50", "--out", str(whole), *small]) == 0
+    _, _, config, saved = checkpoint.load_config(whole)
+    assert saved == {"integrator": "semi_implicit", "masspole": 0.3, "episode_length": 50}
+    assert cli_main(["eval", "--checkpoint", str(whole), "--episodes", "2"]) == 0
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["env_options"] == saved
+
+    # --resume rebuilds the saved env: the resumed run ends with the uninterrupted one's parameters.
+    train_run("cartpole", config, out_dir=part, progress=False, env_options=saved, stop_after_chunks=1)
+    assert cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume"]) == 0
+    for a, b in zip(jax.tree.leaves(load_agent(whole)[3]), jax.tree.leaves(load_agent(part)[3])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(SystemExit, match="env options"):
+        cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume", "--env-opt", "masspole=0.2"])
 
     out = tmp_path / "mjx"
     assert cli_main(["train", "--env", "cartpole-mjx", "--randomize", "body_mass:pole=0.05:0.5",
                      "--randomize", "dof_damping:slider=x0.5:1.5", "--out", str(out), *small]) == 0
-    saved = json.loads((out / "config.json").read_text())["env_options"]
+    saved = checkpoint.load_config(out)[3]
     assert saved == {"randomize": {"body_mass:pole": [0.05, 0.5], "dof_damping:slider": ["x", 0.5, 1.5]}}
+    assert load_agent(out)[1].unwrapped is not None and "Randomize" in repr(load_agent(out)[1])
     capsys.readouterr()
     assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "2", "--randomize", "body_mass:pole=0.3"]) == 0
     judged = json.loads(capsys.readouterr().out.splitlines()[-1])["env_options"]
     assert judged == {"randomize": {"body_mass:pole": 0.3}}
-
-
-def test_resume_reuses_the_saved_env_options(tmp_path):
-    config = DQNConfig(total_steps=300, eval_every=100, learning_starts=64, eval_episodes=4, hidden=(16,))
-    options = {"integrator": "semi_implicit", "masspole": 0.3}
-    train_run("cartpole", config, out_dir=tmp_path / "whole", progress=False, env_options=options)
-    train_run("cartpole", config, out_dir=tmp_path / "part", progress=False, env_options=options,
-              stop_after_chunks=1)
-    assert cli_main(["train", "--env", "cartpole", "--out", str(tmp_path / "part"), "--resume"]) == 0
-    for a, b in zip(jax.tree.leaves(load_agent(tmp_path / "whole")[3]), jax.tree.leaves(load_agent(tmp_path / "part")[3])):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    with pytest.raises(SystemExit, match="env options"):
-        cli_main(["train", "--env", "cartpole", "--out", str(tmp_path / "part"), "--resume",
-                  "--env-opt", "masspole=0.2"])
 
 
 def test_cli_refuses_bad_env_options():
