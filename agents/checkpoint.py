@@ -1,12 +1,26 @@
-"""Saving and loading training runs: the full train state (to resume) and the best parameters (to act)."""
+"""Saving and loading training runs: the full train state (to resume) and the best parameters (to act).
+
+A run directory (`mjxsuite train --out DIR`) holds:
+- config.json: env, env options, seeds, seed and the DQNConfig, written when the run starts;
+- train_state.msgpack: the whole seed-batched train state (replay buffer included) and the
+  number of chunks it has done: everything a resume needs;
+- best_params.msgpack: the best parameters of each seed and their greedy returns (eval, rollout);
+- metrics.jsonl: one record per chunk; progress.json: chunks done and best returns, for people.
+
+Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
+kill at any moment leaves the previous complete file. Each msgpack file is self-contained (its
+format version, env and chunk count travel with the arrays, under a CRC32), so a truncated,
+garbled or foreign file is refused with a message that names it, never loaded as nonsense.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 import os
+import zlib
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -18,6 +32,22 @@ CONFIG_FILE = "config.json"
 STATE_FILE = "train_state.msgpack"
 POLICY_FILE = "best_params.msgpack"
 PROGRESS_FILE = "progress.json"
+METRICS_FILE = "metrics.jsonl"
+FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
+
+
+class CheckpointError(Exception):
+    """A run directory's file cannot be written or read: a runtime failure (the CLI exits 1)."""
+
+
+class SavedRun(NamedTuple):
+    """What config.json records: enough to rebuild the run (`mjxsuite train --out DIR --resume`)."""
+
+    env: str
+    seeds: int
+    config: DQNConfig
+    env_options: dict
+    seed: int
 
 
 def check_writable(out_dir: str | os.PathLike) -> Path:
@@ -36,65 +66,144 @@ def check_writable(out_dir: str | os.PathLike) -> Path:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    """Write then rename, so an interrupted save never leaves a truncated file behind."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    """Write a temporary file, flush it to disk, then rename it over `path`: a kill or a full
+    disk at any moment leaves the previous `path` whole."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())  # the rename must not reach the disk before the data (power loss)
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise CheckpointError(f"could not write {path}: {err.strerror or err}. Any earlier {path.name} is "
+                              f"intact; free some space (or fix {path.parent}) and continue the run with "
+                              f"`mjxsuite train --out {path.parent} --resume`") from err
 
 
-def save_config(out_dir: Path, env: str, seeds: int, config: DQNConfig, env_options: dict | None = None) -> None:
-    record = {"env": env, "seeds": seeds, "env_options": env_options or {}, "config": dataclasses.asdict(config)}
+def start_run(out_dir: Path, run: SavedRun) -> None:
+    """Write config.json for a new run, first removing the checkpoint an earlier run left in
+    `out_dir`: a resume must never continue a run other than this one."""
+    for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json"):
+        (out_dir / stale).unlink(missing_ok=True)
+    record = {"env": run.env, "seeds": run.seeds, "seed": run.seed, "env_options": run.env_options or {},
+              "config": dataclasses.asdict(run.config)}
     _atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
 
 
-def load_config(out_dir: str | os.PathLike) -> tuple[str, int, DQNConfig, dict]:
+def load_config(out_dir: str | os.PathLike) -> SavedRun:
     path = Path(out_dir) / CONFIG_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found: is {out_dir} a directory written by `mjxsuite train --out`?")
-    record = json.loads(path.read_text())
-    fields = record["config"]
-    fields["hidden"] = tuple(fields["hidden"])
-    return record["env"], record["seeds"], DQNConfig(**fields), record.get("env_options", {})
+    try:
+        record = json.loads(path.read_text())
+        fields = record["config"]
+        fields["hidden"] = tuple(fields["hidden"])
+        return SavedRun(record["env"], record["seeds"], DQNConfig(**fields), record.get("env_options", {}),
+                        record.get("seed", 0))
+    except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
+        raise CheckpointError(f"{path} is damaged or was written by another mjxsuite version "
+                              f"({type(err).__name__}: {err}); restore it or start a new run") from err
 
 
-def _to_bytes(tree: Any) -> bytes:
-    """Any pytree (an `mjx.Data` env state included) as msgpack of its leaves, in order."""
-    return serialization.msgpack_serialize({str(i): np.asarray(x) for i, x in enumerate(jax.tree.leaves(tree))})
+def _pack(kind: str, tree: Any, meta: dict) -> bytes:
+    """Any pytree (an `mjx.Data` env state included) as msgpack of its leaves, in order, with `meta`."""
+    arrays = serialization.msgpack_serialize({str(i): np.asarray(x) for i, x in enumerate(jax.tree.leaves(tree))})
+    return serialization.msgpack_serialize({"format": FORMAT, "version": VERSION, "kind": kind, "meta": meta,
+                                            "crc32": zlib.crc32(arrays), "arrays": arrays})
 
 
-def _from_bytes(template: Any, data: bytes) -> Any:
-    """The inverse of `_to_bytes`, shaped like `template` (arrays or ShapeDtypeStructs)."""
-    leaves = serialization.msgpack_restore(data)
+def _read(path: Path, kind: str, env: str, fix: str) -> dict:
+    """The checked outer record of a file `_pack` wrote; CheckpointError saying what is wrong and `fix`."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: no checkpoint in {path.parent}")
+
+    def damaged(what: str) -> CheckpointError:
+        return CheckpointError(f"{path} {what}; {fix}")
+
+    try:
+        record = serialization.msgpack_restore(path.read_bytes())
+    except Exception as err:  # msgpack raises many types on garbage; "incomplete input" when cut short
+        cut = "incomplete" in str(err)
+        raise damaged("is truncated" if cut else f"is not a readable checkpoint ({err})") from err
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        older = isinstance(record, dict) and "0" in record  # format 1: the bare leaves
+        raise damaged("was written by an older mjxsuite (checkpoint format 1)" if older
+                      else "is not an mjxsuite checkpoint")
+    if record.get("version") != VERSION or record.get("kind") != kind:
+        raise damaged(f"was written by another mjxsuite version (format {record.get('version')}, "
+                      f"{record.get('kind')}; this one reads format {VERSION}, {kind})")
+    if zlib.crc32(record["arrays"]) != record["crc32"]:
+        raise damaged("is corrupted (its arrays fail their CRC32 check)")
+    if record["meta"].get("env") != env:
+        raise damaged(f"was written for env {record['meta'].get('env')!r}, not {env!r}")
+    return record
+
+
+def _unflatten(path: Path, record: dict, template: Any, fix: str) -> Any:
+    """The arrays of `record`, shaped like `template` (arrays or ShapeDtypeStructs)."""
+    leaves = serialization.msgpack_restore(record["arrays"])
     expected = jax.tree.leaves(template)
     if len(leaves) != len(expected) or any(
         np.shape(leaves[str(i)]) != tuple(t.shape) for i, t in enumerate(expected)
     ):
-        raise ValueError("checkpoint does not match this config and env (different network, buffer or env, "
-                         "or written by an older mjxsuite?)")
+        raise CheckpointError(f"{path} does not match its {CONFIG_FILE} (another network, buffer, env or number "
+                              f"of seeds); {fix}")
     return jax.tree.unflatten(jax.tree.structure(template), [leaves[str(i)] for i in range(len(expected))])
 
 
-def save_state(out_dir: Path, train_state: Any, chunks_done: int) -> None:
-    """The whole (seed-batched) train state, buffer included, so a resumed run continues exactly."""
-    _atomic_write(out_dir / STATE_FILE, _to_bytes(train_state))
-    _atomic_write(out_dir / POLICY_FILE, _to_bytes(train_state.best_params))
-    progress = {"chunks_done": chunks_done, "best_return": [float(r) for r in train_state.best_return]}
-    _atomic_write(out_dir / PROGRESS_FILE, json.dumps(progress).encode())
+RESUME_FIX = "it cannot be resumed: start the run again without --resume, or in a new --out"
+POLICY_FIX = "train the agent again, or use another run directory"
 
 
-def load_state(out_dir: str | os.PathLike, template: Any) -> tuple[Any, int]:
-    out = Path(out_dir)
-    state = _from_bytes(template, (out / STATE_FILE).read_bytes())
-    chunks_done = json.loads((out / PROGRESS_FILE).read_text())["chunks_done"]
-    return state, chunks_done
+def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int) -> None:
+    """The whole (seed-batched) train state, buffer included, so a resumed run continues
+    exactly, and the best parameters for eval. A kill between the renames leaves the two
+    files one save apart, each whole: a resume reads only the train state (with its own
+    chunk count) and rewrites the policy file at its next save."""
+    best_return = [float(r) for r in np.asarray(train_state.best_return)]
+    _atomic_write(out_dir / POLICY_FILE, _pack("best_params", train_state.best_params,
+                                               {"env": env, "best_return": best_return}))
+    _atomic_write(out_dir / STATE_FILE, _pack("train_state", train_state, {"env": env, "chunks_done": chunks_done}))
+    _atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
+
+
+def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any, int]:
+    path = Path(out_dir) / STATE_FILE
+    record = _read(path, "train_state", env, RESUME_FIX)
+    return _unflatten(path, record, template, RESUME_FIX), int(record["meta"]["chunks_done"])
 
 
 def load_best_returns(out_dir: str | os.PathLike) -> list[float]:
-    return json.loads((Path(out_dir) / PROGRESS_FILE).read_text())["best_return"]
+    out = Path(out_dir)
+    return _read(out / POLICY_FILE, "best_params", load_config(out).env, POLICY_FIX)["meta"]["best_return"]
 
 
 def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:
-    path = Path(out_dir) / POLICY_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"{path} not found: no checkpoint in {out_dir}")
-    return _from_bytes(template, path.read_bytes())
+    out = Path(out_dir)
+    path = out / POLICY_FILE
+    return _unflatten(path, _read(path, "best_params", load_config(out).env, POLICY_FIX), template, POLICY_FIX)
+
+
+def keep_metrics(out_dir: Path, chunks_done: int) -> None:
+    """Keep the metrics of the chunks a resumed train state has done, dropping those a killed
+    run wrote after its last checkpoint: the resumed run appends them again, so its file ends
+    as an uninterrupted run's (timings aside)."""
+    path = out_dir / METRICS_FILE
+    lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
+    _atomic_write(path, "".join(lines[:chunks_done]).encode())
+
+
+def check_resumable(out_dir: Path, run: SavedRun) -> None:
+    """Refuse to resume `out_dir` as a run other than the one it holds (ValueError: a usage error)."""
+    saved = load_config(out_dir)
+    asked = run._replace(env_options=json.loads(json.dumps(run.env_options or {})))  # as JSON stores them
+    differ = [f"{name} {getattr(saved, name)!r} (given {getattr(asked, name)!r})"
+              for name in SavedRun._fields if name != "config" and getattr(saved, name) != getattr(asked, name)]
+    saved_config, asked_config = dataclasses.asdict(saved.config), dataclasses.asdict(asked.config)
+    differ += [f"config.{name} {value!r} (given {asked_config[name]!r})"
+               for name, value in saved_config.items() if value != asked_config[name]]
+    if differ:
+        raise ValueError(f"--resume continues the run saved in {out_dir}, which has {'; '.join(differ)}; "
+                         "drop those options (they come from the directory) or start a new --out")

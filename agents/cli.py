@@ -4,6 +4,10 @@ train, eval and rollout use JAX's persistent compilation cache (see
 `agents.compile_cache`): a second run loads its compiled programs from disk, and
 `train` its traced training chunk too (`agents.export_cache`).
 `--no-compile-cache` or `MJXSUITE_COMPILE_CACHE=0` turns it off.
+
+Exit status: 0 done, 2 a command that cannot run as given (bad option or value, unknown
+env, unusable --out, nothing or something else to --resume), 1 a failure while running
+(a damaged checkpoint, a full disk), 130 stopped by Ctrl-C (a checkpoint is saved).
 """
 
 from __future__ import annotations
@@ -19,6 +23,35 @@ from pathlib import Path
 
 from agents import env_options
 from agents.dqn import PRESETS, DQNConfig
+from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
+
+
+class UsageError(SystemExit):
+    """A command that cannot run as given: exit status 2, as argparse's own errors. `main`
+    prints the message; in-process callers see it as the exception's text."""
+
+    def __init__(self, message: str):
+        super().__init__(2)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def ranged(kind: type, valid: Range):
+    """An argparse `type` that also checks the value's range (argparse names the option)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            value = text
+        if value not in valid:
+            raise argparse.ArgumentTypeError(f"must be {valid}, got {text}")
+        return value
+
+    return parse
 
 
 class Command(typing.NamedTuple):
@@ -41,63 +74,70 @@ def _parse_value(field: dataclasses.Field, text: str):
     return kind(text)
 
 
-def config_from_args(base: DQNConfig, pairs: list[str]) -> DQNConfig:
-    """Apply `--key value` pairs (dashes or underscores) to a DQNConfig, with clear errors."""
+def config_from_args(base: DQNConfig, pairs: list[str], **given) -> DQNConfig:
+    """Apply `--key value` pairs (dashes or underscores), then the fields `given` by the
+    command's own options (None: not given), to a DQNConfig, with clear errors."""
     fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
     changes = {}
     i = 0
     while i < len(pairs):
         flag = pairs[i]
         if not flag.startswith("--"):
-            raise SystemExit(f"mjxsuite: unexpected argument {flag!r}")
+            raise UsageError(f"unexpected argument {flag!r}")
         name, _, value = flag[2:].partition("=")
         name = name.replace("-", "_")
         if name not in fields:
-            raise SystemExit(f"mjxsuite: unknown option --{name}; config fields: {', '.join(sorted(fields))}")
+            raise UsageError(f"unknown option --{name}; config fields: {', '.join(sorted(fields))}")
         if not value:
             if i + 1 >= len(pairs):
-                raise SystemExit(f"mjxsuite: --{name} needs a value")
+                raise UsageError(f"--{name} needs a value")
             value = pairs[i + 1]
             i += 1
         try:
             changes[name] = _parse_value(fields[name], value)
         except ValueError as err:
-            raise SystemExit(f"mjxsuite: bad value for --{name}: {err}")
+            raise UsageError(f"bad value for --{name}: {err}")
         i += 1
+    changes.update({name: value for name, value in given.items() if value is not None})
     try:
         return dataclasses.replace(base, **changes)
     except ValueError as err:
-        raise SystemExit(f"mjxsuite: {err}")
+        raise UsageError(str(err))
 
 
 def _require_registered(env_name: str) -> None:
     import envs
 
     if env_name not in envs.names():
-        raise SystemExit(f"mjxsuite: unknown env {env_name!r}; registered envs: {', '.join(envs.names())} "
+        raise UsageError(f"unknown env {env_name!r}; registered envs: {', '.join(envs.names())} "
                          "(your own task? --import the module that registers it)")
 
 
 def cmd_train(args, extra: list[str]) -> int:
-    _require_registered(args.env)
     if args.resume:
         from agents import checkpoint
 
-        saved_env, saved_seeds, config, saved_options = checkpoint.load_config(args.out)
-        if (extra or args.steps or args.replay or saved_env != args.env or saved_seeds != args.seeds
-                or env_options.given(args)):
-            raise SystemExit(f"mjxsuite: --resume continues the saved run ({saved_env}, {saved_seeds} seeds, "
-                             f"its own config and env options); drop the other options or start a new --out")
-        result = _train(args, config, resume=True, env_options=saved_options)
-        return _report(args, config, result)
+        # The run's env, seeds, seed and config come from --out; train_run refuses any given that differ.
+        saved = checkpoint.load_config(args.out)
+        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset),
+               ("--impl", args.impl), ("--randomize-per", args.randomize_per),
+               ("--env-opt", args.env_opts or None), ("--randomize", args.randomize or None))
+        given = [flag for flag, value in own if value is not None]
+        if extra or given:
+            raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
+                             f"drop {' '.join(given + extra)} or start a new --out")
+        args.env = args.env or saved.env
+        args.seeds = args.seeds or saved.seeds
+        args.seed = saved.seed if args.seed is None else args.seed
+        _require_registered(args.env)
+        result = _train(args, saved.config, resume=True, env_options=saved.env_options)
+        return _report(args, saved.config, result)
+    if args.env is None:
+        raise UsageError("train needs --env (or --resume with the --out of a saved run)")
+    _require_registered(args.env)
+    args.seeds, args.seed = args.seeds or 1, args.seed or 0
     options = env_options.from_args(args.env, args)
-    config = config_from_args(PRESETS[args.preset], extra)
-    overrides = {}
-    if args.steps is not None:
-        overrides["total_steps"] = args.steps
-    if args.replay is not None:
-        overrides["replay"] = args.replay
-    config = dataclasses.replace(config, **overrides)
+    config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
     result = _train(args, config, env_options=options)
     return _report(args, config, result)
 
@@ -106,15 +146,16 @@ def _train(args, config: DQNConfig, **kwargs):
     """train_run, writing a Rerun file with --rerun (its path is checked before training starts)."""
     from agents.run import train_run
 
+    kwargs.update(seeds=args.seeds, seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
+                  checkpoint_seconds=args.checkpoint_seconds)
     if not args.rerun:
-        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, **kwargs)
+        return train_run(args.env, config, **kwargs)
     from agents.recording import TrainingLogger
 
     logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
                             rollout_every=args.rerun_every, env_options=kwargs.get("env_options"))
     try:
-        return train_run(args.env, config, seeds=args.seeds, seed=args.seed, out_dir=args.out, on_chunk=logger,
-                         **kwargs)
+        return train_run(args.env, config, on_chunk=logger, **kwargs)
     finally:
         logger.close()
         print(f"wrote Rerun recording {args.rerun}")
@@ -141,9 +182,9 @@ def cmd_eval(args, extra: list[str]) -> int:
     from agents.run import compile_cached, load_agent
 
     if extra:
-        raise SystemExit(f"mjxsuite eval: unexpected arguments {extra}")
+        raise UsageError(f"eval: unexpected arguments {extra}")
     env_name, _, dqn, params = load_agent(args.checkpoint)
-    options = checkpoint.load_config(args.checkpoint)[3]
+    options = checkpoint.load_config(args.checkpoint).env_options
     if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
         options = {**options, **env_options.from_args(env_name, args)}
         dqn = type(dqn)(dqn.config, envs.make(env_name, **options))
@@ -170,7 +211,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
     from envs import recording
 
     if extra:
-        raise SystemExit(f"mjxsuite rollout: unexpected arguments {extra}")
+        raise UsageError(f"rollout: unexpected arguments {extra}")
     recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
     if args.env is not None:
         _require_registered(args.env)
@@ -179,19 +220,20 @@ def cmd_rollout(args, extra: list[str]) -> int:
         from agents.recording import load_greedy
 
         trained_on, env, policy, params = load_greedy(args.checkpoint)
-        _, _, config, options = checkpoint.load_config(args.checkpoint)
+        saved = checkpoint.load_config(args.checkpoint)
+        config, options = saved.config, saved.env_options
         env_name, policy_name = trained_on, {"greedy": config}
         if args.env is not None and args.env != trained_on:
             other = envs.make(args.env, **env_options.from_args(args.env, args))
             if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
-                raise SystemExit(f"mjxsuite rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
+                raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
             env, env_name, options = other, args.env, env_options.from_args(args.env, args)
         elif env_options.given(args):  # the saved env with other options (e.g. --randomize ranges)
             options = {**options, **env_options.from_args(env_name, args)}
             env = envs.make(env_name, **options)
     elif args.env is None:
-        raise SystemExit("mjxsuite rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
+        raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
         options = env_options.from_args(args.env, args)
         env, env_name = envs.make(args.env, **options), args.env
@@ -242,7 +284,7 @@ def import_tasks(modules: list[str]) -> None:
                     sys.path.insert(0, os.getcwd())
                 importlib.import_module(module)
         except Exception as err:
-            raise SystemExit(f"mjxsuite: --import {module}: {type(err).__name__}: {err}")
+            raise UsageError(f"--import {module}: {type(err).__name__}: {err}")
 
 
 def build_parser(more: Mapping[str, Command] | None = None) -> argparse.ArgumentParser:
@@ -263,25 +305,30 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train = sub.add_parser("train", help="train DQN; any DQNConfig field can be set with --FIELD VALUE",
                            parents=[cached, tasks],
                            epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
-    train.add_argument("--env", required=True, help="registered env name, e.g. cartpole or cartpole-mjx")
+    train.add_argument("--env", help="registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)")
+    train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
+    train.add_argument("--seed", type=int, help="random seed (default 0)")
+    train.add_argument("--steps", type=ranged(int, COUNT), help="env steps per seed (DQNConfig.total_steps)")
     env_options.add_arguments(train)
-    train.add_argument("--seeds", type=int, default=1, help="agents trained at once (vmapped)")
-    train.add_argument("--seed", type=int, default=0)
-    train.add_argument("--steps", type=int, help="env steps per seed (DQNConfig.total_steps)")
     train.add_argument("--replay", choices=["uniform", "prioritized"])
-    train.add_argument("--preset", choices=sorted(PRESETS), default="default",
-                       help="a named DQNConfig that --FIELD options then change: many-envs is for GPUs "
+    train.add_argument("--preset", choices=sorted(PRESETS),
+                       help="a named DQNConfig (default: default) that --FIELD options then change: many-envs is for GPUs "
                             "(32 envs per agent, batch 512, 4 updates per iteration; docs/training.md)")
     train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
-    train.add_argument("--resume", action="store_true", help="continue the run saved in --out")
+    train.add_argument("--resume", action="store_true",
+                       help="continue the run saved in --out from its last checkpoint (env, seeds and config from there)")
+    train.add_argument("--checkpoint-every", type=ranged(int, COUNT), default=CHECKPOINT_EVERY, metavar="CHUNKS",
+                       help="chunks (of eval_every steps) between checkpoints in --out (default %(default)s)...")
+    train.add_argument("--checkpoint-seconds", type=ranged(float, NON_NEGATIVE), default=CHECKPOINT_SECONDS,
+                       metavar="S", help="...and at least S seconds between them (default %(default)s; 0: no limit)")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
-    train.add_argument("--rerun-every", type=int, default=1, metavar="N",
+    train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",
                        help="chunks between logged evaluation rollouts (0: none)")
 
     evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
-    evaluate.add_argument("--episodes", type=int, default=64)
+    evaluate.add_argument("--episodes", type=ranged(int, COUNT), default=64)
     evaluate.add_argument("--seed", type=int, default=123)
     env_options.add_arguments(evaluate)  # given, they change the saved env options for this evaluation
 
@@ -289,11 +336,13 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                              parents=[cached, tasks])
     rollout.add_argument("--env", help="registered env name (default: the checkpoint's)")
     rollout.add_argument("--checkpoint", help="a directory written by `mjxsuite train --out`; random actions without")
-    rollout.add_argument("--episodes", type=int, help="stop once every env finished this many episodes (default 1)")
-    rollout.add_argument("--num-envs", type=int, default=1)
-    rollout.add_argument("--steps", type=int, help="steps to run (default: episodes x the time limit)")
-    rollout.add_argument("--scene-envs", type=int, default=1, help="envs drawn in 3D")
-    rollout.add_argument("--plot-envs", type=int, default=16, help="envs whose observations etc. are plotted")
+    rollout.add_argument("--episodes", type=ranged(int, COUNT),
+                         help="stop once every env finished this many episodes (default 1)")
+    rollout.add_argument("--num-envs", type=ranged(int, COUNT), default=1)
+    rollout.add_argument("--steps", type=ranged(int, COUNT), help="steps to run (default: episodes x the time limit)")
+    rollout.add_argument("--scene-envs", type=ranged(int, NON_NEGATIVE_COUNT), default=1, help="envs drawn in 3D")
+    rollout.add_argument("--plot-envs", type=ranged(int, NON_NEGATIVE_COUNT), default=16,
+                         help="envs whose observations etc. are plotted")
     rollout.add_argument("--seed", type=int, default=0)
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
@@ -312,17 +361,25 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     args, extra = parser.parse_known_args(argv)
     if args.command == "train" and args.resume and not args.out:
         parser.error("--resume needs --out")
-    if args.command in ("train", "eval", "rollout"):
-        _use_compile_cache(args)
-        import_tasks(args.imports)
     handlers = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout,
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
+    from agents.checkpoint import CheckpointError
+
     try:
+        if args.command in ("train", "eval", "rollout"):
+            _use_compile_cache(args)
+            import_tasks(args.imports)
         return handler(args, extra)
-    except (ValueError, FileNotFoundError) as err:
+    except UsageError as err:
+        print(f"mjxsuite: {err}", file=sys.stderr)
+        raise
+    except (ValueError, FileNotFoundError) as err:  # the envs and agents APIs refuse bad input with these
         print(f"mjxsuite: {err}", file=sys.stderr)
         return 2
+    except (CheckpointError, OSError) as err:
+        print(f"mjxsuite: {err}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -23,6 +23,7 @@ from agents import backend
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, VmapWrapper, wrap_for_training
+from envs.ranges import COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,15 +62,38 @@ class DQNConfig:
     eval_episodes: int = 64
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
+    # The one validation of a config (`__post_init__`): every run, resumed ones included,
+    # is refused here before anything compiles. Exploration and priority annealing need
+    # at least one step: optax makes a zero-step schedule a constant at its start value.
+    RANGES: ClassVar[dict[str, Range]] = {
+        "total_steps": COUNT, "num_envs": COUNT, "learning_starts": NON_NEGATIVE_COUNT, "train_every": COUNT,
+        "gradient_steps": COUNT, "learning_rate": POSITIVE, "gamma": PROBABILITY,
+        "polyak_tau": Range(0.0, 1.0, low_open=True), "target_period": COUNT, "epsilon_start": PROBABILITY,
+        "epsilon_end": PROBABILITY, "exploration_steps": COUNT, "buffer_size": COUNT, "batch_size": COUNT,
+        "priority_alpha": NON_NEGATIVE, "priority_beta_start": PROBABILITY, "eval_every": COUNT,
+        "eval_episodes": COUNT, "solve_return": FINITE,
+    }
+
     def __post_init__(self):
         choices = {"loss": ("mse", "huber"), "target_update": ("polyak", "hard"), "replay": ("uniform", "prioritized")}
         for field, valid in choices.items():
             if getattr(self, field) not in valid:
                 raise ValueError(f"DQNConfig.{field} must be one of {valid}, got {getattr(self, field)!r}")
+        check_fields(self, self.RANGES)
+        for width in self.hidden:
+            COUNT.check(f"DQNConfig.hidden (layer widths {self.hidden})", width)
+        if self.max_grad_norm is not None:
+            POSITIVE.check("DQNConfig.max_grad_norm (None: no clipping)", self.max_grad_norm)
         if self.learning_starts < self.batch_size:
-            raise ValueError("learning_starts must be at least batch_size so every sample is a real transition")
-        if self.eval_every % (self.num_envs * self.train_every):
-            raise ValueError("eval_every must be a multiple of num_envs * train_every")
+            raise ValueError(f"DQNConfig.learning_starts must be at least batch_size ({self.batch_size}) so every "
+                             f"sample is a real transition, got {self.learning_starts}")
+        step = self.num_envs * self.train_every
+        if self.eval_every % step:
+            raise ValueError(f"DQNConfig.eval_every must be a multiple of num_envs * train_every ({step}), "
+                             f"got {self.eval_every}; e.g. {max(step, self.eval_every // step * step)}")
+        if self.total_steps < self.eval_every:
+            raise ValueError(f"DQNConfig.total_steps must be at least eval_every ({self.eval_every}: training runs "
+                             f"in chunks of eval_every steps), got {self.total_steps}; lower eval_every or raise total_steps")
 
     @property
     def iterations_per_chunk(self) -> int:

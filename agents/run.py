@@ -16,8 +16,16 @@ from tqdm.auto import tqdm
 
 import envs
 from agents import checkpoint, export_cache
-from agents.backend import default_seed_axis, training_compiler_options
+from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig
+from envs.ranges import COUNT, NON_NEGATIVE
+
+# Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once CHECKPOINT_SECONDS have
+# passed since the last save. On the 2-core CPU a default 50k-step CartPole run saves every
+# ~5 s, so a kill loses at most ~5 s of training, and saving costs ~1% of the wall time
+# (docs/reliability.md has the measurements).
+CHECKPOINT_EVERY = 1
+CHECKPOINT_SECONDS = 5.0
 
 
 @dataclass
@@ -94,36 +102,53 @@ def train_run(
     stop_after_chunks: int | None = None,
     stop_when_solved: bool = False,
     seed_axis: str | None = None,  # "vmap" or "map" (see `seed_batched`); None: by device
+    checkpoint_every: int = CHECKPOINT_EVERY,  # chunks between checkpoints in `out_dir`...
+    checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds (0: every checkpoint_every)
 ) -> RunResult:
-    """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`."""
+    """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`.
+
+    With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
+    options, else ValueError) from its last checkpoint, or from the start if it was killed
+    before its first: it ends with the parameters of an uninterrupted run."""
     start = time.perf_counter()
+    COUNT.check("seeds", seeds)
+    COUNT.check("checkpoint_every", checkpoint_every)
+    NON_NEGATIVE.check("checkpoint_seconds", checkpoint_seconds)
     out = checkpoint.check_writable(out_dir) if out_dir is not None else None
+    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed)
+    if resume:
+        if out is None:
+            raise ValueError("resume needs out_dir, the directory of the run to continue")
+        checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
-    init = jax.jit(jax.vmap(dqn.init), compiler_options=training_compiler_options())
+    init = jax.jit(jax.vmap(dqn.init), compiler_options=init_compiler_options())
 
     keys = seed_keys(seed, seeds)
     chunks_done = 0
-    if resume:
-        if out is None or not (out / checkpoint.STATE_FILE).is_file():
-            raise FileNotFoundError(f"nothing to resume in {out_dir}")
-        ts, chunks_done = checkpoint.load_state(out, jax.eval_shape(init, keys))
-    else:
+    init_compile_s = 0.0
+    if resume and (out / checkpoint.STATE_FILE).is_file():
+        ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, keys))
+    else:  # a run killed before its first checkpoint resumes from the start, as it began
+        tick = time.perf_counter()
         ts = init(keys)
+        init_compile_s = time.perf_counter() - tick  # compiling the init program (its run is queued)
         if out is not None:
-            checkpoint.save_config(out, env_name, seeds, config, env_options)
-            (out / "metrics.jsonl").write_text("")
+            checkpoint.start_run(out, run)
+    if out is not None:
+        checkpoint.keep_metrics(out, chunks_done)
 
     compile_start = time.perf_counter()
     seed_axis = seed_axis or default_seed_axis()
     chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", seed_batched(dqn.chunk, seeds, seed_axis), (ts,),
                            dqn, seeds, env_name, env_options, donate=True)
-    compile_s = time.perf_counter() - compile_start
+    compile_s = init_compile_s + time.perf_counter() - compile_start
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * seeds)
     bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
                unit="step", disable=not progress, desc=env_name, dynamic_ncols=True)
-    last = chunks_done
+    last = saved = chunks_done
+    saved_at = time.perf_counter()
     solved_early = False
     try:
         for index in range(chunks_done, config.num_chunks):
@@ -143,7 +168,7 @@ def train_run(
                 if solve >= config.solve_return and result.solve_wall_s[i] is None:
                     result.solve_wall_s[i] = now
             if out is not None:
-                with open(out / "metrics.jsonl", "a") as f:
+                with open(out / checkpoint.METRICS_FILE, "a") as f:
                     f.write(json.dumps(record) + "\n")
             if on_chunk is not None:
                 on_chunk(index, ts, {**record, "eval_episode": eval_episode})
@@ -153,14 +178,20 @@ def train_run(
             if stop_when_solved and None not in result.solve_wall_s:
                 solved_early = True
                 break
+            if (out is not None and last - saved >= checkpoint_every
+                    and time.perf_counter() - saved_at >= checkpoint_seconds):
+                checkpoint.save_state(out, env_name, ts, last)
+                saved, saved_at = last, time.perf_counter()
     except KeyboardInterrupt:
         result.interrupted = True
         bar.write("interrupted: saving a checkpoint")
     finally:
         bar.close()
         result.train_state = ts
-        if out is not None:
-            checkpoint.save_state(out, ts, last)
+    # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
+    # over it, and a failed chunk may have consumed its donated train state).
+    if out is not None and saved != last:
+        checkpoint.save_state(out, env_name, ts, last)
     if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
         return result
 
@@ -184,11 +215,11 @@ def train_run(
 def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, DQN, Any]:
     """`(env_name, env, dqn, best_params)` from a `mjxsuite train --out` directory;
     `best_params` has a leading seed axis."""
-    env_name, seeds, config, env_options = checkpoint.load_config(out_dir)
-    env = envs.make(env_name, **env_options)
-    dqn = DQN(config, env)
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds)).best_params
-    return env_name, env, dqn, checkpoint.load_best_params(out_dir, template)
+    saved = checkpoint.load_config(out_dir)
+    env = envs.make(saved.env, **saved.env_options)
+    dqn = DQN(saved.config, env)
+    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, saved.seeds)).best_params
+    return saved.env, env, dqn, checkpoint.load_best_params(out_dir, template)
 
 
 def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -> Any:

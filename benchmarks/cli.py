@@ -41,7 +41,7 @@ def cmd_bench(args, extra: list[str]) -> int:
     from benchmarks import suite
 
     if extra:
-        raise SystemExit(f"mjxsuite bench: unexpected arguments {extra}")
+        raise cli.UsageError(f"bench: unexpected arguments {extra}")
     if args.table:
         print(suite.tables(suite.load_records(args.table)))
     if args.plot:
@@ -53,9 +53,9 @@ def cmd_bench(args, extra: list[str]) -> int:
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise SystemExit(f"mjxsuite bench: cannot write {target}: {err}")
+            raise cli.UsageError(f"bench: cannot write {target}: {err}")
         if target.is_dir() or not os.access(target if target.exists() else target.parent, os.W_OK):
-            raise SystemExit(f"mjxsuite bench: cannot write {target}")
+            raise cli.UsageError(f"bench: cannot write {target}")
     records = suite.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
                               repeats=args.repeats, peer_dqn=args.peer_dqn)
     if args.json:

@@ -78,7 +78,7 @@ def throughput_record(env: str, seeds: int, config: DQNConfig, chunks: int = 3, 
         "lib": "mjxsuite", "kind": "dqn-throughput", "env": env, "seeds": seeds,
         "seed_axis": seed_axis if seeds > 1 else "one seed", "device": jax.devices()[0].device_kind,
         "compile_s": result.compile_s, "chunks": chunks, "steps_per_s": steps_per_s,
-        "updates_per_s": steps_per_s / config.train_every * config.gradient_steps,
+        "updates_per_s": steps_per_s / (config.num_envs * config.train_every) * config.gradient_steps,
     }
 
 

@@ -9,6 +9,7 @@ from typing import Any, Callable
 from envs.core import Env
 from envs.mjx_env import MjxEnv
 from envs.randomize import PER, Randomize
+from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
 
 # Overrides every MJX task takes besides its own (see `make`).
@@ -56,7 +57,7 @@ def make(name: str, **overrides: Any) -> Env:
     unknown = sorted(set(overrides) - set(valid))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for env {name!r}; valid options: {sorted(valid)}")
-    episode_length = overrides.pop("episode_length", valid["episode_length"])
+    episode_length = COUNT.check("episode_length", overrides.pop("episode_length", valid["episode_length"]))
     mjx_options = {k: overrides.pop(k, default) for k, default in MJX_OPTIONS.items() if k in valid}
     kwargs: dict[str, Any] = {}
     for param in inspect.signature(factory).parameters.values():
@@ -67,12 +68,14 @@ def make(name: str, **overrides: Any) -> Env:
             changes = {k: overrides.pop(k) for k in list(overrides) if k in fields}
             if changes:
                 kwargs[param.name] = dataclasses.replace(param.default, **changes)
+    for value in kwargs.values():  # out-of-range physics or rules are refused here, before anything compiles
+        check_fields(value, getattr(value, "RANGES", {}))
     env = factory(**kwargs)
     if mjx_options:
         env = env.with_impl(mjx_options["impl"])
         if mjx_options["randomize"]:
             env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
-    return TimeLimit(env, int(episode_length))
+    return TimeLimit(env, episode_length)
 
 
 def _makes_mjx_env(factory: Callable[..., Env]) -> bool:

@@ -171,7 +171,8 @@ def test_env_options_and_ranges_round_trip_through_the_saved_run(tmp_path, capsy
     whole, part = tmp_path / "whole", tmp_path / "part"
     assert cli_main(["train", "--env", "cartpole", "--env-opt", "integrator=semi_implicit",
                      "--env-opt", "masspole=0.3", "--env-opt", "episode_length=50", "--out", str(whole), *small]) == 0
-    _, _, config, saved = checkpoint.load_config(whole)
+    run = checkpoint.load_config(whole)
+    config, saved = run.config, run.env_options
     assert saved == {"integrator": "semi_implicit", "masspole": 0.3, "episode_length": 50}
     assert cli_main(["eval", "--checkpoint", str(whole), "--episodes", "2"]) == 0
     assert json.loads(capsys.readouterr().out.splitlines()[-1])["env_options"] == saved
@@ -181,13 +182,13 @@ def test_env_options_and_ranges_round_trip_through_the_saved_run(tmp_path, capsy
     assert cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume"]) == 0
     for a, b in zip(jax.tree.leaves(load_agent(whole)[3]), jax.tree.leaves(load_agent(part)[3])):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    with pytest.raises(SystemExit, match="env options"):
+    with pytest.raises(SystemExit, match="drop --env-opt"):
         cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume", "--env-opt", "masspole=0.2"])
 
     out = tmp_path / "mjx"
     assert cli_main(["train", "--env", "cartpole-mjx", "--randomize", "body_mass:pole=0.05:0.5",
                      "--randomize", "dof_damping:slider=x0.5:1.5", "--out", str(out), *small]) == 0
-    saved = checkpoint.load_config(out)[3]
+    saved = checkpoint.load_config(out).env_options
     assert saved == {"randomize": {"body_mass:pole": [0.05, 0.5], "dof_damping:slider": ["x", 0.5, 1.5]}}
     assert load_agent(out)[1].unwrapped is not None and "Randomize" in repr(load_agent(out)[1])
     capsys.readouterr()

@@ -13,12 +13,14 @@ default float type: float32, or float64 with `jax_enable_x64`.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from envs.core import Env, State
+from envs.ranges import FINITE, NON_NEGATIVE, POSITIVE, Range
 
 # Action index -> torque in units of `torque_mag` (Gymnasium's AVAIL_TORQUE).
 TORQUES = (-1.0, 0.0, 1.0)
@@ -38,6 +40,12 @@ class AcrobotPhysics:
     torque_mag: float = 1.0
     dt: float = 0.2  # seconds per step: one RK4 step
 
+    # What `envs.make` accepts as overrides (a vmapped pytree of values is not checked).
+    RANGES: ClassVar[dict[str, Range]] = {
+        "gravity": FINITE, "link_length_1": POSITIVE, "link_mass_1": POSITIVE, "link_mass_2": POSITIVE,
+        "link_com_pos_1": NON_NEGATIVE, "link_com_pos_2": NON_NEGATIVE, "link_moi": POSITIVE,
+        "torque_mag": NON_NEGATIVE, "dt": POSITIVE}
+
 
 @struct.dataclass
 class AcrobotRules:
@@ -51,6 +59,9 @@ class AcrobotRules:
     goal_height: float = 1.0  # the tip must rise this far above the pivot (links 1 m long)
     max_vel_1: float = 4 * math.pi
     max_vel_2: float = 9 * math.pi
+
+    RANGES: ClassVar[dict[str, Range]] = {"reset_bound": NON_NEGATIVE, "goal_height": FINITE,
+                                          "max_vel_1": POSITIVE, "max_vel_2": POSITIVE}
 
     def initial_state(self, key: jax.Array) -> jax.Array:
         """(theta1, theta2, dtheta1, dtheta2), drawn as Gymnasium draws them."""

@@ -9,12 +9,14 @@ in JAX's default float type: float32, or float64 with `jax_enable_x64`.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from envs.core import Env, State
+from envs.ranges import FINITE, NON_NEGATIVE, POSITIVE, Range
 
 INTEGRATORS = ("euler", "semi_implicit")
 
@@ -30,6 +32,10 @@ class CartPolePhysics:
     force_mag: float = 10.0
     tau: float = 0.02  # seconds between state updates
 
+    # What `envs.make` accepts as overrides (a vmapped pytree of values is not checked).
+    RANGES: ClassVar[dict[str, Range]] = {"gravity": FINITE, "masscart": POSITIVE, "masspole": POSITIVE,
+                                          "length": POSITIVE, "force_mag": NON_NEGATIVE, "tau": POSITIVE}
+
 
 @struct.dataclass
 class CartPoleRules:
@@ -38,6 +44,10 @@ class CartPoleRules:
     x_threshold: float = 2.4
     theta_threshold: float = 12 * 2 * math.pi / 360  # 12 degrees, Gymnasium's exact expression
     reset_bound: float = 0.05  # reset state ~ U(-reset_bound, reset_bound)^4
+
+    # A zero threshold is allowed: every episode then ends on its first step (a test uses that).
+    RANGES: ClassVar[dict[str, Range]] = {"x_threshold": NON_NEGATIVE, "theta_threshold": NON_NEGATIVE,
+                                          "reset_bound": NON_NEGATIVE}
 
     def initial_state(self, key: jax.Array) -> jax.Array:
         """(x, x_dot, theta, theta_dot), drawn as Gymnasium draws them."""

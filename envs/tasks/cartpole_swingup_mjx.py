@@ -21,11 +21,13 @@ Reward, as dm_control's smooth reward:
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 
 from envs.mjx_env import MjxEnv, mjx
+from envs.ranges import NON_NEGATIVE, POSITIVE, Range
 
 
 def gaussian_tolerance(x: jax.Array, margin: float, value_at_margin: float = 0.1) -> jax.Array:
@@ -48,6 +50,10 @@ class SwingUpRules:
     cart_margin: float = 2.0  # m from the centre where `centered` has dropped to (1 + 0.1) / 2
     control_margin: float = 1.0  # |action| where `small_control` has dropped to 4 / 5
     velocity_margin: float = 5.0  # rad/s where `small_velocity` has dropped to (1 + 0.1) / 2
+
+    # What `envs.make` accepts as overrides.
+    RANGES: ClassVar[dict[str, Range]] = {"reset_noise": NON_NEGATIVE, "cart_margin": POSITIVE,
+                                          "control_margin": POSITIVE, "velocity_margin": POSITIVE}
 
 
 class CartPoleSwingUpMjx(MjxEnv):

@@ -13,12 +13,14 @@ with `action_bins=n`, n evenly spaced torques from -2 to 2 for DQN.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from envs.mjx_env import ActionBins, MjxEnv, mjx
+from envs.ranges import NON_NEGATIVE, POSITIVE, Range
 
 # Torque bins of `pendulum-mjx-discrete`: -2, -1.5, ..., 2 N m. An odd count keeps
 # zero torque (to hold the pendulum still once upright) and the full +-2 N m (to swing
@@ -35,6 +37,11 @@ class PendulumParams:
     reset_speed: float = 1.0  # theta_dot ~ U(-reset_speed, reset_speed) at reset
     speed_cost: float = 0.1  # reward = -(theta^2 + speed_cost theta_dot^2 + torque_cost u^2)
     torque_cost: float = 0.001
+
+    # What `envs.make` accepts as overrides (a vmapped pytree of values is not checked).
+    RANGES: ClassVar[dict[str, Range]] = {"max_speed": POSITIVE, "reset_angle": NON_NEGATIVE,
+                                          "reset_speed": NON_NEGATIVE, "speed_cost": NON_NEGATIVE,
+                                          "torque_cost": NON_NEGATIVE}
 
 
 def angle_normalize(theta: jax.Array) -> jax.Array:

@@ -1,0 +1,59 @@
+"""Valid ranges of numeric options, checked where the options come in (`envs.make`,
+`DQNConfig`, the `mjxsuite` command) so a value that makes no sense is refused before
+anything compiles, with a message naming the option, the value and the valid range."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class Range:
+    """Finite numbers from `low` to `high`; NaN and infinities are never in a range."""
+
+    low: float = -math.inf
+    high: float = math.inf
+    low_open: bool = False  # (low, ... rather than [low, ...
+    integer: bool = False
+
+    def __contains__(self, value: Any) -> bool:
+        if isinstance(value, bool) or (self.integer and not isinstance(value, (int, np.integer))):
+            return False
+        try:
+            v = np.asarray(value, dtype=float)  # an array override is checked element by element
+        except (TypeError, ValueError):
+            return False
+        above = v > self.low if self.low_open else v >= self.low
+        return bool(np.all(np.isfinite(v) & above & (v <= self.high)))
+
+    def __str__(self) -> str:
+        if self.integer:
+            return f"an integer >= {self.low:g}"
+        if math.isinf(self.low):
+            return "a finite number"
+        if math.isinf(self.high):
+            return f"a finite number {'>' if self.low_open else '>='} {self.low:g}"
+        return f"in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
+
+    def check(self, option: str, value: Any) -> Any:
+        if value not in self:
+            raise ValueError(f"{option} must be {self}, got {value!r}")
+        return value
+
+
+FINITE = Range()
+POSITIVE = Range(0.0, low_open=True)
+NON_NEGATIVE = Range(0.0)
+PROBABILITY = Range(0.0, 1.0)
+COUNT = Range(1, integer=True)
+NON_NEGATIVE_COUNT = Range(0, integer=True)
+
+
+def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
+    """Check the fields of a config dataclass against its `RANGES` table."""
+    for name, valid in ranges.items():
+        valid.check(f"{type(obj).__name__}.{name}", getattr(obj, name))

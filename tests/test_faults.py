@@ -1,0 +1,251 @@
+"""Fault injection (issue #17): kills, damaged files, a full disk, NaN physics, nonsense input.
+
+docs/reliability.md lists the guarantees these tests prove."""
+
+import errno
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax import serialization
+
+import envs
+from agents import DQN, DQNConfig, checkpoint, train_run
+from agents.cli import main as cli_main
+from agents.run import seed_keys
+
+CONFIG = DQNConfig(total_steps=600, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                   eval_episodes=4, hidden=(16,))
+CONFIG_ARGS = ["--steps", "600", "--learning_starts", "64", "--batch_size", "32", "--buffer_size", "256",
+               "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16"]
+SEEDS = 2
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The uninterrupted run every interrupted one must end equal to."""
+    out = tmp_path_factory.mktemp("reference")
+    assert cli_main(["train", "--env", "cartpole", "--seeds", str(SEEDS), "--out", str(out), *CONFIG_ARGS]) == 0
+    return out
+
+
+def final_state(out):
+    run = checkpoint.load_config(out)
+    template = jax.eval_shape(jax.vmap(DQN(run.config, envs.make(run.env)).init), seed_keys(run.seed, run.seeds))
+    return checkpoint.load_state(out, run.env, template)
+
+
+def metrics_without_timings(out):
+    records = [json.loads(line) for line in (out / checkpoint.METRICS_FILE).read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k != "steps_per_s"} for r in records]
+
+
+def assert_same_run(out, reference):
+    (state, chunks), (expected, expected_chunks) = final_state(out), final_state(reference)
+    assert chunks == expected_chunks == CONFIG.num_chunks
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(expected), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert metrics_without_timings(out) == metrics_without_timings(reference)
+    assert json.loads((out / "eval.json").read_text())["mean_return"] == \
+        json.loads((reference / "eval.json").read_text())["mean_return"]
+
+
+# Runs the CLI with every rename slowed down, so a save (temp file written, rename pending)
+# lasts long enough to be killed in the middle of.
+SLOW_SAVES = """
+import os, sys, time
+rename = os.replace
+def slow_rename(src, dst):
+    time.sleep(0.3)
+    rename(src, dst)
+os.replace = slow_rename
+from agents.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def start_training(out):
+    command = [sys.executable, "-c", SLOW_SAVES, "train", "--env", "cartpole", "--seeds", str(SEEDS), "--out",
+               str(out), "--checkpoint-seconds", "0", *CONFIG_ARGS]
+    with open(out.parent / "stderr.txt", "w") as stderr:  # a file, not a pipe nobody reads while it runs
+        return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=stderr)
+
+
+def wait_for(condition, out, process, timeout=120.0):
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert process.poll() is None, f"training ended before the kill: {(out.parent / 'stderr.txt').read_text()}"
+        assert time.monotonic() < deadline, "timed out waiting to kill"
+        time.sleep(0.01)
+
+
+KILL_MOMENTS = {
+    "before the first checkpoint": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
+    "during a save": lambda out: any(out.glob("*.msgpack.tmp")),
+    "between saves": lambda out: (out / checkpoint.PROGRESS_FILE).is_file()
+    and json.loads((out / checkpoint.PROGRESS_FILE).read_text())["chunks_done"] >= 2,
+}
+
+
+@pytest.mark.parametrize("moment", KILL_MOMENTS)
+def test_kill_9_then_resume_ends_as_the_uninterrupted_run(tmp_path, reference, moment):
+    out = tmp_path / "run"
+    process = start_training(out)
+    try:
+        wait_for(lambda: KILL_MOMENTS[moment](out), out, process)
+        time.sleep(random.Random(moment).uniform(0.0, 0.3))  # somewhere in the next rename or two
+    finally:
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+    assert not (out / "eval.json").exists()  # the kill really cut the run short
+    if (out / checkpoint.STATE_FILE).exists():  # the previous good checkpoint survived the kill...
+        logged = len((out / checkpoint.METRICS_FILE).read_text().splitlines())
+        assert logged - 1 <= final_state(out)[1] < CONFIG.num_chunks  # ...at most one interval (a chunk) behind
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 0  # env, seeds, config come from --out
+    assert_same_run(out, reference)
+
+
+def damage(path, how):
+    data = path.read_bytes()
+    if how == "truncated":
+        path.write_bytes(data[: len(data) // 2])
+    elif how == "garbled":  # a few bytes in the middle, as a bad disk sector would
+        middle = len(data) // 2
+        path.write_bytes(data[:middle] + bytes(b ^ 0x5A for b in data[middle:middle + 8]) + data[middle + 8:])
+    elif how == "older format":  # format 1: the bare leaves
+        path.write_bytes(serialization.msgpack_serialize({"0": np.zeros(3)}))
+
+
+@pytest.mark.parametrize("name,how,message", [
+    (checkpoint.CONFIG_FILE, "truncated", "is damaged"),
+    (checkpoint.CONFIG_FILE, "garbled", "is damaged"),
+    (checkpoint.STATE_FILE, "truncated", "is truncated"),
+    (checkpoint.STATE_FILE, "garbled", "is corrupted"),
+    (checkpoint.STATE_FILE, "older format", "older mjxsuite"),
+    (checkpoint.POLICY_FILE, "truncated", "is truncated"),
+    (checkpoint.POLICY_FILE, "garbled", "is corrupted"),
+])
+def test_damaged_files_are_refused_naming_the_file(tmp_path, reference, capsys, name, how, message):
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    damage(out / name, how)
+    reads = ["train", "--out", str(out), "--resume"] if name != checkpoint.POLICY_FILE else \
+        ["eval", "--checkpoint", str(out), "--episodes", "1"]
+    assert cli_main(reads) == 1  # a runtime failure, not a usage error
+    err = capsys.readouterr().err
+    assert str(out / name) in err and message in err
+    assert "start the run again" in err or "train the agent again" in err or "restore it" in err
+
+
+def test_a_checkpoint_from_another_env_is_refused(tmp_path, reference, capsys):
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    record = json.loads((out / checkpoint.CONFIG_FILE).read_text())
+    (out / checkpoint.CONFIG_FILE).write_text(json.dumps({**record, "env": "acrobot"}))
+    assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "1"]) == 1
+    assert "was written for env 'cartpole', not 'acrobot'" in capsys.readouterr().err
+
+
+def test_a_full_disk_fails_clearly_and_keeps_the_previous_checkpoint(tmp_path, reference, monkeypatch, capsys):
+    out = tmp_path / "run"
+    syncs = []
+
+    def fsync_then_disk_full(fd):
+        syncs.append(fd)
+        if len(syncs) > 5:  # config.json, metrics.jsonl and the first checkpoint's 3 files fit, then the disk is full
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(checkpoint.os, "fsync", fsync_then_disk_full)
+    code = cli_main(["train", "--env", "cartpole", "--seeds", str(SEEDS), "--out", str(out),
+                     "--checkpoint-seconds", "0", *CONFIG_ARGS])
+    assert code == 1
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and str(out / checkpoint.POLICY_FILE) in err and "intact" in err
+    assert not list(out.glob("*.tmp"))
+    assert final_state(out)[1] == 1  # the first checkpoint, whole
+    monkeypatch.undo()  # space freed
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 0
+    assert_same_run(out, reference)
+
+
+class ExplodingCartPole(envs.CartPoleMjx):
+    """The physics turns NaN once the cart is 2 cm right of the centre (as an unstable
+    simulation would); nearer the centre it is the usual CartPole. A second `mjx.step` with
+    a huge motor does the same but triples the compile time."""
+
+    def post_step(self, prev, data):
+        return data.replace(qvel=jnp.where(prev.qpos[0] > 0.02, jnp.nan, data.qvel))
+
+
+def test_nan_physics_ends_episodes_counted_and_nothing_nan_is_learned():
+    dqn = DQN(CONFIG, envs.TimeLimit(ExplodingCartPole(), 500))
+    ts = jax.jit(dqn.init)(jax.random.PRNGKey(0))
+    chunk = jax.jit(dqn.chunk)
+    nan_episodes = 0
+    for _ in range(2):
+        ts, metrics = chunk(ts)
+        nan_episodes += int(metrics["nan_episodes"])
+    assert nan_episodes > 10
+    kept = int(ts.buffer.size)
+    assert 0 < kept == int(ts.env_steps) - nan_episodes  # every finite transition, no exploded one
+    assert np.isfinite(np.asarray(ts.buffer.data)[:kept]).all()
+    for leaf in jax.tree.leaves((ts.params, ts.target_params, ts.opt_state)):
+        assert np.isfinite(np.asarray(leaf)).all()
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--steps", "0"], "argument --steps: must be an integer >= 1, got 0"),
+    (["--steps", "-5"], "argument --steps: must be an integer >= 1, got -5"),
+    (["--seeds", "0"], "argument --seeds: must be an integer >= 1, got 0"),
+    (["--checkpoint-seconds", "nan"], "argument --checkpoint-seconds: must be a finite number >= 0, got nan"),
+    (["--learning_rate", "nan"], "DQNConfig.learning_rate must be a finite number > 0, got nan"),
+    (["--gamma", "1.5"], "DQNConfig.gamma must be in [0, 1], got 1.5"),
+    (["--epsilon_end", "-0.1"], "DQNConfig.epsilon_end must be in [0, 1], got -0.1"),
+    (["--num_envs", "3"], "DQNConfig.eval_every must be a multiple of num_envs * train_every (3), got 1000"),
+    (["--steps", "500"], "DQNConfig.total_steps must be at least eval_every (1000"),
+])
+def test_nonsense_options_are_refused_before_anything_compiles(capsys, args, message):
+    with pytest.raises(SystemExit) as exit:
+        cli_main(["train", "--env", "cartpole", *args])
+    assert exit.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,option,value", [
+    ("cartpole", "masspole", -0.1), ("cartpole", "length", 0.0), ("cartpole", "tau", 0.0),
+    ("cartpole-mjx", "x_threshold", -1.0), ("acrobot", "dt", 0.0), ("acrobot", "link_mass_1", -1.0),
+    ("pendulum-mjx", "max_speed", float("inf")), ("cartpole-swingup-mjx", "reset_noise", -0.01),
+    ("cartpole", "episode_length", 0),
+])
+def test_out_of_range_env_overrides_are_refused(name, option, value):
+    with pytest.raises(ValueError, match=rf"{option} must be .*, got {value!r}"):
+        envs.make(name, **{option: value})
+
+
+def test_usage_errors_exit_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit:
+        cli_main(["train", "--env", "nope"])
+    assert exit.value.code == 2 and "unknown env 'nope'" in capsys.readouterr().err
+    assert cli_main(["train", "--out", str(tmp_path), "--resume"]) == 2  # nothing to resume
+    assert "config.json not found" in capsys.readouterr().err
+
+
+def test_resume_refuses_another_run(tmp_path, reference, capsys):
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    assert cli_main(["train", "--env", "cartpole-mjx", "--out", str(out), "--resume"]) == 2
+    assert "env 'cartpole' (given 'cartpole-mjx')" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit:
+        cli_main(["train", "--out", str(out), "--resume", "--gamma", "0.9"])
+    assert exit.value.code == 2 and "drop --gamma 0.9" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=r"config.gamma 0.99 \(given 0.9\)"):
+        train_run("cartpole", DQNConfig(**{**CONFIG.__dict__, "gamma": 0.9}), seeds=SEEDS, out_dir=out,
+                  resume=True, progress=False)
