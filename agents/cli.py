@@ -21,6 +21,7 @@ import typing
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from agents import env_options
 from agents.dqn import PRESETS, DQNConfig
 from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
@@ -118,7 +119,9 @@ def cmd_train(args, extra: list[str]) -> int:
 
         # The run's env, seeds, seed and config come from --out; train_run refuses any given that differ.
         saved = checkpoint.load_config(args.out)
-        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset))
+        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset),
+               ("--impl", args.impl), ("--randomize-per", args.randomize_per),
+               ("--env-opt", args.env_opts or None), ("--randomize", args.randomize or None))
         given = [flag for flag, value in own if value is not None]
         if extra or given:
             raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
@@ -133,8 +136,9 @@ def cmd_train(args, extra: list[str]) -> int:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
+    options = env_options.from_args(args.env, args)
     config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
-    result = _train(args, config)
+    result = _train(args, config, env_options=options)
     return _report(args, config, result)
 
 
@@ -149,7 +153,7 @@ def _train(args, config: DQNConfig, **kwargs):
     from agents.recording import TrainingLogger
 
     logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
-                            rollout_every=args.rerun_every)
+                            rollout_every=args.rerun_every, env_options=kwargs.get("env_options"))
     try:
         return train_run(args.env, config, on_chunk=logger, **kwargs)
     finally:
@@ -172,23 +176,29 @@ def cmd_eval(args, extra: list[str]) -> int:
     import jax
     import numpy as np
 
+    import envs
+
     from agents import checkpoint
     from agents.run import compile_cached, load_agent
 
     if extra:
         raise UsageError(f"eval: unexpected arguments {extra}")
     env_name, _, dqn, params = load_agent(args.checkpoint)
-    env_options = checkpoint.load_config(args.checkpoint).env_options
+    options = checkpoint.load_config(args.checkpoint).env_options
+    if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
+        options = {**options, **env_options.from_args(env_name, args)}
+        dqn = type(dqn)(dqn.config, envs.make(env_name, **options))
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
     evaluate = compile_cached(f"DQN.evaluate, {args.episodes} episodes",
                               jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)), (params, keys), dqn, seeds,
-                              env_name, env_options)
+                              env_name, options)
     returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
     for i, mean in enumerate(means):
         print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
-    print(json.dumps({"env": env_name, "episodes": args.episodes, "mean_return": means.tolist()}))
+    print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes,
+                      "mean_return": means.tolist()}))
     return 0
 
 
@@ -211,22 +221,26 @@ def cmd_rollout(args, extra: list[str]) -> int:
 
         trained_on, env, policy, params = load_greedy(args.checkpoint)
         saved = checkpoint.load_config(args.checkpoint)
-        config, env_options = saved.config, saved.env_options
+        config, options = saved.config, saved.env_options
         env_name, policy_name = trained_on, {"greedy": config}
         if args.env is not None and args.env != trained_on:
-            other = envs.make(args.env)
+            other = envs.make(args.env, **env_options.from_args(args.env, args))
             if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
                 raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
-            env, env_name, env_options = other, args.env, None
+            env, env_name, options = other, args.env, env_options.from_args(args.env, args)
+        elif env_options.given(args):  # the saved env with other options (e.g. --randomize ranges)
+            options = {**options, **env_options.from_args(env_name, args)}
+            env = envs.make(env_name, **options)
     elif args.env is None:
         raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
-        env, env_name, env_options = envs.make(args.env), args.env, None
+        options = env_options.from_args(args.env, args)
+        env, env_name = envs.make(args.env, **options), args.env
         policy, params, policy_name = recording.random_policy(env), None, "random"
     episodes = args.episodes or (None if args.steps else 1)
     steps = args.steps or episodes * getattr(env, "episode_length", 1000)
-    rollout = collect_rollout_cached(env, env_name, env_options, policy, policy_name, jax.random.PRNGKey(args.seed),
+    rollout = collect_rollout_cached(env, env_name, options, policy, policy_name, jax.random.PRNGKey(args.seed),
                                      num_envs=args.num_envs, steps=steps, params=params, scene_envs=args.scene_envs)
     if episodes:
         rollout = recording.trim_to_episodes(rollout, episodes)
@@ -295,6 +309,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
     train.add_argument("--seed", type=int, help="random seed (default 0)")
     train.add_argument("--steps", type=ranged(int, COUNT), help="env steps per seed (DQNConfig.total_steps)")
+    env_options.add_arguments(train)
     train.add_argument("--replay", choices=["uniform", "prioritized"])
     train.add_argument("--preset", choices=sorted(PRESETS),
                        help="a named DQNConfig (default: default) that --FIELD options then change: many-envs is for GPUs "
@@ -315,6 +330,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=ranged(int, COUNT), default=64)
     evaluate.add_argument("--seed", type=int, default=123)
+    env_options.add_arguments(evaluate)  # given, they change the saved env options for this evaluation
 
     rollout = sub.add_parser("rollout", help="log a rollout (random, or greedy from a checkpoint) to a Rerun file",
                              parents=[cached, tasks])
@@ -330,6 +346,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     rollout.add_argument("--seed", type=int, default=0)
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    env_options.add_arguments(rollout)  # with --checkpoint, they change the saved env options
 
     for command in (more or {}).values():
         command.add_parser(sub)

@@ -71,11 +71,11 @@ def steps_for(num_envs: int, mjx: bool = False, on: str | None = None) -> int:
     return max(low, min(10_000, target // num_envs))
 
 
-def rollout_fn(env_name: str, num_envs: int, steps: int):
+def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | None = None):
     """`run(key) -> (total reward, final observations)` of `steps` steps of `num_envs` envs
-    with random actions. Returning the final observations keeps XLA from dropping the
-    physics (CartPole's reward is a constant 1, so the total alone needs no state)."""
-    env = envs.wrap_for_training(envs.make(env_name), num_envs)
+    (made with `env_options`) with random actions. Returning the final observations keeps XLA
+    from dropping the physics (CartPole's reward is a constant 1, so the total alone needs no state)."""
+    env = envs.wrap_for_training(envs.make(env_name, **(env_options or {})), num_envs)
 
     def body(carry, _):
         state, key, total = carry

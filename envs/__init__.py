@@ -1,7 +1,7 @@
 """mjxsuite environments: a functional env API, analytic and MJX-backed tasks, and wrappers.
 
 The API sits at the top of the package (`core`, `registry`, `wrappers`, `episode_keys`,
-`assets`, `mjx_env`, `recording`); the tasks live in `envs.tasks` (one file each, their
+`assets`, `mjx_env`, `randomize`, `recording`); the tasks live in `envs.tasks` (one file each, their
 MJCF in `assets/`), the Brax and Gymnasium adapters in `envs.interop`. Those two import
 the API modules, never this package: only this file gathers the public names and
 registers the built-in tasks. See ARCHITECTURE.md."""
@@ -11,6 +11,7 @@ import functools
 from envs.core import Env, State, Wrapper
 from envs.interop.brax import BraxEnv, to_brax
 from envs.mjx_env import MjxEnv
+from envs.randomize import Randomize, randomize
 from envs.registry import make, names, options, register
 from envs.tasks.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
 from envs.tasks.acrobot_mjx import AcrobotMjx
@@ -43,5 +44,5 @@ __all__ = [
     "EpisodeStats", "MjxEnv", "State", "TimeLimit", "VmapWrapper", "Wrapper",
     "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
     "PendulumMjx", "PendulumParams",
-    "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax",
+    "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
 ]

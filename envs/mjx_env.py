@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import abc
 import contextlib
+import copy
 import io
 import os
 from typing import Mapping, Sequence
@@ -31,6 +32,30 @@ from envs.assets import load_model
 from envs.core import Env, State
 
 ActionBins = Mapping[str, Sequence[float]]
+IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
+
+
+def require_warp() -> None:
+    """Raise a clear error unless MJX can step with MuJoCo Warp here: it needs warp-lang
+    (the `mjxsuite[warp]` extra) and an NVIDIA GPU that JAX uses (CUDA)."""
+    from mujoco.mjx import warp as mjx_warp
+
+    missing = []
+    if not mjx_warp.WARP_INSTALLED:
+        missing.append("warp-lang is not installed (pip install 'mjxsuite[warp]')")
+    platforms = sorted({device.platform for device in jax.devices()})
+    if "gpu" not in platforms or not _jax_has_cuda():
+        missing.append(f"JAX sees no CUDA GPU (devices: {', '.join(platforms)})")
+    if missing:
+        raise RuntimeError("impl='warp' steps MJX with MuJoCo Warp, which needs an NVIDIA GPU and warp-lang: "
+                           + "; ".join(missing) + ". Use impl='jax' (the default, any device) here.")
+
+
+def _jax_has_cuda() -> bool:
+    try:
+        return bool(jax.devices("cuda"))
+    except RuntimeError:  # no CUDA backend in this JAX
+        return False
 
 
 class MjxEnv(Env):
@@ -67,17 +92,7 @@ class MjxEnv(Env):
             raise type(err)(f"task {self.name}: {err}") from err
         if not isinstance(getattr(self, "observation_size", None), int):
             raise TypeError(f"task {self.name}: set the class attribute `observation_size` (an int)")
-        try:
-            self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl="jax")
-        except NotImplementedError as err:
-            raise NotImplementedError(
-                f"task {self.name}: MJX cannot run this model: {err} (geoms that never touch should have "
-                'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
-            ) from err
-        data = mjx.make_data(self.mjx_model, impl="jax")
-        # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
-        # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
-        self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
+        self._put_on_device("jax")
 
         if action_bins is not None:
             self.action_bins = action_bins
@@ -88,6 +103,34 @@ class MjxEnv(Env):
             self.num_actions, self.action_size = len(self.action_bins), None
         else:
             self.num_actions, self.action_size = None, self.mj_model.nu
+
+    def _put_on_device(self, impl: str) -> None:
+        """The MJX model and the initial `mjx.Data` for MJX's implementation `impl`."""
+        try:
+            self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl=impl)
+        except NotImplementedError as err:
+            raise NotImplementedError(
+                f"task {self.name}: MJX cannot run this model: {err} (geoms that never touch should have "
+                'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
+            ) from err
+        self.impl = impl
+        data = mjx.make_data(self.mjx_model, impl=impl)
+        # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
+        # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
+        self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
+
+    def with_impl(self, impl: str) -> MjxEnv:
+        """This task stepped by MJX's implementation `impl`: "jax" (pure JAX, any device; the
+        default) or "warp" (MuJoCo Warp, NVIDIA GPUs only, `pip install 'mjxsuite[warp]'`)."""
+        if impl not in IMPLS:
+            raise ValueError(f"task {self.name}: unknown impl {impl!r}; choose one of {IMPLS}")
+        if impl == self.impl:
+            return self
+        if impl == "warp":
+            require_warp()
+        task = copy.copy(self)
+        task._put_on_device(impl)
+        return task
 
     @property
     def name(self) -> str:
@@ -138,13 +181,23 @@ class MjxEnv(Env):
 
     # ---- the env API --------------------------------------------------------
     def reset(self, key: jax.Array) -> State:
+        return self.reset_with_model(key, self.mjx_model)
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return self.step_with_model(state, action, self.mjx_model)
+
+    # `envs.randomize` gives each env of a batch its own model values: it calls these two
+    # with a model whose leaves differ per env (batched under vmap), so mjx.step runs
+    # each env's physics; `reset`/`step` above pass the task's one model at no extra cost.
+    def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
+        """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
         qpos, qvel = self.initial_qpos_qvel(key)
         data = self._initial_data.replace(
             qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
             qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
         if self.forward_on_reset:
-            data = mjx.forward(self.mjx_model, data)
+            data = mjx.forward(model, data)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
             raise ValueError(
@@ -154,15 +207,16 @@ class MjxEnv(Env):
         zero = jnp.zeros((), obs.dtype)
         return State(data, obs, zero, zero, info={"truncation": zero, "nan": zero})
 
-    def step(self, state: State, action: jax.Array) -> State:
+    def step_with_model(self, state: State, action: jax.Array, model: mjx.Model) -> State:
+        """`step`, with `model` in place of the task's own `mjx_model`."""
         action = self.check_action(action)
         prev = state.pipeline_state
         # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
         data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
         if self.n_substeps == 1:
-            data = mjx.step(self.mjx_model, data)
+            data = mjx.step(model, data)
         else:
-            data = jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(self.mjx_model, d), data)
+            data = jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(model, d), data)
         data = self.post_step(prev, data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
         obs, reward, terminated = self.observation(data), self.reward(data, action, prev), self.terminated(data)

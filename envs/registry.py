@@ -7,8 +7,13 @@ import inspect
 from typing import Any, Callable
 
 from envs.core import Env
+from envs.mjx_env import MjxEnv
+from envs.randomize import PER, Randomize
 from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
+
+# Overrides every MJX task takes besides its own (see `make`).
+MJX_OPTIONS = {"impl": "jax", "randomize": None, "randomize_per": PER[0]}
 
 _REGISTRY: dict[str, tuple[Callable[..., Env], int]] = {}
 
@@ -31,7 +36,7 @@ def names() -> list[str]:
 def options(name: str) -> dict[str, Any]:
     """Every override `make(name, ...)` accepts, with its default."""
     factory, episode_length = _lookup(name)
-    found: dict[str, Any] = {"episode_length": episode_length}
+    found: dict[str, Any] = {"episode_length": episode_length, **(MJX_OPTIONS if _makes_mjx_env(factory) else {})}
     for param in inspect.signature(factory).parameters.values():
         if param.default is inspect.Parameter.empty:
             continue
@@ -43,13 +48,17 @@ def options(name: str) -> dict[str, Any]:
 
 
 def make(name: str, **overrides: Any) -> Env:
-    """Build a registered env, its episodes limited to `episode_length` steps (truncation)."""
+    """Build a registered env, its episodes limited to `episode_length` steps (truncation).
+
+    An MJX task also takes `impl` ("jax", or "warp" for MuJoCo Warp on an NVIDIA GPU) and
+    `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`."""
     factory, _ = _lookup(name)
     valid = options(name)
     unknown = sorted(set(overrides) - set(valid))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for env {name!r}; valid options: {sorted(valid)}")
     episode_length = COUNT.check("episode_length", overrides.pop("episode_length", valid["episode_length"]))
+    mjx_options = {k: overrides.pop(k, default) for k, default in MJX_OPTIONS.items() if k in valid}
     kwargs: dict[str, Any] = {}
     for param in inspect.signature(factory).parameters.values():
         if param.name in overrides:
@@ -61,7 +70,47 @@ def make(name: str, **overrides: Any) -> Env:
                 kwargs[param.name] = dataclasses.replace(param.default, **changes)
     for value in kwargs.values():  # out-of-range physics or rules are refused here, before anything compiles
         check_fields(value, getattr(value, "RANGES", {}))
-    return TimeLimit(factory(**kwargs), episode_length)
+    env = factory(**kwargs)
+    if mjx_options:
+        env = env.with_impl(mjx_options["impl"])
+        if mjx_options["randomize"]:
+            env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
+    return TimeLimit(env, episode_length)
+
+
+def _makes_mjx_env(factory: Callable[..., Env]) -> bool:
+    """Whether `factory` is an MjxEnv subclass (or a functools.partial of one)."""
+    factory = getattr(factory, "func", factory)
+    return inspect.isclass(factory) and issubclass(factory, MjxEnv)
+
+
+def parse_option(name: str, option: str, text: str) -> Any:
+    """An override of env `name` from text (the command line's `--env-opt option=text`), read
+    as its default's type: true/false for a bool, a number for an int or float, text for a str."""
+    valid = options(name)
+    if option not in valid:
+        raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
+    default = valid[option]
+    if option == "randomize" or dataclasses.is_dataclass(default):
+        fix = "use --randomize FIELD:ELEMENT=LOW:HIGH" if option == "randomize" else "set its fields one by one"
+        raise ValueError(f"option {option!r} of env {name!r} cannot be given as text; {fix}")
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError("expected true or false")
+            return text.lower() in ("true", "1", "yes")
+        if isinstance(default, (int, float)):
+            return type(default)(text)
+        if default is None:  # no type to go by: a number if it reads as one
+            for kind in (int, float):
+                try:
+                    return kind(text)
+                except ValueError:
+                    pass
+        return text
+    except ValueError as err:
+        raise ValueError(f"bad value {text!r} for option {option!r} of env {name!r} "
+                         f"(default {default!r}): {err}") from None
 
 
 def _lookup(name: str) -> tuple[Callable[..., Env], int]:

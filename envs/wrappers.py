@@ -76,15 +76,21 @@ class AutoReset(Wrapper):
         def pick(new, old):
             return jnp.where(jnp.reshape(done, done.shape + (1,) * (new.ndim - done.ndim)), new, old)
 
-        merged = _merge_fresh(stepped, fresh, next_rng, pick)
+        merged = _merge_fresh(stepped, fresh, next_rng, pick, kept_info(self.env))
         return merged.replace(info={**merged.info, "final_obs": stepped.obs})
 
 
-def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge) -> State:
+def kept_info(env: Env) -> tuple[str, ...]:
+    """Info entries an env keeps across its episodes (e.g. `envs.randomize(..., per="env")`'s
+    model values): auto-reset leaves them as they are."""
+    return tuple(getattr(env, "info_kept_across_episodes", ()))
+
+
+def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept: tuple[str, ...] = ()) -> State:
     """`stepped` with `fresh` episodes merged in by `merge(new, old)`: state, obs, the
     stream's next key and the info entries a fresh episode brings (not those that
-    describe the finished transition)."""
-    carried = [k for k in fresh.info if k not in TRANSITION_INFO and k != "rng"]
+    describe the finished transition, nor those in `kept`)."""
+    carried = [k for k in fresh.info if k not in TRANSITION_INFO and k not in kept and k != "rng"]
     info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
             "rng": merge(next_rng, stepped.info["rng"])}
     return stepped.replace(
@@ -153,7 +159,7 @@ class BatchedAutoReset(Wrapper):
         def put(new, old):
             return old.at[index].set(new, mode="drop")
 
-        return _merge_fresh(stepped, fresh, next_rng, put)
+        return _merge_fresh(stepped, fresh, next_rng, put, kept_info(self.env))
 
 
 class EpisodeStats(Wrapper):
