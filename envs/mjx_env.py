@@ -114,7 +114,8 @@ class MjxEnv(Env):
                 'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
             ) from err
         self.impl = impl
-        data = mjx.make_data(self.mjx_model, impl=impl)
+        # MJX builds Warp data from the MuJoCo model itself (it refuses an mjx.Model there).
+        data = mjx.make_data(self.mj_model if impl == "warp" else self.mjx_model, impl=impl)
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
         # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
