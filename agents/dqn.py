@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import itertools
 import math
 from typing import Any, ClassVar, NamedTuple
 
@@ -138,6 +139,22 @@ class Hyperparams(NamedTuple):
         """One float32 array per field, one entry per config: a sweep's traced values."""
         rows = [cls.of(c) for c in configs]
         return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
+
+
+def sweep_configs(base: "DQNConfig", sweep: dict[str, list[float]] | None) -> list["DQNConfig"]:
+    """Every combination of `sweep`'s values over `base` (the last field varying fastest);
+    `[base]` without a sweep. ValueError for a field outside `SWEEPABLE` or a value out of range."""
+    if not sweep:
+        return [base]
+    fixed = [name for name in sweep if name not in SWEEPABLE]
+    if fixed:
+        raise ValueError(f"cannot sweep {', '.join(fixed)}: one compiled program has one set of array shapes and "
+                         f"loops, so only the fields used as plain numbers can vary: {', '.join(SWEEPABLE)}. Run "
+                         "one sweep per value of the others")
+    empty = [name for name, values in sweep.items() if not values]
+    if empty:
+        raise ValueError(f"sweep of {', '.join(empty)} has no values")
+    return [dataclasses.replace(base, **dict(zip(sweep, values))) for values in itertools.product(*sweep.values())]
 
 
 def linear_schedule(span, end, steps: int, count):
