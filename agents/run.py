@@ -122,12 +122,12 @@ def train_run(
     COUNT.check("seeds", seeds)
     COUNT.check("checkpoint_every", checkpoint_every)
     NON_NEGATIVE.check("checkpoint_seconds", checkpoint_seconds)
-    out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
     sweep = sweep or None
     configs = sweep_configs(config, sweep)
     agents = seeds * len(configs)
     placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs)))
     writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
+    out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
     run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
     if resume:
         if out is None:
