@@ -115,21 +115,7 @@ def _require_registered(env_name: str) -> None:
 
 def cmd_train(args, extra: list[str]) -> int:
     if args.resume:
-        from agents import checkpoint
-
-        # The run's env, seeds, seed and config come from --out; train_run refuses any given that differ.
-        saved = checkpoint.load_config(args.out)
-        if saved.sweep:
-            raise UsageError(f"{args.out} holds a sweep; continue it with `mjxsuite sweep --out {args.out} --resume`")
-        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset))
-        given = [flag for flag, value in own if value is not None]
-        if extra or given:
-            raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
-                             f"drop {' '.join(given + extra)} or start a new --out")
-        args.env = args.env or saved.env
-        args.seeds = args.seeds or saved.seeds
-        args.seed = saved.seed if args.seed is None else args.seed
-        _require_registered(args.env)
+        saved = _saved_run(args, extra, sweep=False)
         result = _train(args, saved.config, resume=True, env_options=saved.env_options)
         return _report(args, saved.config, result)
     if args.env is None:
@@ -139,6 +125,29 @@ def cmd_train(args, extra: list[str]) -> int:
     config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
     result = _train(args, config)
     return _report(args, config, result)
+
+
+def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ()):
+    """The run in --out that `--resume` continues (a sweep or not, as `sweep` says); its env,
+    seeds, seed and config come from there (train_run refuses any given that differ), so
+    config options (`extra`, --steps, ..., and the `swept` fields) are refused."""
+    from agents import checkpoint
+
+    saved = checkpoint.load_config(args.out)
+    if bool(saved.sweep) != sweep:
+        command = "sweep" if saved.sweep else "train"
+        raise UsageError(f"{args.out} holds a `mjxsuite {command}` run; continue it with "
+                         f"`mjxsuite {command} --out {args.out} --resume`")
+    own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset))
+    given = [flag for flag, value in own if value is not None] + [f"--{name}" for name in swept]
+    if extra or given:
+        raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
+                         f"drop {' '.join(given + extra)} or start a new --out")
+    args.env = args.env or saved.env
+    args.seeds = args.seeds or saved.seeds
+    args.seed = saved.seed if args.seed is None else args.seed
+    _require_registered(args.env)
+    return saved
 
 
 def _train(args, config: DQNConfig, **kwargs):
@@ -193,23 +202,9 @@ def _report_devices(result) -> None:
 
 def cmd_sweep(args, extra: list[str]) -> int:
     """A grid over the sweepable config fields (comma-separated values) times --seeds, as one program."""
-    from agents import checkpoint
-
     grid = {name: getattr(args, name) for name in SWEEPABLE if getattr(args, name) is not None}
     if args.resume:
-        saved = checkpoint.load_config(args.out)
-        if not saved.sweep:
-            raise UsageError(f"{args.out} holds a `mjxsuite train` run; continue it with "
-                             f"`mjxsuite train --out {args.out} --resume`")
-        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset))
-        given = [flag for flag, value in own if value is not None] + [f"--{name}" for name in grid]
-        if extra or given:
-            raise UsageError(f"--resume continues the sweep saved in {args.out} with its own grid and config; "
-                             f"drop {' '.join(given + extra)} or start a new --out")
-        args.env = args.env or saved.env
-        args.seeds = args.seeds or saved.seeds
-        args.seed = saved.seed if args.seed is None else args.seed
-        _require_registered(args.env)
+        saved = _saved_run(args, extra, sweep=True, swept=tuple(grid))
         config, grid = saved.config, saved.sweep
         result = _train(args, config, resume=True, env_options=saved.env_options, sweep=grid)
     else:

@@ -5,6 +5,7 @@ Every multi-device case runs in a subprocess of its own with 4 forced host devic
 subprocess runs all the single-host cases, so they share its start-up.
 """
 
+import dataclasses
 import json
 import os
 import socket
@@ -30,6 +31,7 @@ SINGLE_HOST = textwrap.dedent("""
     import dataclasses, json, shutil, sys
     from pathlib import Path
     import jax, numpy as np
+    from agents import DQNConfig
     from agents import DQNConfig
     from agents.cli import main
     from agents.run import load_agent, train_run
@@ -161,3 +163,34 @@ def test_two_processes_with_jax_distributed_train_and_write_one_output_directory
     assert (result["mean_return"], result["solve_step"]) == (one["mean_return"], one["solve_step"])
     assert len((out / "metrics.jsonl").read_text().splitlines()) == 2
     assert (tmp_path / "train.rrd").stat().st_size > 0
+
+
+def test_sweep_refuses_shape_fields_and_resume_of_the_other_kind(tmp_path, capsys):
+    from agents import DQNConfig
+    from agents.cli import main
+
+    with pytest.raises(SystemExit) as refused:
+        main(["sweep", "--env", "cartpole", "--batch_size", "32,64", "--learning_rate", "1e-3,2e-3"])
+    assert refused.value.code == 2
+    assert "--batch_size cannot be swept" in str(refused.value) and "learning_rate, gamma, polyak_tau" in str(refused.value)
+    with pytest.raises(SystemExit, match="needs at least one field"):
+        main(["sweep", "--env", "cartpole", "--seeds", "2"])
+    run = tmp_path / "run"
+    run.mkdir()
+    config = dataclasses.asdict(DQNConfig(**SMALL))
+    (run / "config.json").write_text(json.dumps({"env": "cartpole", "seeds": 1, "seed": 0, "config": config}))
+    with pytest.raises(SystemExit, match="holds a `mjxsuite train` run; continue it with `mjxsuite train"):
+        main(["sweep", "--out", str(run), "--resume"])
+
+
+def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_path):
+    tiny = ["--total_steps", "400", "--eval_every", "200", "--learning_starts", "64", "--batch_size", "32",
+            "--buffer_size", "256", "--eval_episodes", "2", "--hidden", "16"]
+    done = subprocess.run([sys.executable, "-m", "benchmarks.scaling", "--env", "cartpole", "--seeds", "4",
+                           "--sweep-configs", "4", "--sweep-seeds", "2", "--chunks", "1", "--json", "out.json", *tiny],
+                          env=environment(2), cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    records = json.loads((tmp_path / "out.json").read_text())
+    assert [(r["workload"], r["agents"], r["devices"]) for r in records] == \
+        [("seeds", 4, 1), ("seeds", 4, 2), ("sweep", 8, 1), ("sweep", 8, 2)]
+    assert all(r["agent_steps_per_s"] > 0 for r in records) and records[0]["ratio_to_one_device"] == 1.0
