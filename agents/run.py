@@ -1,4 +1,5 @@
-"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds, with a progress
+"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds (spread over devices by
+`agents.sharding`, several configs at once for a sweep), with a progress
 bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
 
 from __future__ import annotations

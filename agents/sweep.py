@@ -90,7 +90,7 @@ def plot(summary: dict, path: str | Path) -> Path | None:
     positions = np.arange(len(records))
     figure, (rate, steps) = plt.subplots(2, 1, sharex=True, figsize=(max(6.0, 0.5 * len(records) + 2), 6))
     rate.bar(positions, [r["solve_rate"] for r in records], color="tab:blue")
-    rate.set_ylabel(f"seeds solved (of {summary['seeds']})")
+    rate.set_ylabel(f"solve rate ({summary['seeds']} seeds)")
     rate.set_ylim(0, 1.05)
     medians = [r["median_solve_step"] for r in records]
     steps.bar(positions, [m if m is not None else 0 for m in medians], color="tab:orange")
@@ -98,6 +98,7 @@ def plot(summary: dict, path: str | Path) -> Path | None:
         if m is None:
             steps.text(x, 0, "never", ha="center", va="bottom", rotation=90, fontsize=8)
     steps.set_ylabel("median env steps to solve")
+    steps.set_ylim(bottom=0)
     steps.set_xticks(positions, labels, rotation=60, ha="right", fontsize=8)
     rate.set_title(f"{summary['env']}: {len(records)} configs x {summary['seeds']} seeds "
                    f"(solved: greedy return >= {summary['solve_return']:g})")
