@@ -48,6 +48,7 @@ class SavedRun(NamedTuple):
     config: DQNConfig
     env_options: dict
     seed: int
+    sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
 
 
 def check_writable(out_dir: str | os.PathLike) -> Path:
@@ -89,6 +90,8 @@ def start_run(out_dir: Path, run: SavedRun) -> None:
         (out_dir / stale).unlink(missing_ok=True)
     record = {"env": run.env, "seeds": run.seeds, "seed": run.seed, "env_options": run.env_options or {},
               "config": dataclasses.asdict(run.config)}
+    if run.sweep:
+        record["sweep"] = run.sweep
     _atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
 
 
@@ -101,7 +104,7 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
         fields = record["config"]
         fields["hidden"] = tuple(fields["hidden"])
         return SavedRun(record["env"], record["seeds"], DQNConfig(**fields), record.get("env_options", {}),
-                        record.get("seed", 0))
+                        record.get("seed", 0), record.get("sweep"))
     except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
         raise CheckpointError(f"{path} is damaged or was written by another mjxsuite version "
                               f"({type(err).__name__}: {err}); restore it or start a new run") from err
@@ -198,7 +201,8 @@ def keep_metrics(out_dir: Path, chunks_done: int) -> None:
 def check_resumable(out_dir: Path, run: SavedRun) -> None:
     """Refuse to resume `out_dir` as a run other than the one it holds (ValueError: a usage error)."""
     saved = load_config(out_dir)
-    asked = run._replace(env_options=json.loads(json.dumps(run.env_options or {})))  # as JSON stores them
+    asked = run._replace(env_options=json.loads(json.dumps(run.env_options or {})),  # as JSON stores them
+                         sweep=json.loads(json.dumps(run.sweep)) if run.sweep else None)
     differ = [f"{name} {getattr(saved, name)!r} (given {getattr(asked, name)!r})"
               for name in SavedRun._fields if name != "config" and getattr(saved, name) != getattr(asked, name)]
     saved_config, asked_config = dataclasses.asdict(saved.config), dataclasses.asdict(asked.config)

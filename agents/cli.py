@@ -1,4 +1,4 @@
-"""The `mjxsuite` command's train, eval and rollout (`bench` is added by `benchmarks.cli`).
+"""The `mjxsuite` command's train, sweep, eval and rollout (`bench` is added by `benchmarks.cli`).
 
 train, eval and rollout use JAX's persistent compilation cache (see
 `agents.compile_cache`): a second run loads its compiled programs from disk, and
@@ -22,7 +22,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from agents import env_options
-from agents.dqn import PRESETS, DQNConfig
+from agents import sweep as sweeps
+from agents.dqn import PRESETS, SWEEPABLE, DQNConfig, sweep_configs
 from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
@@ -115,21 +116,7 @@ def _require_registered(env_name: str) -> None:
 
 def cmd_train(args, extra: list[str]) -> int:
     if args.resume:
-        from agents import checkpoint
-
-        # The run's env, seeds, seed and config come from --out; train_run refuses any given that differ.
-        saved = checkpoint.load_config(args.out)
-        own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset),
-               ("--impl", args.impl), ("--randomize-per", args.randomize_per),
-               ("--env-opt", args.env_opts or None), ("--randomize", args.randomize or None))
-        given = [flag for flag, value in own if value is not None]
-        if extra or given:
-            raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
-                             f"drop {' '.join(given + extra)} or start a new --out")
-        args.env = args.env or saved.env
-        args.seeds = args.seeds or saved.seeds
-        args.seed = saved.seed if args.seed is None else args.seed
-        _require_registered(args.env)
+        saved = _saved_run(args, extra, sweep=False)
         result = _train(args, saved.config, resume=True, env_options=saved.env_options)
         return _report(args, saved.config, result)
     if args.env is None:
@@ -142,18 +129,51 @@ def cmd_train(args, extra: list[str]) -> int:
     return _report(args, config, result)
 
 
+def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ()):
+    """The run in --out that `--resume` continues (a sweep or not, as `sweep` says); its env,
+    seeds, seed and config come from there (train_run refuses any given that differ), so
+    config options (`extra`, --steps, ..., and the `swept` fields) are refused."""
+    from agents import checkpoint
+
+    saved = checkpoint.load_config(args.out)
+    if bool(saved.sweep) != sweep:
+        command = "sweep" if saved.sweep else "train"
+        raise UsageError(f"{args.out} holds a `mjxsuite {command}` run; continue it with "
+                         f"`mjxsuite {command} --out {args.out} --resume`")
+    own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset),
+           ("--impl", getattr(args, "impl", None)), ("--randomize-per", getattr(args, "randomize_per", None)),
+           ("--env-opt", getattr(args, "env_opts", None) or None), ("--randomize", getattr(args, "randomize", None) or None))
+    given = [flag for flag, value in own if value is not None] + [f"--{name}" for name in swept]
+    if extra or given:
+        raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
+                         f"drop {' '.join(given + extra)} or start a new --out")
+    args.env = args.env or saved.env
+    args.seeds = args.seeds or saved.seeds
+    args.seed = saved.seed if args.seed is None else args.seed
+    _require_registered(args.env)
+    return saved
+
+
 def _train(args, config: DQNConfig, **kwargs):
     """train_run, writing a Rerun file with --rerun (its path is checked before training starts)."""
     from agents.run import train_run
 
     kwargs.update(seeds=args.seeds, seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
-                  checkpoint_seconds=args.checkpoint_seconds)
+                  checkpoint_seconds=args.checkpoint_seconds, devices=args.devices)
     if not args.rerun:
         return train_run(args.env, config, **kwargs)
+    from agents import sharding
+
+    if not sharding.is_writer():  # process 0 writes the file; the others still gather their agents' episodes for it
+        return train_run(args.env, config, on_chunk=lambda *_: None, **kwargs)
     from agents.recording import TrainingLogger
 
-    logger = TrainingLogger(args.rerun, args.env, config, seeds=args.seeds, overwrite=args.overwrite,
-                            rollout_every=args.rerun_every, env_options=kwargs.get("env_options"))
+    grid = kwargs.get("sweep")
+    agents = args.seeds * (len(sweep_configs(config, grid)) if grid else 1)
+    logger = TrainingLogger(args.rerun, args.env, config, seeds=agents, overwrite=args.overwrite,
+                            rollout_every=args.rerun_every,
+                            agent_paths=sweeps.agent_paths(config, grid, args.seeds) if grid else None,
+                            env_options=kwargs.get("env_options"))
     try:
         return train_run(args.env, config, on_chunk=logger, **kwargs)
     finally:
@@ -162,14 +182,90 @@ def _train(args, config: DQNConfig, **kwargs):
 
 
 def _report(args, config: DQNConfig, result) -> int:
+    from agents import sharding
+
+    if not sharding.is_writer():  # process 0 reports for every host
+        return 130 if result.interrupted else 0
     if result.interrupted:
         print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
         return 130
+    _report_devices(result)
     for i, (ret, solve) in enumerate(zip(result.mean_return, result.solve_step)):
         print(f"seed {i}: greedy mean return {ret:.1f} over {config.eval_episodes} episodes; "
               f"first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
     print(f"wall {result.wall_s:.1f}s (compile {result.compile_s:.1f}s)" + (f"; wrote {args.out}" if args.out else ""))
     return 0
+
+
+def _report_devices(result) -> None:
+    import jax
+
+    available = jax.device_count() if jax.process_count() > 1 else jax.local_device_count()
+    if result.devices > 1 or available > 1:
+        print(f"spread over {result.devices} of {available} devices")
+
+
+def cmd_sweep(args, extra: list[str]) -> int:
+    """A grid over the sweepable config fields (comma-separated values) times --seeds, as one program."""
+    grid = {name: getattr(args, name) for name in SWEEPABLE if getattr(args, name) is not None}
+    if args.resume:
+        saved = _saved_run(args, extra, sweep=True, swept=tuple(grid))
+        config, grid = saved.config, saved.sweep
+        result = _train(args, config, resume=True, env_options=saved.env_options, sweep=grid)
+    else:
+        if args.env is None:
+            raise UsageError("sweep needs --env (or --resume with the --out of a saved sweep)")
+        _require_registered(args.env)
+        _refuse_fixed_field_lists(extra)
+        if not grid:
+            raise UsageError("sweep needs at least one field with several values, e.g. --learning_rate 5e-4,1e-3; "
+                             f"sweepable fields: {', '.join(SWEEPABLE)}")
+        args.seeds, args.seed = args.seeds or 1, args.seed or 0
+        config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
+        try:
+            sweep_configs(config, grid)  # every combination in range, before anything compiles
+        except ValueError as err:
+            raise UsageError(str(err))
+        result = _train(args, config, sweep=grid)
+    from agents import sharding
+
+    if not sharding.is_writer():
+        return 130 if result.interrupted else 0
+    if result.interrupted:
+        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
+        return 130
+    summary = sweeps.summarize(args.env, config, grid, args.seeds, result)
+    print(sweeps.markdown_table(summary))
+    _report_devices(result)
+    print(f"{len(summary['configs'])} configs x {args.seeds} seeds: wall {result.wall_s:.1f}s "
+          f"(compile {result.compile_s:.1f}s)")
+    if args.out:
+        print(f"wrote {sweeps.write_summary(args.out, summary)}")
+    plot_path = args.plot or (Path(args.out) / sweeps.PLOT_FILE if args.out else None)
+    if plot_path is not None:
+        written = sweeps.plot(summary, plot_path)
+        print(f"wrote {written}" if written else
+              "no plot: matplotlib is not installed (pip install 'mjxsuite[sweep]' or matplotlib)")
+    return 0
+
+
+def _refuse_fixed_field_lists(pairs: list[str]) -> None:
+    """A comma-separated list given to a config field that cannot be swept: name the ones that can."""
+    fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
+    for flag, value in zip(pairs, pairs[1:] + [""]):
+        name, _, inline = flag[2:].partition("=") if flag.startswith("--") else ("", "", "")
+        name = name.replace("-", "_")
+        if name in fields and name != "hidden" and "," in (inline or value):
+            raise UsageError(f"--{name} cannot be swept: one compiled program has one set of array shapes and loops; "
+                             f"sweepable fields: {', '.join(SWEEPABLE)} (run one sweep per value of --{name})")
+
+
+def float_list(text: str) -> list[float]:
+    """Comma-separated numbers, e.g. 5e-4,1e-3 (an argparse `type`)."""
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}")
 
 
 def cmd_eval(args, extra: list[str]) -> int:
@@ -302,8 +398,15 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                        help="import a module (a name importable from the current directory, or a .py file) "
                             "that registers your own tasks; repeatable")
 
+    spread = argparse.ArgumentParser(add_help=False)
+    spread.add_argument("--devices", type=ranged(int, COUNT),
+                        help="local devices to spread the agents over (default: all that split them evenly)")
+    spread.add_argument("--distributed", action="store_true",
+                        help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
+                             "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
+
     train = sub.add_parser("train", help="train DQN; any DQNConfig field can be set with --FIELD VALUE",
-                           parents=[cached, tasks],
+                           parents=[cached, tasks, spread],
                            epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
     train.add_argument("--env", help="registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)")
     train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
@@ -325,6 +428,24 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
     train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",
                        help="chunks between logged evaluation rollouts (0: none)")
+
+    sweep = sub.add_parser("sweep", parents=[cached, tasks, spread],
+                           help="train a grid of configs x seeds as one program; swept fields take comma-separated "
+                                "values, other DQNConfig fields --FIELD VALUE",
+                           epilog=f"sweepable fields: {', '.join(SWEEPABLE)}; writes sweep.json and sweep.png to --out")
+    # The options train and sweep share are train's own (one definition; argparse's parents do the same).
+    shared = {"env", "seeds", "seed", "steps", "replay", "preset", "out", "resume", "checkpoint_every",
+              "checkpoint_seconds", "rerun", "overwrite"}
+    for action in train._actions:
+        if action.dest in shared:
+            sweep._add_action(action)
+    sweep.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=0, metavar="N",
+                       help="chunks between logged evaluation rollouts of every agent (default 0: curves only)")
+    sweep.add_argument("--plot", metavar="FILE.png", help="solve rate and steps to solve per config "
+                                                          "(default: sweep.png in --out; needs matplotlib)")
+    for name in SWEEPABLE:
+        sweep.add_argument(f"--{name}", *([f"--{name.replace('_', '-')}"] if "_" in name else []), dest=name,
+                           type=float_list, metavar="V1,V2,...", help="values to sweep")
 
     evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
@@ -359,17 +480,22 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     more = more or {}
     parser = build_parser(more)
     args, extra = parser.parse_known_args(argv)
-    if args.command == "train" and args.resume and not args.out:
+    if args.command in ("train", "sweep") and args.resume and not args.out:
         parser.error("--resume needs --out")
-    handlers = {"train": cmd_train, "eval": cmd_eval, "rollout": cmd_rollout,
+    handlers = {"train": cmd_train, "sweep": cmd_sweep, "eval": cmd_eval, "rollout": cmd_rollout,
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
 
     try:
-        if args.command in ("train", "eval", "rollout"):
+        if args.command in ("train", "sweep", "eval", "rollout"):
             _use_compile_cache(args)
             import_tasks(args.imports)
+        if args.command in ("train", "sweep"):
+            from agents import sharding
+
+            if sharding.distributed_requested(args.distributed):  # before any JAX computation
+                sharding.initialize_distributed()
         return handler(args, extra)
     except UsageError as err:
         print(f"mjxsuite: {err}", file=sys.stderr)

@@ -9,7 +9,9 @@ checkpoints between them.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import itertools
 import math
 from typing import Any, ClassVar, NamedTuple
 
@@ -104,6 +106,64 @@ class DQNConfig:
         return max(1, math.ceil(self.total_steps / self.eval_every))
 
 
+# ---- hyperparameters that may be traced: what `mjxsuite sweep` varies within one program ----
+# Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a
+# Python branch), so one compiled program can run a different value per agent.
+SWEEPABLE = ("learning_rate", "gamma", "polyak_tau", "epsilon_start", "epsilon_end", "priority_beta_start")
+
+
+class Hyperparams(NamedTuple):
+    """The numbers `DQN` reads from `SWEEPABLE` fields: Python floats for one config (constants
+    in the program, as always), or per-agent float32 arrays in a sweep (`TrainState.hyperparams`).
+
+    The differences the library computed in Python double precision (optax's `1 - tau`, a
+    schedule's `start - end`) are precomputed here the same way, so a swept agent does the same
+    float32 arithmetic as a separate run of its config, bit for bit."""
+
+    neg_learning_rate: Any  # optax.scale(-learning_rate)
+    gamma: Any
+    polyak_tau: Any
+    polyak_keep: Any  # 1 - polyak_tau
+    epsilon_span: Any  # epsilon_start - epsilon_end
+    epsilon_end: Any
+    beta_span: Any  # priority_beta_start - 1 (its schedule ends at 1)
+
+    @classmethod
+    def of(cls, config: "DQNConfig") -> "Hyperparams":
+        return cls(neg_learning_rate=-config.learning_rate, gamma=config.gamma, polyak_tau=config.polyak_tau,
+                   polyak_keep=1.0 - config.polyak_tau, epsilon_span=config.epsilon_start - config.epsilon_end,
+                   epsilon_end=config.epsilon_end, beta_span=config.priority_beta_start - 1.0)
+
+    @classmethod
+    def stacked(cls, configs: list["DQNConfig"]) -> "Hyperparams":
+        """One float32 array per field, one entry per config: a sweep's traced values."""
+        rows = [cls.of(c) for c in configs]
+        return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
+
+
+def sweep_configs(base: "DQNConfig", sweep: dict[str, list[float]] | None) -> list["DQNConfig"]:
+    """Every combination of `sweep`'s values over `base` (the last field varying fastest);
+    `[base]` without a sweep. ValueError for a field outside `SWEEPABLE` or a value out of range."""
+    if not sweep:
+        return [base]
+    fixed = [name for name in sweep if name not in SWEEPABLE]
+    if fixed:
+        raise ValueError(f"cannot sweep {', '.join(fixed)}: one compiled program has one set of array shapes and "
+                         f"loops, so only the fields used as plain numbers can vary: {', '.join(SWEEPABLE)}. Run "
+                         "one sweep per value of the others")
+    empty = [name for name, values in sweep.items() if not values]
+    if empty:
+        raise ValueError(f"sweep of {', '.join(empty)} has no values")
+    return [dataclasses.replace(base, **dict(zip(sweep, values))) for values in itertools.product(*sweep.values())]
+
+
+def linear_schedule(span, end, steps: int, count):
+    """optax.linear_schedule(end + span, end, steps)(count), with `span` given rather than
+    computed from traced values (see `Hyperparams`): the same operations in the same order."""
+    frac = 1 - jnp.clip(count, 0, steps) / steps
+    return span * frac + end
+
+
 # Named configs for `mjxsuite train --preset NAME` (fields set after it still apply).
 PRESETS = {
     "default": DQNConfig(),
@@ -171,6 +231,7 @@ class TrainState:
     best_params: Any  # parameters with the best greedy evaluation so far
     best_return: jax.Array
     solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+    hyperparams: Hyperparams | None = None  # a sweep's per-agent values; None: the config's constants
 
 
 class DQN:
@@ -189,14 +250,29 @@ class DQN:
         self.flat_optimizer = backend.flat_optimizer(platform)
         self.unroll = backend.unrolled_inner_loops(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
-        self.optimizer = optax.chain(*clip, optax.adam(config.learning_rate))
+        # Adam's direction only: the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
+        # would (same state leaves), so a sweep can trace the learning rate.
+        self.optimizer = optax.chain(*clip, optax.scale_by_adam())
         vectorized = backend.vectorized_replay(platform)
         if config.replay == "uniform":
             self.buffer = UniformReplay(config.buffer_size, vectorized=vectorized)
         else:
             self.buffer = PrioritizedReplay(config.buffer_size, alpha=config.priority_alpha, vectorized=vectorized)
-        self.epsilon = optax.linear_schedule(config.epsilon_start, config.epsilon_end, config.exploration_steps)
-        self.beta = optax.linear_schedule(config.priority_beta_start, 1.0, config.total_steps)
+        self.hyper = Hyperparams.of(config)
+
+    def with_hyperparams(self, hyper: Hyperparams | None) -> "DQN":
+        """This DQN reading `hyper` (a sweep agent's traced values) instead of its config's."""
+        if hyper is None or hyper is self.hyper:
+            return self
+        bound = copy.copy(self)
+        bound.hyper = hyper
+        return bound
+
+    def epsilon(self, count):
+        return linear_schedule(self.hyper.epsilon_span, self.hyper.epsilon_end, self.config.exploration_steps, count)
+
+    def beta(self, count):
+        return linear_schedule(self.hyper.beta_span, 1.0, self.config.total_steps, count)
 
     # ---- acting -------------------------------------------------------------
     def q_values(self, params, obs):
@@ -241,7 +317,7 @@ class DQN:
         else:
             next_action = jnp.argmax(next_q_target, axis=-1)
         next_q = self.taken(next_q_target, next_action)
-        return batch.reward + self.config.gamma * (1.0 - batch.terminated) * next_q
+        return batch.reward + self.hyper.gamma * (1.0 - batch.terminated) * next_q
 
     def taken(self, q, action):
         """`q[i, action[i]]` as a one-hot product: its gradient is a multiply, where
@@ -281,15 +357,19 @@ class DQN:
 
         if self.flat_optimizer:  # one flat vector: a few large elementwise kernels (see `agents.backend`)
             flat_params, unravel = ravel_pytree(ts.params)
-            step, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
+            direction, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
+            step = self.hyper.neg_learning_rate * direction
             params = unravel(keep_unless_learning(flat_params + step, flat_params))
         else:
-            step, opt_state = self.optimizer.update(grads, ts.opt_state, ts.params)
+            direction, opt_state = self.optimizer.update(grads, ts.opt_state, ts.params)
+            step = jax.tree.map(lambda d: self.hyper.neg_learning_rate * d, direction)
             params = jax.tree.map(lambda p, s: keep_unless_learning(p + s, p), ts.params, step)
         opt_state = jax.tree.map(keep_unless_learning, opt_state, ts.opt_state)
         updates = ts.updates + jnp.asarray(learning, jnp.int32)
         if cfg.target_update == "polyak":
-            target_params = optax.incremental_update(params, ts.target_params, cfg.polyak_tau)
+            hyper = self.hyper  # optax.incremental_update's arithmetic, its 1 - tau precomputed
+            target_params = jax.tree.map(lambda new, old: hyper.polyak_tau * new + hyper.polyak_keep * old,
+                                         params, ts.target_params)
             target_params = jax.tree.map(keep_unless_learning, target_params, ts.target_params)
         else:  # a select, not optax.periodic_update's lax.cond
             copy_now = learning & (updates % cfg.target_period == 0)
@@ -350,8 +430,8 @@ class DQN:
         return (returns, episode) if record else returns
 
     # ---- a training run ---------------------------------------------------------
-    def init(self, key: jax.Array) -> TrainState:
-        """Fresh parameters, optimizer, buffer and envs."""
+    def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
+        """Fresh parameters, optimizer, buffer and envs; `hyperparams`: a sweep agent's own values."""
         param_key, env_key, loop_key = jax.random.split(key, 3)
         env_state = self.train_env.reset(env_key)
         params = self.network.init(param_key, env_state.obs)
@@ -368,6 +448,7 @@ class DQN:
             best_params=params,
             best_return=jnp.full((), -jnp.inf),
             solve_step=jnp.full((), -1, jnp.int32),
+            hyperparams=hyperparams,
         )
         return ts
 
@@ -383,6 +464,8 @@ class DQN:
 
     def chunk(self, ts: TrainState) -> tuple[TrainState, dict]:
         """`eval_every` env steps of acting and learning, then a greedy evaluation."""
+        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
+            return self.with_hyperparams(ts.hyperparams).chunk(ts)
         cfg = self.config
 
         def iteration(ts, noise: StepNoise):

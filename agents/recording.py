@@ -70,12 +70,16 @@ class TrainingLogger:
     """
 
     def __init__(self, path: str | os.PathLike, env_name: str, config: DQNConfig, *, seeds: int = 1,
-                 env_options: dict | None = None, overwrite: bool = False, rollout_every: int = 1):
+                 env_options: dict | None = None, overwrite: bool = False, rollout_every: int = 1,
+                 agent_paths: tuple[list[str], list[str]] | None = None):
+        """`agent_paths`: (entity path, series label) of every agent, for a sweep's
+        `config_<c>/seed_<s>` (`agents.sweep.agent_paths`); default `seed_<s>`, "seed <s>"."""
         if rollout_every < 0:
             raise ValueError(f"rollout_every must be >= 0 (0: no evaluation rollouts), got {rollout_every}")
         self.rec = recording.open_recording(path, overwrite)
         self.path = path
         self.seeds = seeds
+        self.paths, self.labels = agent_paths or ([f"seed_{s}" for s in range(seeds)], [f"seed {s}" for s in range(seeds)])
         self.rollout_every = rollout_every
         self.env = envs.make(env_name, **(env_options or {}))
         self.steps_logged = 0  # evaluation steps already on the eval/ `step` timeline
@@ -83,7 +87,8 @@ class TrainingLogger:
         self.scene = recording.env_scene(self.env)
         for name in SEED_CURVES.values():
             for s in range(seeds):
-                self.rec.log(f"train/seed_{s}/{name}", rr.SeriesLines(names=f"{name} (seed {s})"), static=True)
+                self.rec.log(f"train/{self.paths[s]}/{name}", rr.SeriesLines(names=f"{name} ({self.labels[s]})"),
+                             static=True)
 
     def __call__(self, index: int, train_state: Any, record: dict) -> None:
         train_step = int(np.atleast_1d(record["env_steps"])[0])
@@ -98,16 +103,16 @@ class TrainingLogger:
     def _log_curves(self, train_step: int, record: dict) -> None:
         for key, name in SEED_CURVES.items():
             for s, value in enumerate(np.atleast_1d(record[key])):
-                self._send(f"train/seed_{s}/{name}", train_step, value)
+                self._send(f"train/{self.paths[s]}/{name}", train_step, value)
         self._send("train/env_steps_per_s", train_step, record["steps_per_s"])
         for s in range(self.seeds):
-            self._send(f"train/seed_{s}/env_steps_per_s", train_step, record["steps_per_s"] / self.seeds)
+            self._send(f"train/{self.paths[s]}/env_steps_per_s", train_step, record["steps_per_s"] / self.seeds)
 
     def _log_episodes(self, train_step: int, episode: EvalEpisode) -> None:
         """The recorded greedy episode of each seed (host arrays with a leading seed axis)."""
         longest = 0
         for s in range(self.seeds):
-            root = f"eval/seed_{s}"
+            root = f"eval/{self.paths[s]}"
             rollout = episode_rollout(jax.tree.map(lambda x: x[s], episode))
             recording.log_rollout(self.rec, self.env, rollout, root=root, step_offset=self.steps_logged,
                                   static=self.rollouts_logged == 0, scene=self.scene)

@@ -1,4 +1,5 @@
-"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds, with a progress
+"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds (spread over devices by
+`agents.sharding`, several configs at once for a sweep), with a progress
 bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import envs
-from agents import checkpoint, export_cache
+from agents import checkpoint, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
-from agents.dqn import DQN, DQNConfig
+from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
 from envs.ranges import COUNT, NON_NEGATIVE
 
 # Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once CHECKPOINT_SECONDS have
@@ -39,6 +40,7 @@ class RunResult:
     wall_s: float = 0.0
     compile_s: float = 0.0
     interrupted: bool = False  # Ctrl-C; like `stop_after_chunks`, leaves params None and a checkpoint
+    devices: int = 1  # devices the agents were spread over (`agents.sharding`)
 
 
 def seed_keys(seed: int, seeds: int) -> jax.Array:
@@ -104,49 +106,69 @@ def train_run(
     seed_axis: str | None = None,  # "vmap" or "map" (see `seed_batched`); None: by device
     checkpoint_every: int = CHECKPOINT_EVERY,  # chunks between checkpoints in `out_dir`...
     checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds (0: every checkpoint_every)
+    devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
+    sweep: dict[str, list[float]] | None = None,  # a grid over `dqn.SWEEPABLE` fields: every config x `seeds`
 ) -> RunResult:
     """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`.
 
     With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
     options, else ValueError) from its last checkpoint, or from the start if it was killed
-    before its first: it ends with the parameters of an uninterrupted run."""
+    before its first: it ends with the parameters of an uninterrupted run.
+
+    The agents (seeds, or with `sweep` every config of the grid times `seeds`, config-major:
+    agent `c * seeds + s` is config c with seed s's key) are spread over `devices` devices
+    (`agents.sharding`; in a multi-host run every device of every process). One device runs
+    the same program as ever; several give every agent the same result."""
     start = time.perf_counter()
     COUNT.check("seeds", seeds)
     COUNT.check("checkpoint_every", checkpoint_every)
     NON_NEGATIVE.check("checkpoint_seconds", checkpoint_seconds)
-    out = checkpoint.check_writable(out_dir) if out_dir is not None else None
-    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed)
+    sweep = sweep or None
+    configs = sweep_configs(config, sweep)
+    agents = seeds * len(configs)
+    placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs)))
+    writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
+    out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
+    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
     if resume:
         if out is None:
             raise ValueError("resume needs out_dir, the directory of the run to continue")
         checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env)
-    init = jax.jit(jax.vmap(dqn.init), compiler_options=init_compiler_options())
+    init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
 
     keys = seed_keys(seed, seeds)
+    init_args = (keys,) if sweep is None else (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds))
+    init_args = placement.put(init_args)
     chunks_done = 0
     init_compile_s = 0.0
     if resume and (out / checkpoint.STATE_FILE).is_file():
-        ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, keys))
+        ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
+        ts = placement.put(ts)  # saved from any number of devices, split over this run's
     else:  # a run killed before its first checkpoint resumes from the start, as it began
         tick = time.perf_counter()
-        ts = init(keys)
+        ts = init(*init_args)
         init_compile_s = time.perf_counter() - tick  # compiling the init program (its run is queued)
-        if out is not None:
+        if out is not None and writer:
             checkpoint.start_run(out, run)
-    if out is not None:
+    if out is not None and writer:
         checkpoint.keep_metrics(out, chunks_done)
 
     compile_start = time.perf_counter()
     seed_axis = seed_axis or default_seed_axis()
-    chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", seed_batched(dqn.chunk, seeds, seed_axis), (ts,),
-                           dqn, seeds, env_name, env_options, donate=True)
+    per_device = seed_batched(dqn.chunk, agents // placement.count, seed_axis)
+    if placement.mesh is None:
+        chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", per_device, (ts,), dqn, agents, env_name,
+                               env_options, donate=True)
+    else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+        chunk = jax.jit(placement.spread(per_device), donate_argnums=0).lower(ts).compile(training_compiler_options())
     compile_s = init_compile_s + time.perf_counter() - compile_start
 
-    result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * seeds)
+    result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
+                       devices=placement.count)
     bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
-               unit="step", disable=not progress, desc=env_name, dynamic_ncols=True)
+               unit="step", disable=not progress or not writer, desc=env_name, dynamic_ncols=True)
     last = saved = chunks_done
     saved_at = time.perf_counter()
     solved_early = False
@@ -157,17 +179,19 @@ def train_run(
             tick = time.perf_counter()
             ts, metrics = chunk(ts)
             eval_episode = metrics.pop("eval_episode")
-            record = _host(metrics)
+            record = _host(placement.to_host(metrics))
+            if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
+                eval_episode = placement.to_host(eval_episode)
             elapsed = time.perf_counter() - tick
             record["chunk"] = index
-            record["steps_per_s"] = config.eval_every * seeds / elapsed
+            record["steps_per_s"] = config.eval_every * agents / elapsed
             result.history.append(record)
             last = index + 1
             now = time.perf_counter() - start
             for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
                 if solve >= config.solve_return and result.solve_wall_s[i] is None:
                     result.solve_wall_s[i] = now
-            if out is not None:
+            if out is not None and writer:
                 with open(out / checkpoint.METRICS_FILE, "a") as f:
                     f.write(json.dumps(record) + "\n")
             if on_chunk is not None:
@@ -178,9 +202,9 @@ def train_run(
             if stop_when_solved and None not in result.solve_wall_s:
                 solved_early = True
                 break
-            if (out is not None and last - saved >= checkpoint_every
-                    and time.perf_counter() - saved_at >= checkpoint_seconds):
-                checkpoint.save_state(out, env_name, ts, last)
+            if placement.agree(out is not None and last - saved >= checkpoint_every  # process 0's clock decides
+                               and time.perf_counter() - saved_at >= checkpoint_seconds):
+                save(out, env_name, placement, ts, last)
                 saved, saved_at = last, time.perf_counter()
     except KeyboardInterrupt:
         result.interrupted = True
@@ -191,25 +215,41 @@ def train_run(
     # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
     # over it, and a failed chunk may have consumed its donated train state).
     if out is not None and saved != last:
-        checkpoint.save_state(out, env_name, ts, last)
+        save(out, env_name, placement, ts, last)
     if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
         return result
 
-    result.params = ts.best_params
-    solve = np.asarray(ts.solve_step).tolist()
+    result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
+    solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
     result.solve_step = [s if s >= 0 else None for s in solve]
     eval_keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), seeds)
-    evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, seeds,
-                              env_name, env_options)
+    eval_keys = placement.put(eval_keys if sweep is None else jnp.tile(eval_keys, (len(configs), 1)))
+    if placement.mesh is None:
+        evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, agents,
+                                  env_name, env_options)
+    else:
+        evaluate = jax.jit(placement.spread(jax.vmap(dqn.evaluate)))
     returns = evaluate(ts.best_params, eval_keys)
-    result.mean_return = np.asarray(returns.mean(axis=-1)).tolist()
+    result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
     result.wall_s = time.perf_counter() - start
-    if out is not None:
+    if out is not None and writer:
         summary = {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
                    "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-                   "wall_s": result.wall_s, "compile_s": compile_s}
+                   "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count}
         (out / "eval.json").write_text(json.dumps(summary, indent=2))
     return result
+
+
+def per_agent(configs: list[DQNConfig], seeds: int) -> Hyperparams:
+    """Each config's sweepable values repeated for its `seeds` agents (config-major)."""
+    return jax.tree.map(lambda values: jnp.repeat(values, seeds), Hyperparams.stacked(configs))
+
+
+def save(out: Path, env_name: str, placement: sharding.Placement, ts: Any, chunks_done: int) -> None:
+    """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it)."""
+    host = placement.to_host(ts)
+    if sharding.is_writer():
+        checkpoint.save_state(out, env_name, host, chunks_done)
 
 
 def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, DQN, Any]:
@@ -218,7 +258,8 @@ def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, DQN, Any]:
     saved = checkpoint.load_config(out_dir)
     env = envs.make(saved.env, **saved.env_options)
     dqn = DQN(saved.config, env)
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, saved.seeds)).best_params
+    agents = saved.seeds * len(sweep_configs(saved.config, saved.sweep))
+    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, agents)).best_params
     return saved.env, env, dqn, checkpoint.load_best_params(out_dir, template)
 
 

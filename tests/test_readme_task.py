@@ -100,7 +100,7 @@ def test_every_documented_mjxsuite_command_line_parses():
         where = f"{page.relative_to(ROOT)}: {command}"
         try:
             args, extra = build_parser().parse_known_args(shlex.split(command)[1:])
-            if args.command == "train":
+            if args.command in ("train", "sweep"):
                 config_from_args(DQNConfig(), extra)
             else:
                 assert not extra, f"{where}: unknown arguments {extra}"

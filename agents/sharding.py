@@ -1,0 +1,135 @@
+"""Spreading a run's agents (seeds, and a sweep's configs times seeds) over devices and hosts
+with JAX's own SPMD: a 1-D `jax.sharding.Mesh` whose one axis is the agent axis, the train
+state and keys split along it by a `NamedSharding`, and each device running its share of
+the agents by `shard_map` (batched inside as on one device: `agents.run.seed_batched`).
+
+Agents never talk to each other, so the sharded program has no collectives: K devices run
+K independent slices of the same computation. On one device nothing here is used and a run
+is the program it always was.
+
+Across hosts, `initialize_distributed` calls `jax.distributed.initialize`; the mesh then
+spans every device of every process, each process holds its own devices' agents, and
+`to_host` gathers them (a collective all processes join) for the metrics, checkpoints and
+the final evaluation, which process 0 alone writes (`is_writer`).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+AXIS = "agents"
+DISTRIBUTED_ENV = "MJXSUITE_DISTRIBUTED"
+
+
+def distributed_requested(flag: bool = False) -> bool:
+    """`--distributed`, or MJXSUITE_DISTRIBUTED=1 in the environment."""
+    return flag or os.environ.get(DISTRIBUTED_ENV, "").lower() in ("1", "true", "yes")
+
+
+def initialize_distributed() -> None:
+    """Join the other processes of a multi-host run (before any JAX computation).
+
+    JAX reads the coordinator's host:port from JAX_COORDINATOR_ADDRESS, and detects the
+    process count and index itself under SLURM, Open MPI, Kubernetes and Cloud TPU; elsewhere
+    JAX_NUM_PROCESSES and JAX_PROCESS_ID give them (JAX itself does not read those two)."""
+    count, index = os.environ.get("JAX_NUM_PROCESSES"), os.environ.get("JAX_PROCESS_ID")
+    try:
+        jax.distributed.initialize(num_processes=int(count) if count else None,
+                                   process_id=int(index) if index else None)
+    except ValueError as err:
+        raise ValueError(f"--distributed: jax.distributed.initialize failed ({err}); set JAX_COORDINATOR_ADDRESS "
+                         "(host:port of process 0), JAX_NUM_PROCESSES and JAX_PROCESS_ID on every process, "
+                         "or run under a cluster manager JAX detects (SLURM, Open MPI)") from err
+
+
+def is_writer() -> bool:
+    """Whether this process writes files and progress: process 0, or the only process."""
+    return jax.process_index() == 0
+
+
+def choose_devices(seeds: int, devices: int | None = None, configs: int = 1) -> list:
+    """The devices for `configs` x `seeds` agents: every device of every process in a multi-host
+    run; on one host `devices` local devices (None: all of them when the agents split evenly
+    over them, else the most that do, so one seed still runs on a machine with several GPUs).
+    ValueError when they do not split evenly, naming the --seeds that would."""
+    multi_host = jax.process_count() > 1
+    available = jax.devices() if multi_host else jax.local_devices()
+    agents = configs * seeds
+
+    def splitting(count: int) -> list[int]:  # device counts up to `count` that split the agents evenly
+        return [k for k in range(1, count + 1) if agents % k == 0]
+
+    if devices is None:
+        devices = len(available) if multi_host else max(splitting(len(available)))
+    elif multi_host and devices != len(available):
+        raise ValueError(f"--devices {devices}: a multi-host run uses every device of every process "
+                         f"({len(available)}); drop --devices")
+    elif not 1 <= devices <= len(available):
+        raise ValueError(f"--devices must be between 1 and the {len(available)} local devices, got {devices}")
+    if agents % devices:
+        fitting = [n for n in range(1, 2 * seeds + devices + 1) if configs * n % devices == 0]
+        near = sorted(fitting, key=lambda n: abs(n - seeds))[:2]
+        what = f"{seeds} seeds" if configs == 1 else f"{configs} configs x {seeds} seeds"
+        fix = f"--seeds {' or '.join(map(str, sorted(near)))}"
+        if not multi_host:
+            fix += f", or --devices {max(splitting(devices))}"
+        raise ValueError(f"{what} do not split evenly over {devices} devices: use {fix}")
+    return available[:devices]
+
+
+class Placement:
+    """Where a run's agents live. One device: `mesh` is None and every method leaves the
+    program and its arrays as they always were. Several: a 1-D mesh over the agent axis."""
+
+    def __init__(self, devices: list):
+        self.devices = list(devices)
+        self.mesh = Mesh(np.asarray(self.devices), (AXIS,)) if len(self.devices) > 1 else None
+
+    @property
+    def count(self) -> int:
+        return len(self.devices)
+
+    def spread(self, fn: Callable) -> Callable:
+        """`fn` (over a leading agent axis, for `agents / count` agents) run on every device's share."""
+        if self.mesh is None:
+            return fn
+        spec = PartitionSpec(AXIS)
+        # check_vma off: every input and output is split along the agent axis and nothing is
+        # replicated, so there is nothing for JAX's replication check to prove.
+        return jax.shard_map(fn, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
+
+    def put(self, tree: Any) -> Any:
+        """Host arrays with a leading agent axis, split over the mesh (each process places only
+        its own devices' slices)."""
+        if self.mesh is None:
+            return tree
+        sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
+
+        def place(x):
+            x = np.asarray(x)
+            return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+        return jax.tree.map(place, tree)
+
+    def to_host(self, tree: Any) -> Any:
+        """Numpy arrays of every agent, on every process (a collective in a multi-host run:
+        every process must call it at the same point)."""
+        if jax.process_count() > 1:
+            from jax.experimental import multihost_utils
+
+            return multihost_utils.process_allgather(tree, tiled=True)
+        return jax.device_get(tree)
+
+    def agree(self, decision: bool) -> bool:
+        """Process 0's `decision` on every process (e.g. whether to save now, which depends on
+        each host's clock): a multi-host run's processes must gather at the same chunks."""
+        if jax.process_count() == 1:
+            return decision
+        from jax.experimental import multihost_utils
+
+        return bool(multihost_utils.broadcast_one_to_all(np.int32(decision)))

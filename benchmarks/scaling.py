@@ -1,0 +1,87 @@
+"""Agent-steps/s on one device against all local devices, in one process (issue #16's GPU figures).
+
+    python -m benchmarks.scaling                        # 2048 seeds; 64 configs x 32 seeds
+    python -m benchmarks.scaling --json scaling.json    # also write the records
+    python -m benchmarks.scaling --devices 1,2,4        # other device counts (default: 1 and all)
+
+Two workloads, each trained by `agents.run.train_run` on every device count asked for:
+`--seeds` seeds of the default config (any `--FIELD VALUE` of DQNConfig changes it), and a
+sweep of `--sweep-configs` configs (a square grid of learning rates x Polyak taus) times
+`--sweep-seeds` seeds, both on `--env` (default cartpole-mjx). A figure is the median of the
+`--chunks` chunks after the first (which the first call's compile and warm-up distort) of
+agent env-steps/s: env steps summed over every agent, per second of wall time. The ratio is
+each device count's figure over one device's.
+
+Smoke test on a CPU (forced host devices share the cores, so the ratio says nothing there):
+
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python -m benchmarks.scaling --env cartpole \\
+        --seeds 4 --sweep-configs 4 --sweep-seeds 2 --chunks 1 --total_steps 400 --eval_every 200 \\
+        --learning_starts 64 --batch_size 32 --buffer_size 256 --eval_episodes 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import jax
+import numpy as np
+
+from agents.cli import config_from_args
+from agents.dqn import DQNConfig
+from agents.run import train_run
+
+
+def sweep_grid(configs: int) -> dict[str, list[float]]:
+    """A square grid of `configs` (a square number) learning rates x Polyak taus around the defaults."""
+    side = math.isqrt(configs)
+    if side * side != configs:
+        raise SystemExit(f"--sweep-configs must be a square number (a grid of learning rates x taus), got {configs}")
+    return {"learning_rate": np.geomspace(2.5e-4, 4e-3, side).tolist(),
+            "polyak_tau": np.geomspace(0.0025, 0.04, side).tolist()}
+
+
+def throughput(env: str, config: DQNConfig, seeds: int, devices: int, chunks: int, sweep: dict | None = None) -> dict:
+    result = train_run(env, config, seeds=seeds, devices=devices, sweep=sweep, progress=False,
+                       stop_after_chunks=chunks + 1)
+    agents = seeds * (math.prod(len(v) for v in sweep.values()) if sweep else 1)
+    return {"lib": "mjxsuite", "kind": "dqn-device-scaling", "workload": "sweep" if sweep else "seeds", "env": env,
+            "agents": agents, "seeds": seeds, "configs": agents // seeds, "devices": result.devices,
+            "device": jax.devices()[0].device_kind, "chunks": chunks, "compile_s": result.compile_s,
+            "agent_steps_per_s": float(np.median([h["steps_per_s"] for h in result.history[1:]]))}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.scaling", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", default="cartpole-mjx")
+    parser.add_argument("--seeds", type=int, default=2048, help="seeds of the seeds workload (default %(default)s)")
+    parser.add_argument("--sweep-configs", type=int, default=64, help="configs of the sweep (a square number)")
+    parser.add_argument("--sweep-seeds", type=int, default=32, help="seeds per config of the sweep")
+    parser.add_argument("--devices", help="comma-separated device counts (default: 1 and all local devices)")
+    parser.add_argument("--chunks", type=int, default=3, help="timed chunks after the first (default %(default)s)")
+    parser.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
+    args, extra = parser.parse_known_args(argv)
+    config = config_from_args(DQNConfig(), extra)  # --FIELD VALUE, as mjxsuite train takes them
+    counts = [int(k) for k in args.devices.split(",")] if args.devices else sorted({1, jax.local_device_count()})
+    workloads = [("seeds", args.seeds, None), ("sweep", args.sweep_seeds, sweep_grid(args.sweep_configs))]
+    records = []
+    for name, seeds, grid in workloads:
+        for devices in counts:
+            record = throughput(args.env, config, seeds, devices, args.chunks, grid)
+            one = next((r for r in records if r["workload"] == name and r["devices"] == 1), record)
+            record["ratio_to_one_device"] = record["agent_steps_per_s"] / one["agent_steps_per_s"]
+            records.append(record)
+            print(f"{name:6s} {record['agents']:6d} agents on {devices} device(s): "
+                  f"{record['agent_steps_per_s']:14,.0f} agent-steps/s, {record['ratio_to_one_device']:.2f}x one device "
+                  f"(compile {record['compile_s']:.1f}s)", flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(records, f, indent=2)
+        print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

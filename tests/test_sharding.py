@@ -1,0 +1,196 @@
+"""Seeds and sweeps spread over devices and hosts (agents/sharding.py): the same agents as on one device.
+
+Every multi-device case runs in a subprocess of its own with 4 forced host devices
+(`--xla_force_host_platform_device_count`), which must be set before JAX starts; one
+subprocess runs all the single-host cases, so they share its start-up.
+"""
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = dict(total_steps=2000, eval_every=1000, learning_starts=200, batch_size=32, buffer_size=2000, eval_episodes=8)
+SMALL_FLAGS = [word for name, value in SMALL.items() for word in (f"--{name}", str(value))]
+SEEDS = 8
+
+
+def environment(devices: int) -> dict:
+    return {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}",
+            "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+
+
+SINGLE_HOST = textwrap.dedent("""
+    import dataclasses, json, shutil, sys
+    from pathlib import Path
+    import jax, numpy as np
+    from agents import DQNConfig
+    from agents import DQNConfig
+    from agents.cli import main
+    from agents.run import load_agent, train_run
+
+    out = Path(sys.argv[1])
+    config = DQNConfig(**json.loads(sys.argv[2]))
+    seeds = int(sys.argv[3])
+    assert jax.local_device_count() == 4
+
+    def equal(a, b):
+        return all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+
+    def kept(run):  # eval.json without its timings
+        record = json.loads((out / run / "eval.json").read_text())
+        return {k: v for k, v in record.items() if k not in ("wall_s", "compile_s", "solve_wall_s", "devices")}
+
+    found = {}
+    one = train_run("cartpole", config, seeds=seeds, devices=1, out_dir=out / "one", progress=False)
+    four = train_run("cartpole", config, seeds=seeds, devices=4, out_dir=out / "four", progress=False)
+    found["devices"] = [one.devices, four.devices, json.loads((out / "four/eval.json").read_text())["devices"]]
+    found["four_equals_one"] = {"params": equal(one.params, four.params),
+                                "train_state": equal(one.train_state, four.train_state),
+                                "eval_json": kept("one") == kept("four"),
+                                "metrics": [{k: v for k, v in json.loads(line).items() if k != "steps_per_s"}
+                                            for line in (out / "one/metrics.jsonl").read_text().splitlines()]
+                                == [{k: v for k, v in json.loads(line).items() if k != "steps_per_s"}
+                                    for line in (out / "four/metrics.jsonl").read_text().splitlines()]}
+
+    # Saved on 2 devices after one chunk, resumed on 1 and on 4.
+    train_run("cartpole", config, seeds=seeds, devices=2, out_dir=out / "part", progress=False, stop_after_chunks=1)
+    shutil.copytree(out / "part", out / "part_copy")
+    found["resumed"] = {}
+    for devices, run in ((1, "part"), (4, "part_copy")):
+        resumed = train_run("cartpole", config, seeds=seeds, devices=devices, out_dir=out / run, progress=False,
+                            resume=True)
+        found["resumed"][devices] = equal(resumed.params, one.params) and equal(resumed.train_state, one.train_state)
+
+    # A sweep member (config 1, both seeds) against a separate `mjxsuite train` of that config.
+    grid = ["--learning_rate", "1e-3,2e-3", "--polyak_tau", "0.02"]
+    flags = [w for name, value in json.loads(sys.argv[2]).items() for w in (f"--{name}", str(value))]
+    found["sweep_exit"] = main(["sweep", "--env", "cartpole", "--seeds", "2", "--devices", "4", "--out",
+                                str(out / "sweep"), *grid, *flags])
+    found["train_exit"] = main(["train", "--env", "cartpole", "--seeds", "2", "--out", str(out / "member"),
+                                "--learning_rate", "2e-3", "--polyak_tau", "0.02", *flags])
+    swept, member = json.loads((out / "sweep/eval.json").read_text()), kept("member")
+    found["sweep_member_eval"] = [swept["mean_return"][2:4], swept["solve_step"][2:4]] == \\
+        [member["mean_return"], member["solve_step"]]
+    sweep_params, member_params = load_agent(out / "sweep")[3], load_agent(out / "member")[3]
+    found["sweep_member_params"] = equal(jax.tree.map(lambda x: x[2:4], sweep_params), member_params)
+    found["sweep_json"] = json.loads((out / "sweep/sweep.json").read_text())
+
+    # The seeds must split evenly over the devices asked for.
+    try:
+        train_run("cartpole", config, seeds=6, devices=4, progress=False)
+    except ValueError as err:
+        found["uneven"] = str(err)
+    found["default_devices"] = train_run("cartpole", config, seeds=2, progress=False, stop_after_chunks=1).devices
+    print("RESULT " + json.dumps(found))
+""")
+
+
+@pytest.fixture(scope="module")
+def single_host(tmp_path_factory):
+    """Everything the single-host tests check, from one subprocess with 4 CPU devices."""
+    out = tmp_path_factory.mktemp("sharding")
+    done = subprocess.run([sys.executable, "-c", SINGLE_HOST, str(out), json.dumps(SMALL), str(SEEDS)],
+                          env=environment(4), capture_output=True, text=True, timeout=900, cwd=out)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-5000:]
+    line = next(line for line in done.stdout.splitlines() if line.startswith("RESULT "))
+    return out, json.loads(line[len("RESULT "):])
+
+
+def test_eight_seeds_on_four_devices_equal_the_same_seeds_on_one(single_host):
+    _, found = single_host
+    assert found["devices"] == [1, 4, 4]
+    assert found["four_equals_one"] == {"params": True, "train_state": True, "eval_json": True, "metrics": True}
+
+
+def test_saved_on_two_devices_resumes_on_one_and_on_four_as_the_uninterrupted_run(single_host):
+    _, found = single_host
+    assert found["resumed"] == {"1": True, "4": True}
+
+
+def test_a_sweep_member_equals_a_separate_train_of_its_config_and_seed(single_host):
+    _, found = single_host
+    assert found["sweep_exit"] == 0 and found["train_exit"] == 0
+    assert found["sweep_member_eval"] and found["sweep_member_params"]
+    summary = found["sweep_json"]
+    assert summary["swept"] == ["learning_rate", "polyak_tau"] and summary["devices"] == 4
+    assert [(c["learning_rate"], c["polyak_tau"]) for c in summary["configs"]] == [(1e-3, 0.02), (2e-3, 0.02)]
+    assert all(len(c["mean_return"]) == len(c["solve_step"]) == 2 for c in summary["configs"])
+
+
+def test_uneven_seeds_are_refused_naming_what_works_and_the_default_uses_the_devices_that_fit(single_host):
+    _, found = single_host
+    assert found["uneven"] == "6 seeds do not split evenly over 4 devices: use --seeds 4 or 8, or --devices 3"
+    assert found["default_devices"] == 2  # 2 seeds on a 4-device host: the 2 devices that split them evenly
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_two_processes_with_jax_distributed_train_and_write_one_output_directory(tmp_path, single_host):
+    out = tmp_path / "run"
+    port = free_port()
+    command = [sys.executable, "-m", "agents.cli", "train", "--distributed", "--env", "cartpole", "--seeds", str(SEEDS),
+               "--out", str(out), "--rerun", str(tmp_path / "train.rrd"), "--rerun-every", "1", *SMALL_FLAGS]
+    processes = [subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                  env={**environment(2), "JAX_COORDINATOR_ADDRESS": f"127.0.0.1:{port}",
+                                       "JAX_NUM_PROCESSES": "2", "JAX_PROCESS_ID": str(index)})
+                 for index in range(2)]
+    outputs = []
+    for process in processes:
+        try:
+            outputs.append(process.communicate(timeout=600))
+        finally:
+            process.kill()
+    for process, (stdout, stderr) in zip(processes, outputs):
+        assert process.returncode == 0, stdout[-2000:] + stderr[-4000:]
+    reports = [[line for line in stdout.splitlines() if not line.startswith("[Gloo]")] for stdout, _ in outputs]
+    assert "spread over 4 of 4 devices" in reports[0] and reports[1] == []  # process 0 reports, for both
+    result = json.loads((out / "eval.json").read_text())
+    assert result["devices"] == 4 and len(result["mean_return"]) == SEEDS
+    # The same agents as the 8 seeds on one device.
+    one = json.loads((single_host[0] / "one/eval.json").read_text())
+    assert (result["mean_return"], result["solve_step"]) == (one["mean_return"], one["solve_step"])
+    assert len((out / "metrics.jsonl").read_text().splitlines()) == 2
+    assert (tmp_path / "train.rrd").stat().st_size > 0
+
+
+def test_sweep_refuses_shape_fields_and_resume_of_the_other_kind(tmp_path, capsys):
+    from agents import DQNConfig
+    from agents.cli import main
+
+    with pytest.raises(SystemExit) as refused:
+        main(["sweep", "--env", "cartpole", "--batch_size", "32,64", "--learning_rate", "1e-3,2e-3"])
+    assert refused.value.code == 2
+    assert "--batch_size cannot be swept" in str(refused.value) and "learning_rate, gamma, polyak_tau" in str(refused.value)
+    with pytest.raises(SystemExit, match="needs at least one field"):
+        main(["sweep", "--env", "cartpole", "--seeds", "2"])
+    run = tmp_path / "run"
+    run.mkdir()
+    config = dataclasses.asdict(DQNConfig(**SMALL))
+    (run / "config.json").write_text(json.dumps({"env": "cartpole", "seeds": 1, "seed": 0, "config": config}))
+    with pytest.raises(SystemExit, match="holds a `mjxsuite train` run; continue it with `mjxsuite train"):
+        main(["sweep", "--out", str(run), "--resume"])
+
+
+def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_path):
+    tiny = ["--total_steps", "400", "--eval_every", "200", "--learning_starts", "64", "--batch_size", "32",
+            "--buffer_size", "256", "--eval_episodes", "2", "--hidden", "16"]
+    done = subprocess.run([sys.executable, "-m", "benchmarks.scaling", "--env", "cartpole", "--seeds", "4",
+                           "--sweep-configs", "4", "--sweep-seeds", "2", "--chunks", "1", "--json", "out.json", *tiny],
+                          env=environment(2), cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    records = json.loads((tmp_path / "out.json").read_text())
+    assert [(r["workload"], r["agents"], r["devices"]) for r in records] == \
+        [("seeds", 4, 1), ("seeds", 4, 2), ("sweep", 8, 1), ("sweep", 8, 2)]
+    assert all(r["agent_steps_per_s"] > 0 for r in records) and records[0]["ratio_to_one_device"] == 1.0
