@@ -73,9 +73,16 @@ def steps_for(num_envs: int, mjx: bool = False, on: str | None = None) -> int:
 
 def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | None = None):
     """`run(key) -> (total reward, final observations)` of `steps` steps of `num_envs` envs
-    (made with `env_options`) with random actions. Returning the final observations keeps XLA
-    from dropping the physics (CartPole's reward is a constant 1, so the total alone needs no state)."""
-    env = envs.wrap_for_training(envs.make(env_name, **(env_options or {})), num_envs)
+    (made with `env_options`) with random actions.
+
+    The work is that of the peers' loops: auto-reset with fresh episodes, no episode
+    statistics (gymnax keeps none; `wrap_for_training(..., episode_stats=False)`), and the
+    final observations computed from the final physics state after the loop, as gymnax's
+    `get_obs`, which keeps XLA from dropping the physics (CartPole's reward is a constant 1,
+    so the total alone needs no state). Nothing reads an observation inside the loop, so
+    XLA leaves `obs` and `info["final_obs"]` out of it on both sides."""
+    base = envs.make(env_name, **(env_options or {}))
+    env = envs.wrap_for_training(base, num_envs, episode_stats=False)
 
     def body(carry, _):
         state, key, total = carry
@@ -88,7 +95,7 @@ def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | Non
     def run(key):
         key, reset_key = jax.random.split(key)
         (state, _, total), _ = jax.lax.scan(body, (env.reset(reset_key), key, jnp.zeros(())), None, steps)
-        return total, state.obs
+        return total, jax.vmap(base.unwrapped.observation)(state.pipeline_state)
 
     return run
 

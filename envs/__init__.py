@@ -15,7 +15,7 @@ from envs.randomize import Randomize, randomize
 from envs.registry import make, names, options, register
 from envs.tasks.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
 from envs.tasks.acrobot_mjx import AcrobotMjx
-from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules
+from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.tasks.cartpole_mjx import CartPoleMjx
 from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
 from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
@@ -40,7 +40,7 @@ register("pendulum-mjx-discrete", functools.partial(PendulumMjx, action_bins=DIS
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
-    "AutoReset", "BatchedAutoReset", "CartPole", "CartPoleMjx", "CartPolePhysics", "CartPoleRules", "Env",
+    "AutoReset", "BatchedAutoReset", "CartPole", "CartPoleMjx", "CartPolePhysics", "CartPoleRules", "CartPoleState", "Env",
     "EpisodeStats", "MjxEnv", "State", "TimeLimit", "VmapWrapper", "Wrapper",
     "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
     "PendulumMjx", "PendulumParams",

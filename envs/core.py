@@ -3,6 +3,22 @@
 `State` keeps Brax's field layout so Brax's wrappers and trainers can drive our
 envs; `Env` is the interface (`reset(key)`, `step(state, action)`) and
 `Wrapper` forwards everything it does not override.
+
+The contract, shaped for a GPU step as well as for learners:
+
+- What may not change: the analytic CartPole equals Gymnasium's; Brax's wrappers and
+  trainers drive every env; after an auto-reset `info["final_obs"]` holds the observation
+  the step produced (learners bootstrap from it); every new episode is drawn afresh from
+  the env's own key stream, independent of other envs and episodes.
+- Per env, a batch carries only values its next step reads, each a scalar (so `[N]` for
+  a batch): the physics state (`pipeline_state`: a `CartPoleState` of four scalars, or an
+  `mjx.Data`), the key stream (`info["rng"]`: two `uint32` words), the time limit's step
+  counter, and the episode statistics of `EpisodeStats` (left out by
+  `wrap_for_training(..., episode_stats=False)`). On a GPU, XLA then computes a whole
+  auto-resetting step in one kernel with one thread per env; an `[N, k]` array instead
+  makes each of its k columns recompute the env's physics and reset draw.
+- `obs`, `reward`, `done` and `info["final_obs"]` are outputs: nothing inside a step reads
+  them, so a jitted loop that does not read them either leaves them out.
 """
 
 from __future__ import annotations

@@ -92,7 +92,7 @@ def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept:
     describe the finished transition, nor those in `kept`)."""
     carried = [k for k in fresh.info if k not in TRANSITION_INFO and k not in kept and k != "rng"]
     info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
-            "rng": merge(next_rng, stepped.info["rng"])}
+            "rng": jax.tree.map(merge, next_rng, stepped.info["rng"])}
     return stepped.replace(
         pipeline_state=jax.tree.map(merge, fresh.pipeline_state, stepped.pipeline_state),
         obs=merge(fresh.obs, stepped.obs),
@@ -152,7 +152,7 @@ class BatchedAutoReset(Wrapper):
         """Fresh episodes for the envs that ended (at most `max_resets` of them), by index."""
         # Unused slots hold num_envs: gathered clipped, dropped by the scatter.
         index = jnp.nonzero(stepped.done > 0, size=self.max_resets, fill_value=self.num_envs)[0]
-        rng = stepped.info["rng"][jnp.minimum(index, self.num_envs - 1)]
+        rng = jax.tree.map(lambda words: words[jnp.minimum(index, self.num_envs - 1)], stepped.info["rng"])
         next_rng, episode_key = jax.vmap(next_episode_key)(rng)
         fresh = jax.vmap(self.env.reset)(episode_key)
 
@@ -225,6 +225,8 @@ def _check_batched_action(action, num_envs: int) -> jax.Array:
     return action
 
 
-def wrap_for_training(env: Env, num_envs: int) -> Env:
-    """`num_envs` auto-resetting copies of `env`, with episode statistics."""
-    return EpisodeStats(BatchedAutoReset(env, num_envs))
+def wrap_for_training(env: Env, num_envs: int, episode_stats: bool = True) -> Env:
+    """`num_envs` auto-resetting copies of `env`, with episode statistics unless
+    `episode_stats=False` (a loop that reads none saves carrying five values per env)."""
+    batch = BatchedAutoReset(env, num_envs)
+    return EpisodeStats(batch) if episode_stats else batch

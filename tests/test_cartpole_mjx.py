@@ -26,7 +26,7 @@ def rollout(env, starts, actions):
             data = state.pipeline_state.replace(qpos=start[jnp.array([0, 2])], qvel=start[jnp.array([1, 3])])
             state = state.replace(pipeline_state=data, obs=start)
         else:
-            state = state.replace(pipeline_state=start, obs=start)
+            state = state.replace(pipeline_state=envs.CartPoleState.from_array(start), obs=start)
 
         def body(state, action):
             state = env.step(state, action)
@@ -72,14 +72,14 @@ def test_c_mujoco_matches_analytic_semi_implicit():
             state = rng.uniform(-0.2, 0.2, 4)
             data.qpos[:] = state[[0, 2]]
             data.qvel[:] = state[[1, 3]]
-            analytic = jnp.asarray(state)
+            analytic = envs.CartPoleState.from_array(jnp.asarray(state))
             for _ in range(STEPS):
                 action = rng.integers(0, 2)
                 data.ctrl[:] = 1.0 if action == 1 else -1.0
                 mujoco.mj_step(model, data)
                 analytic = step(analytic, 10.0 if action == 1 else -10.0)
                 mujoco_state = np.array([data.qpos[0], data.qvel[0], data.qpos[1], data.qvel[1]])
-                worst = max(worst, float(np.abs(mujoco_state - np.asarray(analytic)).max()))
+                worst = max(worst, float(np.abs(mujoco_state - np.asarray(analytic.as_array())).max()))
     assert worst <= 1e-10, worst
 
 

@@ -108,7 +108,7 @@ def test_physics_can_be_vmapped_for_domain_randomisation():
     physics = jax.vmap(lambda g: envs.CartPolePhysics(gravity=g))(gravities)
     state = env.reset(jax.random.PRNGKey(0))
     start = jnp.array([0.0, 0.0, 0.1, 0.0])
-    state = state.replace(pipeline_state=start, obs=start)
+    state = state.replace(pipeline_state=envs.CartPoleState.from_array(start), obs=start)
 
     @jax.vmap
     def step(p):
@@ -141,3 +141,37 @@ def test_batched_auto_reset_gives_the_same_states_as_vmapped_auto_reset():
     for wrapped in (by_index, selected):
         for a, b in zip(jax.tree.leaves(run(wrapped)), jax.tree.leaves(expected)):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+@pytest.mark.parametrize("name", ["cartpole", "cartpole-mjx"])
+def test_a_batch_carries_one_scalar_per_env_for_each_value_its_next_step_reads(name):
+    """The contract of envs/core.py: physics state, key stream and step counter are `[N]`
+    arrays (an `[N, k]` array makes XLA recompute an env's step once per column on a GPU);
+    `episode_stats=False` leaves the statistics out."""
+    batch = envs.wrap_for_training(envs.make(name), 8, episode_stats=False)
+    state = batch.reset(jax.random.PRNGKey(0))
+    assert not {"episode_return", "last_return"} & set(state.info)
+    assert [w.shape for w in state.info["rng"]] == [(8,), (8,)] and state.info["steps"].shape == (8,)
+    if name == "cartpole":
+        assert [leaf.shape for leaf in jax.tree.leaves(state.pipeline_state)] == [(8,)] * 4
+        np.testing.assert_array_equal(state.obs, state.pipeline_state.as_array())
+    stats = envs.wrap_for_training(envs.make(name), 8).reset(jax.random.PRNGKey(0))
+    assert stats.info["episode_return"].shape == (8,)
+
+
+def test_a_loop_that_reads_no_observation_carries_none():
+    """XLA leaves `obs` and `info["final_obs"]` out of a jitted loop that does not read them:
+    the benchmark loop's carry holds only `[N]` arrays (and the loop's own scalars)."""
+    import re
+
+    from benchmarks.env_throughput import rollout_fn
+
+    num_envs = 64
+    text = rollout_fn("cartpole", num_envs, 10).lower(jax.random.PRNGKey(0)).compile().as_text()
+    scan = [line for line in text.splitlines() if " while(" in line and 'op_name="jit(run)/while"' in line]
+    carry = re.search(r"= \(([^)]*)\) while\(", scan[0]).group(1)
+    shapes = re.findall(r"([a-z]+\d*)\[([\d,]*)\]", carry)
+    # The scan's counter, the physics (4 x f32), the key stream (2 x u32), the step counter,
+    # the action key and the reward total; no f32[64,4] observation.
+    assert sorted(shapes) == sorted([("s32", ""), *[("f32", "64")] * 4, *[("u32", "64")] * 2, ("s32", "64"),
+                                     ("u32", "2"), ("f32", "")]), carry

@@ -50,7 +50,7 @@ def test_episode_key_stream_advances_and_draws_independent_uniform_resets():
         draws = []
         for _ in range(3):
             nxt, key = next_episode_key(w)
-            assert nxt.shape == (2,)
+            assert [word.shape for word in nxt] == [(), ()]  # two uint32 scalars per env
             w = nxt
             draws.append(jax.random.uniform(key, (4,)))
         return jnp.concatenate(draws)
@@ -76,3 +76,13 @@ def test_auto_reset_draws_the_first_episode_from_the_given_key_and_later_ones_fr
     _, episode_key = next_episode_key(state.info["rng"])
     np.testing.assert_array_equal(fresh.obs, env.reset(episode_key).obs)
     assert not np.array_equal(fresh.info["rng"], words)
+
+
+def test_next_episode_key_is_a_split_of_the_stream_key():
+    """The hand-fused stream step gives exactly the two keys of `jax.random.split`."""
+    stream = episode_keys(jax.random.key(5))
+    key = jax.random.wrap_key_data(jnp.stack(stream), impl=PCG4D)
+    next_key, episode_key = jax.random.split(key)
+    words, ours = next_episode_key(stream)
+    np.testing.assert_array_equal(np.stack(words), jax.random.key_data(next_key))
+    np.testing.assert_array_equal(jax.random.key_data(ours), jax.random.key_data(episode_key))

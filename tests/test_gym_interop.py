@@ -117,7 +117,7 @@ def test_check_env_passes_for_every_registered_env(name):
 def start_from(ours, gym_env):
     """Put Gymnasium's CartPole state into our env (the reset distributions draw differently)."""
     state = jnp.asarray(gym_env.unwrapped.state, jnp.float32)
-    ours.state = ours.state.replace(pipeline_state=state, obs=state)
+    ours.state = ours.state.replace(pipeline_state=envs.CartPoleState.from_array(state), obs=state)
 
 
 def test_random_episodes_reproduce_gymnasium_cartpole():

@@ -120,8 +120,8 @@ def test_analytic_and_mjx_agree_with_the_same_pole_mass():
 
     def rollout(env, start, episode_actions):
         state = env.reset(jax.random.PRNGKey(0))
-        if isinstance(state.pipeline_state, jax.Array):
-            state = state.replace(pipeline_state=start)
+        if isinstance(state.pipeline_state, envs.CartPoleState):
+            state = state.replace(pipeline_state=envs.CartPoleState.from_array(start))
         else:
             state = state.replace(pipeline_state=state.pipeline_state.replace(qpos=start[jnp.array([0, 2])],
                                                                               qvel=start[jnp.array([1, 3])]))

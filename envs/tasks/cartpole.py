@@ -50,16 +50,42 @@ class CartPoleRules:
                                           "reset_bound": NON_NEGATIVE}
 
     def initial_state(self, key: jax.Array) -> jax.Array:
-        """(x, x_dot, theta, theta_dot), drawn as Gymnasium draws them."""
+        """(x, x_dot, theta, theta_dot) as one array, drawn as Gymnasium draws them."""
         return jax.random.uniform(key, (4,), minval=-self.reset_bound, maxval=self.reset_bound)
 
     def is_terminated(self, x: jax.Array, theta: jax.Array) -> jax.Array:
         return (jnp.abs(x) > self.x_threshold) | (jnp.abs(theta) > self.theta_threshold)
 
 
-def dynamics(physics: CartPolePhysics, state: jax.Array, force: jax.Array):
+@struct.dataclass
+class CartPoleState:
+    """The analytic CartPole's `pipeline_state`: four scalars (four `[N]` arrays for a batch).
+
+    Separate scalars rather than one `[4]` array, so that a batch's state is four `[N]`
+    arrays: on a GPU, XLA then fuses a whole auto-resetting step into one kernel with one
+    thread per env, where an `[N, 4]` array had every one of its four columns recompute the
+    env's physics and reset draw (docs/results.md measures it).
+    """
+
+    x: jax.Array
+    x_dot: jax.Array
+    theta: jax.Array
+    theta_dot: jax.Array
+
+    @classmethod
+    def from_array(cls, values: jax.Array) -> CartPoleState:
+        """From (x, x_dot, theta, theta_dot) along the last axis."""
+        values = jnp.asarray(values)
+        return cls(values[..., 0], values[..., 1], values[..., 2], values[..., 3])
+
+    def as_array(self) -> jax.Array:
+        """(x, x_dot, theta, theta_dot) along a new last axis: the observation."""
+        return jnp.stack([self.x, self.x_dot, self.theta, self.theta_dot], axis=-1)
+
+
+def dynamics(physics: CartPolePhysics, state: CartPoleState, force: jax.Array):
     """Cart and pole accelerations (Florian 2005, eqs. 23-24, as Gymnasium writes them)."""
-    _, _, theta, theta_dot = state
+    theta, theta_dot = state.theta, state.theta_dot
     total_mass = physics.masspole + physics.masscart
     polemass_length = physics.masspole * physics.length
     costheta, sintheta = jnp.cos(theta), jnp.sin(theta)
@@ -71,10 +97,10 @@ def dynamics(physics: CartPolePhysics, state: jax.Array, force: jax.Array):
     return xacc, thetaacc
 
 
-def integrate(physics: CartPolePhysics, state: jax.Array, force: jax.Array, integrator: str) -> jax.Array:
+def integrate(physics: CartPolePhysics, state: CartPoleState, force: jax.Array, integrator: str) -> CartPoleState:
     """One step of length tau. "euler" (Gymnasium's default) advances positions with the
     old velocities; "semi_implicit" updates velocities first, as MuJoCo's Euler does."""
-    x, x_dot, theta, theta_dot = state
+    x, x_dot, theta, theta_dot = state.x, state.x_dot, state.theta, state.theta_dot
     xacc, thetaacc = dynamics(physics, state, force)
     tau = physics.tau
     if integrator == "euler":
@@ -83,13 +109,14 @@ def integrate(physics: CartPolePhysics, state: jax.Array, force: jax.Array, inte
     else:
         x_dot, theta_dot = x_dot + tau * xacc, theta_dot + tau * thetaacc
         x, theta = x + tau * x_dot, theta + tau * theta_dot
-    return jnp.stack([x, x_dot, theta, theta_dot])
+    return CartPoleState(x, x_dot, theta, theta_dot)
 
 
 class CartPole(Env):
     """Observation (x, x_dot, theta, theta_dot); actions 0 (push left) and 1 (push right).
 
-    Reward is 1 on every step, the terminating one included.
+    Reward is 1 on every step, the terminating one included. `pipeline_state` is a
+    `CartPoleState`; `obs` is the same four values as one array.
     """
 
     observation_size = 4
@@ -114,19 +141,26 @@ class CartPole(Env):
         return CartPole(**{**fields, **changes})
 
     def reset(self, key: jax.Array) -> State:
-        state = self.rules.initial_state(key)
-        zero = jnp.zeros((), state.dtype)
-        return State(state, state, zero, zero, info={"truncation": zero, "nan": zero})
+        start = self.rules.initial_state(key)
+        zero = jnp.zeros((), start.dtype)
+        return State(CartPoleState.from_array(start), start, zero, zero, info={"truncation": zero, "nan": zero})
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.check_action(action)
         force = jnp.where(action == 1, self.physics.force_mag, -self.physics.force_mag)
-        x = integrate(self.physics, state.pipeline_state, force, self.integrator)
-        nan = ~jnp.isfinite(x).all()  # e.g. absurd overridden constants
-        done = self.rules.is_terminated(x[0], x[2]) | nan
-        one = jnp.ones((), x.dtype)
-        info = {**state.info, "nan": nan.astype(x.dtype)}
-        return state.replace(pipeline_state=x, obs=x, reward=one, done=done.astype(x.dtype), info=info)
+        new = integrate(self.physics, state.pipeline_state, force, self.integrator)
+        obs = self.observation(new)
+        # e.g. absurd overridden constants. Field by field, not over `obs`: a reduction over
+        # an env's four values would end the one-kernel-per-step fusion on a GPU.
+        nan = ~(jnp.isfinite(new.x) & jnp.isfinite(new.x_dot) & jnp.isfinite(new.theta) & jnp.isfinite(new.theta_dot))
+        done = self.rules.is_terminated(new.x, new.theta) | nan
+        one = jnp.ones((), obs.dtype)
+        info = {**state.info, "nan": nan.astype(obs.dtype)}
+        return state.replace(pipeline_state=new, obs=obs, reward=one, done=done.astype(obs.dtype), info=info)
+
+    def observation(self, pipeline_state: CartPoleState) -> jax.Array:
+        """The observation of a physics state (as `MjxEnv.observation(data)`)."""
+        return pipeline_state.as_array()
 
     def scene_model(self):
         """The MJX CartPole's model, so `envs.recording` draws both backends alike."""
@@ -134,9 +168,9 @@ class CartPole(Env):
 
         return load_model("cartpole.xml")
 
-    def scene_qpos(self, pipeline_state: jax.Array) -> jax.Array:
-        """qpos (x, theta) of `scene_model()` for the state (x, x_dot, theta, theta_dot)."""
-        return pipeline_state[..., jnp.array([0, 2])]
+    def scene_qpos(self, pipeline_state: CartPoleState) -> jax.Array:
+        """qpos (x, theta) of `scene_model()` for the state."""
+        return jnp.stack([pipeline_state.x, pipeline_state.theta], axis=-1)
 
     def __repr__(self) -> str:
         return f"CartPole(integrator={self.integrator!r}, physics={self.physics}, rules={self.rules})"
