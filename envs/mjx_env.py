@@ -228,6 +228,26 @@ class MjxEnv(Env):
         info = {**state.info, "nan": (~finite).astype(obs.dtype)}
         return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, info=info)
 
+    def merge_pipeline_state(self, merge, new: mjx.Data, old: mjx.Data) -> mjx.Data:
+        """`merge(new, old)` leaf by leaf: how auto-reset puts fresh episodes into a batch.
+
+        Under impl="warp" the buffers MuJoCo Warp shares by all worlds of a batch (the contact
+        arrays, leading dim `naconmax`, and `nacon`, `ncollision`, ...: MJX's
+        `mujoco.mjx.warp.types.DATA_NON_VMAP`) keep `old`: MJX registers its Warp data with
+        `jax.interpreters.batching.register_vmappable` so that `vmap` passes those fields
+        through unbatched, and a per-env merge would batch them (inside a vmap the result
+        leaks out of it as a tracer: UnexpectedTracerError). `mjx.Data.where` does the same.
+        """
+        if self.impl != "warp":
+            return jax.tree.map(merge, new, old)
+        from mujoco.mjx.warp.types import DATA_NON_VMAP
+
+        def leaf(path, n, o):
+            shared = len(path) == 2 and getattr(path[0], "name", None) == "_impl" and path[1].name in DATA_NON_VMAP
+            return o if shared else merge(n, o)
+
+        return jax.tree_util.tree_map_with_path(leaf, new, old)
+
     # ---- checks (run once, while tracing) ------------------------------------
     def _check_step_shapes(self, reset_obs, obs, reward, terminated) -> None:
         if obs.shape != reset_obs.shape:

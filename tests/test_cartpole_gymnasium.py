@@ -36,7 +36,7 @@ def gym_step_from(gym_env, state, action):
 def our_step_batch(env, states, actions):
     def one(state, action):
         zero = jnp.zeros((), state.dtype)
-        start = envs.State(state, state, zero, zero, info={"truncation": zero, "nan": zero})
+        start = envs.State(envs.CartPoleState.from_array(state), state, zero, zero, info={"truncation": zero, "nan": zero})
         out = env.step(start, action)
         return out.obs, out.reward, out.done
 
@@ -81,7 +81,7 @@ def test_episodes_terminate_on_the_same_step(integrator):
             gym_obs, _ = gym_env.reset(seed=episode)
             state = env.reset(jax.random.PRNGKey(episode))
             start = jnp.asarray(gym_env.unwrapped.state, jnp.float64)
-            state = state.replace(pipeline_state=start, obs=start)
+            state = state.replace(pipeline_state=envs.CartPoleState.from_array(start), obs=start)
             for t in range(500):
                 action = int(rng.integers(0, 2))
                 gym_obs, gym_reward, terminated, truncated, _ = gym_env.step(action)
