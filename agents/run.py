@@ -8,6 +8,7 @@ import json
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
@@ -175,10 +176,14 @@ def train_run(
         checkpoint.keep_metrics(out, chunks_done)
 
     seed_axis = seed_axis or default_seed_axis()
-    per_device = seed_batched(dqn.chunk, agents // placement.count, seed_axis)
+    # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
+    # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
+    record_episode = on_chunk is not None
+    step = dqn.chunk if record_episode else partial(dqn.chunk, record=False)
+    per_device = seed_batched(step, agents // placement.count, seed_axis)
     if placement.mesh is None:
-        chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", per_device, (ts,), dqn, agents, env_name,
-                               env_options, donate=True)
+        name = f"DQN.chunk over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+        chunk = compile_cached(name, per_device, (ts,), dqn, agents, env_name, env_options, donate=True)
     else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
         chunk = jax.jit(placement.spread(per_device), donate_argnums=0).lower(ts).compile(training_compiler_options())
     if init_program is not None:
