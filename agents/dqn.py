@@ -462,10 +462,12 @@ class DQN:
             sample=jax.random.bits(sample_key, (iterations, cfg.gradient_steps, cfg.batch_size), jnp.uint32),
         )
 
-    def chunk(self, ts: TrainState) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of acting and learning, then a greedy evaluation."""
+    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
+        """`eval_every` env steps of acting and learning, then a greedy evaluation. With `record`,
+        `metrics["eval_episode"]` holds its first episode (`evaluate`'s `record`), else None: the
+        same train state and metrics from a smaller program, for runs that log no episodes."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
-            return self.with_hyperparams(ts.hyperparams).chunk(ts)
+            return self.with_hyperparams(ts.hyperparams).chunk(ts, record)
         cfg = self.config
 
         def iteration(ts, noise: StepNoise):
@@ -478,7 +480,10 @@ class DQN:
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
         ts = ts.replace(key=key)
         ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, self.draw_noise(noise_key))
-        eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        if record:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        else:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
         eval_return = eval_returns.mean()
         better = eval_return > ts.best_return
         solved_now = (eval_return >= cfg.solve_return) & (ts.solve_step < 0)

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import json
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable
 
@@ -69,6 +71,19 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
         return jax.tree.map(lambda x: x[None], out)
 
     return single
+
+
+def _compile_aside(lowered) -> Future:
+    """`lowered.compile()` on another thread. XLA compiles without holding Python's lock, so a
+    fresh run's init program (about 1 s on a 2-core CPU) compiles while this thread traces and
+    lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for cartpole-mjx) and
+    while XLA compiles the chunk. It is the program, with the options, that calling the jitted
+    init compiles: the same train state, bit for bit."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mjxsuite-init-compile")
+    try:
+        return pool.submit(lowered.compile)
+    finally:
+        pool.shutdown(wait=False)  # its one thread ends with its one task
 
 
 def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
@@ -142,28 +157,38 @@ def train_run(
     init_args = (keys,) if sweep is None else (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds))
     init_args = placement.put(init_args)
     chunks_done = 0
-    init_compile_s = 0.0
+    compile_start = time.perf_counter()
+    init_program = None  # a fresh run's init program, compiling on another thread (`_compile_aside`)
     if resume and (out / checkpoint.STATE_FILE).is_file():
         ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
         ts = placement.put(ts)  # saved from any number of devices, split over this run's
+        compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
     else:  # a run killed before its first checkpoint resumes from the start, as it began
-        tick = time.perf_counter()
-        ts = init(*init_args)
-        init_compile_s = time.perf_counter() - tick  # compiling the init program (its run is queued)
+        if placement.mesh is None:
+            traced = init.trace(*init_args)
+            init_program = _compile_aside(traced.lower())
+            ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
+        else:
+            ts = init(*init_args)
         if out is not None and writer:
             checkpoint.start_run(out, run)
     if out is not None and writer:
         checkpoint.keep_metrics(out, chunks_done)
 
-    compile_start = time.perf_counter()
     seed_axis = seed_axis or default_seed_axis()
-    per_device = seed_batched(dqn.chunk, agents // placement.count, seed_axis)
+    # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
+    # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
+    record_episode = on_chunk is not None
+    step = dqn.chunk if record_episode else partial(dqn.chunk, record=False)
+    per_device = seed_batched(step, agents // placement.count, seed_axis)
     if placement.mesh is None:
-        chunk = compile_cached(f"DQN.chunk over seeds by {seed_axis}", per_device, (ts,), dqn, agents, env_name,
-                               env_options, donate=True)
+        name = f"DQN.chunk over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+        chunk = compile_cached(name, per_device, (ts,), dqn, agents, env_name, env_options, donate=True)
     else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
         chunk = jax.jit(placement.spread(per_device), donate_argnums=0).lower(ts).compile(training_compiler_options())
-    compile_s = init_compile_s + time.perf_counter() - compile_start
+    if init_program is not None:
+        ts = init_program.result()(*init_args)
+    compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                        devices=placement.count)

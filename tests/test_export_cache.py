@@ -31,9 +31,9 @@ def chunk_traces(monkeypatch):
     calls = []
     original = DQN.chunk
 
-    def counted(self, ts):
+    def counted(self, ts, *args, **kwargs):
         calls.append(1)
-        return original(self, ts)
+        return original(self, ts, *args, **kwargs)
 
     monkeypatch.setattr(DQN, "chunk", counted)
     return calls
