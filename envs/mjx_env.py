@@ -51,6 +51,13 @@ def require_warp() -> None:
                            + "; ".join(missing) + ". Use impl='jax' (the default, any device) here.")
 
 
+def warp_shared_buffers(data: mjx.Data) -> dict[str, jax.Array]:
+    """The arrays of Warp `data` that all worlds of a batch share (MJX's `DATA_NON_VMAP`)."""
+    from mujoco.mjx.warp.types import DATA_NON_VMAP
+
+    return {name: value for name in sorted(DATA_NON_VMAP) if isinstance(value := getattr(data._impl, name), jax.Array)}
+
+
 def _jax_has_cuda() -> bool:
     try:
         return bool(jax.devices("cuda"))
@@ -119,6 +126,7 @@ class MjxEnv(Env):
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
         # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
+        self._warp_shared = warp_shared_buffers(data) if impl == "warp" else {}
 
     def with_impl(self, impl: str) -> MjxEnv:
         """This task stepped by MJX's implementation `impl`: "jax" (pure JAX, any device; the
@@ -199,6 +207,7 @@ class MjxEnv(Env):
         )
         if self.forward_on_reset:
             data = mjx.forward(model, data)
+        data = self._without_shared(data)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
             raise ValueError(
@@ -213,7 +222,7 @@ class MjxEnv(Env):
         action = self.check_action(action)
         prev = state.pipeline_state
         # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
-        data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
+        data = self._with_shared(prev).replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
         if self.n_substeps == 1:
             data = mjx.step(model, data)
         else:
@@ -226,27 +235,24 @@ class MjxEnv(Env):
         reward = jnp.where(finite, reward, 0.0).astype(obs.dtype)
         done = (terminated | ~finite).astype(obs.dtype)
         info = {**state.info, "nan": (~finite).astype(obs.dtype)}
-        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, info=info)
+        return state.replace(pipeline_state=self._without_shared(data), obs=obs, reward=reward, done=done, info=info)
 
-    def merge_pipeline_state(self, merge, new: mjx.Data, old: mjx.Data) -> mjx.Data:
-        """`merge(new, old)` leaf by leaf: how auto-reset puts fresh episodes into a batch.
+    # Under impl="warp" MuJoCo Warp keeps some buffers once for all worlds of a batch: the
+    # contact pool (leading dim `naconmax`), `nacon`, `ncollision` and constant index tables
+    # (MJX's `DATA_NON_VMAP`; `vmap` passes them through without a batch axis). They carry
+    # nothing from one step to the next (collision detection refills them), so an env's
+    # state leaves them out and `step` hands MJX the fresh ones of `make_data`. Every leaf of
+    # a state then has the batch axis, and auto-reset, a vmapped seed axis, a while loop
+    # with a batched condition, sharding and checkpoints treat it like any other state.
+    def _without_shared(self, data: mjx.Data) -> mjx.Data:
+        if not self._warp_shared:
+            return data
+        return data.replace(_impl=data._impl.replace(**dict.fromkeys(self._warp_shared)))
 
-        Under impl="warp" the buffers MuJoCo Warp shares by all worlds of a batch (the contact
-        arrays, leading dim `naconmax`, and `nacon`, `ncollision`, ...: MJX's
-        `mujoco.mjx.warp.types.DATA_NON_VMAP`) keep `old`: MJX registers its Warp data with
-        `jax.interpreters.batching.register_vmappable` so that `vmap` passes those fields
-        through unbatched, and a per-env merge would batch them (inside a vmap the result
-        leaks out of it as a tracer: UnexpectedTracerError). `mjx.Data.where` does the same.
-        """
-        if self.impl != "warp":
-            return jax.tree.map(merge, new, old)
-        from mujoco.mjx.warp.types import DATA_NON_VMAP
-
-        def leaf(path, n, o):
-            shared = len(path) == 2 and getattr(path[0], "name", None) == "_impl" and path[1].name in DATA_NON_VMAP
-            return o if shared else merge(n, o)
-
-        return jax.tree_util.tree_map_with_path(leaf, new, old)
+    def _with_shared(self, data: mjx.Data) -> mjx.Data:
+        if not self._warp_shared:
+            return data
+        return data.replace(_impl=data._impl.replace(**self._warp_shared))
 
     # ---- checks (run once, while tracing) ------------------------------------
     def _check_step_shapes(self, reset_obs, obs, reward, terminated) -> None:

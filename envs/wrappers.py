@@ -76,7 +76,7 @@ class AutoReset(Wrapper):
         def pick(new, old):
             return jnp.where(jnp.reshape(done, done.shape + (1,) * (new.ndim - done.ndim)), new, old)
 
-        merged = _merge_fresh(stepped, fresh, next_rng, pick, kept_info(self.env), merge_state_fn(self.env))
+        merged = _merge_fresh(stepped, fresh, next_rng, pick, kept_info(self.env))
         return merged.replace(info={**merged.info, "final_obs": stepped.obs})
 
 
@@ -86,14 +86,7 @@ def kept_info(env: Env) -> tuple[str, ...]:
     return tuple(getattr(env, "info_kept_across_episodes", ()))
 
 
-def merge_state_fn(env: Env):
-    """How `env` merges fresh pipeline states into stepped ones: its `merge_pipeline_state`
-    (an `MjxEnv` under impl="warp" keeps Warp's buffers shared by all worlds) or leaf by leaf."""
-    return getattr(env, "merge_pipeline_state", None) or (lambda merge, new, old: jax.tree.map(merge, new, old))
-
-
-def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept: tuple[str, ...] = (),
-                 merge_state=None) -> State:
+def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept: tuple[str, ...] = ()) -> State:
     """`stepped` with `fresh` episodes merged in by `merge(new, old)`: state, obs, the
     stream's next key and the info entries a fresh episode brings (not those that
     describe the finished transition, nor those in `kept`)."""
@@ -101,7 +94,7 @@ def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept:
     info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
             "rng": jax.tree.map(merge, next_rng, stepped.info["rng"])}
     return stepped.replace(
-        pipeline_state=(merge_state or merge_state_fn(None))(merge, fresh.pipeline_state, stepped.pipeline_state),
+        pipeline_state=jax.tree.map(merge, fresh.pipeline_state, stepped.pipeline_state),
         obs=merge(fresh.obs, stepped.obs),
         info=info,
     )
@@ -166,7 +159,7 @@ class BatchedAutoReset(Wrapper):
         def put(new, old):
             return old.at[index].set(new, mode="drop")
 
-        return _merge_fresh(stepped, fresh, next_rng, put, kept_info(self.env), merge_state_fn(self.env))
+        return _merge_fresh(stepped, fresh, next_rng, put, kept_info(self.env))
 
 
 class EpisodeStats(Wrapper):
