@@ -45,6 +45,13 @@ def unrolled_inner_loops(platform: str | None = None) -> bool:
     return not on_cpu(platform)
 
 
+def fused_q_network(platform: str | None = None) -> bool:
+    """Whether the Q-network runs as one Pallas kernel forward and one backward
+    (`agents.fused_mlp`) rather than as XLA's per-layer matmuls: on a GPU the activations
+    then stay on chip (docs/results.md, "DQN on the GPU"); the CPU keeps XLA's program."""
+    return not on_cpu(platform)
+
+
 def transposed_kernel_gradient(platform: str | None = None) -> bool:
     """The Q-network's Dense layers take their kernel gradient from an explicitly
     transposed input (`agents.networks`) on the CPU, whose XLA then uses its fast matmul;

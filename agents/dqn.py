@@ -21,7 +21,7 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from agents import backend
+from agents import backend, fused_mlp
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, VmapWrapper, wrap_for_training
@@ -247,6 +247,10 @@ class DQN:
         self.train_env = wrap_for_training(env, config.num_envs)
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
                                 transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
+        # A dueling head stays in Flax (its two outputs are not one MLP's), and so do networks
+        # too wide for the kernels to win (`fused_mlp.fits`).
+        self.fused_network = (backend.fused_q_network(platform) and not config.dueling
+                              and fused_mlp.fits(env.observation_size, config.hidden, env.num_actions))
         self.flat_optimizer = backend.flat_optimizer(platform)
         self.unroll = backend.unrolled_inner_loops(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
@@ -277,6 +281,14 @@ class DQN:
     # ---- acting -------------------------------------------------------------
     def q_values(self, params, obs):
         return self.network.apply(params, obs)
+
+    def replay_q_values(self, params, obs):
+        """Q-values of a replayed batch, in the update's forward and backward passes: there
+        `fused_mlp`'s kernels where `fused_network` (interpreted where a GPU-shaped program
+        runs on the CPU, as in the tests). Acting and evaluation, a few rows per step, keep Flax."""
+        if self.fused_network:
+            return fused_mlp.q_values(params, obs, interpret=backend.on_cpu())
+        return self.q_values(params, obs)
 
     def act(self, params, obs, epsilon, bits):
         """Epsilon-greedy actions for a batch of observations; `bits` (uint32, shape
@@ -311,9 +323,9 @@ class DQN:
 
     # ---- learning -----------------------------------------------------------
     def td_targets(self, params, target_params, batch: Transition):
-        next_q_target = self.q_values(target_params, batch.next_obs)
+        next_q_target = self.replay_q_values(target_params, batch.next_obs)
         if self.config.double_dqn:  # the online net picks, the target net evaluates
-            next_action = jnp.argmax(self.q_values(params, batch.next_obs), axis=-1)
+            next_action = jnp.argmax(self.replay_q_values(params, batch.next_obs), axis=-1)
         else:
             next_action = jnp.argmax(next_q_target, axis=-1)
         next_q = self.taken(next_q_target, next_action)
@@ -325,7 +337,7 @@ class DQN:
         return (q * jax.nn.one_hot(action, self.env.num_actions, dtype=q.dtype)).sum(-1)
 
     def loss(self, params, batch: Transition, targets, weights):
-        q = self.taken(self.q_values(params, batch.obs), batch.action)
+        q = self.taken(self.replay_q_values(params, batch.obs), batch.action)
         td_error = q - targets
         if self.config.loss == "huber":
             per_item = optax.huber_loss(td_error)

@@ -190,6 +190,7 @@ def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
     monkeypatch.setattr(backend, "flat_optimizer", lambda platform=None: True)
     monkeypatch.setattr(backend, "transposed_kernel_gradient", lambda platform=None: True)
     monkeypatch.setattr(backend, "unrolled_inner_loops", lambda platform=None: False)
+    monkeypatch.setattr(backend, "fused_q_network", lambda platform=None: False)
     accelerator = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu")
     assert accelerator.buffer.vectorized
     _assert_trees_equal(_train_chunks(accelerator), cpu)
@@ -199,7 +200,8 @@ def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
     """Why the accelerator program's parameters are not the CPU's bit for bit: its Adam runs
     per parameter leaf, so gradient clipping sums the squared norm leaf by leaf rather than
     over one flat vector; its Dense layers take the plain product's kernel gradient (XLA
-    sums in another order); and its unrolled inner steps let XLA fuse, and so round,
+    sums in another order); its Q-network is `agents.fused_mlp`'s kernels (interpreted
+    here), whose padded products sum in another order too; and its unrolled inner steps let XLA fuse, and so round,
     across steps. One update from the same state agrees to float rounding;
     over thousands of updates (and the greedy actions they change) the runs drift apart,
     so the GPU's training is judged by its solve rates (docs/results.md: 16/16)."""
