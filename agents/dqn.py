@@ -237,9 +237,10 @@ class TrainState:
 class DQN:
     """The pieces of a DQN run for one env and config; all methods are pure."""
 
-    def __init__(self, config: DQNConfig, env: Env, platform: str | None = None):
+    def __init__(self, config: DQNConfig, env: Env, platform: str | None = None, agents: int = 1):
         """`platform`: the backend whose program shapes to use (`agents.backend`); None:
-        JAX's default backend."""
+        JAX's default backend. `agents`: how many agents run vmapped on one device (some
+        program shapes pay off only for many)."""
         if env.num_actions is None:
             raise ValueError(f"DQN needs a discrete-action env; {env!r} has continuous actions")
         self.config = config
@@ -249,7 +250,7 @@ class DQN:
                                 transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
         # A dueling head stays in Flax (its two outputs are not one MLP's), and so do networks
         # too wide for the kernels to win (`fused_mlp.fits`).
-        self.fused_network = (backend.fused_q_network(platform) and not config.dueling
+        self.fused_network = (backend.fused_q_network(platform, agents) and not config.dueling
                               and fused_mlp.fits(env.observation_size, config.hidden, env.num_actions))
         self.flat_optimizer = backend.flat_optimizer(platform)
         self.unroll = backend.unrolled_inner_loops(platform)

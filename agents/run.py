@@ -150,7 +150,7 @@ def train_run(
             raise ValueError("resume needs out_dir, the directory of the run to continue")
         checkpoint.check_resumable(out, run)
     env = envs.make(env_name, **(env_options or {}))
-    dqn = DQN(config, env)
+    dqn = DQN(config, env, agents=agents // placement.count)
     init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
 
     keys = seed_keys(seed, seeds)

@@ -190,7 +190,7 @@ def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
     monkeypatch.setattr(backend, "flat_optimizer", lambda platform=None: True)
     monkeypatch.setattr(backend, "transposed_kernel_gradient", lambda platform=None: True)
     monkeypatch.setattr(backend, "unrolled_inner_loops", lambda platform=None: False)
-    monkeypatch.setattr(backend, "fused_q_network", lambda platform=None: False)
+    monkeypatch.setattr(backend, "fused_q_network", lambda platform=None, agents=1: False)
     accelerator = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu")
     assert accelerator.buffer.vectorized
     _assert_trees_equal(_train_chunks(accelerator), cpu)
@@ -205,8 +205,11 @@ def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
     across steps. One update from the same state agrees to float rounding;
     over thousands of updates (and the greedy actions they change) the runs drift apart,
     so the GPU's training is judged by its solve rates (docs/results.md: 16/16)."""
+    from agents import backend
+
     cpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="cpu")
-    gpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu")
+    gpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu", agents=backend.FUSED_MIN_AGENTS)
+    assert gpu.fused_network
     ts = _train_chunks(cpu, chunks=1)  # a filled buffer; learning starts in the next chunk
     bits = jnp.arange(GPU_SHAPED.batch_size, dtype=jnp.uint32) * jnp.uint32(2654435761)
     flat, unravel = ravel_pytree(ts.params)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import envs
-from agents import fused_mlp
+from agents import backend, fused_mlp
 from agents.dqn import DQN, DQNConfig
 from agents.networks import QNetwork
 
@@ -33,9 +33,10 @@ def test_kernels_compute_the_flax_network_and_its_gradients(hidden, rows, featur
     assert any(np.abs(np.asarray(g)).max() > 0 for g in jax.tree.leaves(fused_grads))
 
 
-def test_the_update_uses_the_kernels_only_on_accelerators_and_for_narrow_networks():
-    cartpole = envs.make("cartpole")
-    assert DQN(DQNConfig(), cartpole, platform="gpu").fused_network
-    assert not DQN(DQNConfig(), cartpole, platform="cpu").fused_network
-    assert not DQN(DQNConfig(dueling=True), cartpole, platform="gpu").fused_network
-    assert not DQN(DQNConfig(hidden=(120, 84)), cartpole, platform="gpu").fused_network  # wider: XLA wins
+def test_the_update_uses_the_kernels_only_for_many_agents_of_a_narrow_network_on_accelerators():
+    cartpole, many = envs.make("cartpole"), backend.FUSED_MIN_AGENTS
+    assert DQN(DQNConfig(), cartpole, platform="gpu", agents=many).fused_network
+    assert not DQN(DQNConfig(), cartpole, platform="gpu", agents=many - 1).fused_network  # GPU mostly idle
+    assert not DQN(DQNConfig(), cartpole, platform="cpu", agents=many).fused_network
+    assert not DQN(DQNConfig(dueling=True), cartpole, platform="gpu", agents=many).fused_network
+    assert not DQN(DQNConfig(hidden=(120, 84)), cartpole, platform="gpu", agents=many).fused_network  # XLA wins
