@@ -110,8 +110,10 @@ def _backward_kernel(num_layers, block, x_ref, *refs):
     jax.lax.fori_loop(0, x_ref.shape[0] // block, body, 0)
 
 
-def _num_warps(layers) -> int:
-    return 4 if max(max(k.shape) for k, _ in layers) <= 64 else 8
+def _num_warps(kernels) -> int:
+    """4 warps for the widths the kernels are used at (`MAX_WIDTH`; the fastest in a sweep of
+    2-8 on an H200), 8 for wider ones."""
+    return 4 if max(max(k.shape) for k in kernels) <= 64 else 8
 
 
 def _call(kernel, out_shape, interpret, num_warps, *args):
@@ -124,12 +126,18 @@ def _mlp(layers, x, interpret):
     return _forward(layers, x, interpret)
 
 
-def _forward(layers, x, interpret):
+def _padded(layers, x):
+    """The kernels' operands: the rows of `x` and each (kernel, bias) padded with zeros (the
+    pairs flattened), the rows per block, and the padded output width."""
     padded = _padded_layers(layers)
     xp, block = _padded_rows(x, padded[0][0].shape[0])
-    out = jax.ShapeDtypeStruct((xp.shape[0], padded[-1][0].shape[1]), x.dtype)
-    flat = [a for pair in padded for a in pair]
-    q = _call(partial(_forward_kernel, len(layers), block), out, interpret, _num_warps(padded), xp, *flat)
+    return xp, [a for pair in padded for a in pair], block, padded[-1][0].shape[1]
+
+
+def _forward(layers, x, interpret):
+    xp, flat, block, width = _padded(layers, x)
+    out = jax.ShapeDtypeStruct((xp.shape[0], width), x.dtype)
+    q = _call(partial(_forward_kernel, len(layers), block), out, interpret, _num_warps(flat[::2]), xp, *flat)
     return q[: x.shape[0], : layers[-1][0].shape[1]]
 
 
@@ -139,12 +147,10 @@ def _mlp_fwd(layers, x, interpret):
 
 def _mlp_bwd(interpret, saved, dq):
     layers, x = saved
-    padded = _padded_layers(layers)
-    xp, block = _padded_rows(x, padded[0][0].shape[0])
-    dqp = jnp.pad(dq, ((0, xp.shape[0] - dq.shape[0]), (0, padded[-1][0].shape[1] - dq.shape[1])))
-    flat = [a for pair in padded for a in pair]
+    xp, flat, block, width = _padded(layers, x)
+    dqp = jnp.pad(dq, ((0, xp.shape[0] - dq.shape[0]), (0, width - dq.shape[1])))
     out = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in flat] + [jax.ShapeDtypeStruct(xp.shape, x.dtype)]
-    *grads, dx = _call(partial(_backward_kernel, len(layers), block), out, interpret, _num_warps(padded),
+    *grads, dx = _call(partial(_backward_kernel, len(layers), block), out, interpret, _num_warps(flat[::2]),
                        xp, *flat, dqp)
     layer_grads = [(dk[: k.shape[0], : k.shape[1]], db[0, : b.shape[0]])
                    for (k, b), dk, db in zip(layers, grads[::2], grads[1::2])]
