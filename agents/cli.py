@@ -24,7 +24,7 @@ from pathlib import Path
 from agents import env_options
 from agents import sweep as sweeps
 from agents.dqn import PRESETS, SWEEPABLE, DQNConfig, sweep_configs
-from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 
@@ -423,7 +423,8 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--checkpoint-every", type=ranged(int, COUNT), default=CHECKPOINT_EVERY, metavar="CHUNKS",
                        help="chunks (of eval_every steps) between checkpoints in --out (default %(default)s)...")
     train.add_argument("--checkpoint-seconds", type=ranged(float, NON_NEGATIVE), default=CHECKPOINT_SECONDS,
-                       metavar="S", help="...and at least S seconds between them (default %(default)s; 0: no limit)")
+                       metavar="S", help=f"...and at least S seconds between them, or {SAVE_COST_FACTOR:g}x the last save's "
+                            "duration if longer (default %(default)s; 0: no limit)")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
     train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",

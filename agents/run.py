@@ -29,6 +29,11 @@ from envs.ranges import COUNT, NON_NEGATIVE
 # (docs/reliability.md has the measurements).
 CHECKPOINT_EVERY = 1
 CHECKPOINT_SECONDS = 5.0
+# A save's cost grows with the agents (each holds its replay buffer: 1,024 agents took 26 s per
+# save on 2 cores), so the next periodic save also waits SAVE_COST_FACTOR times the last save's
+# duration: saving then takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%) however
+# large the state, while runs whose saves take under 0.25 s keep the CHECKPOINT_SECONDS rhythm.
+SAVE_COST_FACTOR = 20.0
 
 
 @dataclass
@@ -120,7 +125,8 @@ def train_run(
     stop_when_solved: bool = False,
     seed_axis: str | None = None,  # "vmap" or "map" (see `seed_batched`); None: by device
     checkpoint_every: int = CHECKPOINT_EVERY,  # chunks between checkpoints in `out_dir`...
-    checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds (0: every checkpoint_every)
+    checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds, or SAVE_COST_FACTOR x the
+    # last save's duration if longer (0: every checkpoint_every chunks)
     devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
     sweep: dict[str, list[float]] | None = None,  # a grid over `dqn.SWEEPABLE` fields: every config x `seeds`
 ) -> RunResult:
@@ -196,6 +202,7 @@ def train_run(
                unit="step", disable=not progress or not writer, desc=env_name, dynamic_ncols=True)
     last = saved = chunks_done
     saved_at = time.perf_counter()
+    save_s = 0.0  # how long the last periodic save took
     solved_early = False
     try:
         for index in range(chunks_done, config.num_chunks):
@@ -227,10 +234,13 @@ def train_run(
             if stop_when_solved and None not in result.solve_wall_s:
                 solved_early = True
                 break
+            wait_s = max(checkpoint_seconds, SAVE_COST_FACTOR * save_s) if checkpoint_seconds > 0 else 0.0
             if placement.agree(out is not None and last - saved >= checkpoint_every  # process 0's clock decides
-                               and time.perf_counter() - saved_at >= checkpoint_seconds):
+                               and time.perf_counter() - saved_at >= wait_s):
+                save_start = time.perf_counter()
                 save(out, env_name, placement, ts, last)
                 saved, saved_at = last, time.perf_counter()
+                save_s = saved_at - save_start
     except KeyboardInterrupt:
         result.interrupted = True
         bar.write("interrupted: saving a checkpoint")

@@ -249,3 +249,40 @@ def test_resume_refuses_another_run(tmp_path, reference, capsys):
     with pytest.raises(ValueError, match=r"config.gamma 0.99 \(given 0.9\)"):
         train_run("cartpole", DQNConfig(**{**CONFIG.__dict__, "gamma": 0.9}), seeds=SEEDS, out_dir=out,
                   resume=True, progress=False)
+
+
+def _timed_saves(monkeypatch, seconds_per_save: float) -> list[tuple[float, int]]:
+    """Replace `agents.run.save` by one that takes `seconds_per_save`; its (end time, chunks) log."""
+    from agents import run
+
+    log = []
+
+    def slow_save(out, env_name, placement, ts, chunks_done):
+        time.sleep(seconds_per_save)
+        log.append((time.perf_counter(), chunks_done))
+
+    monkeypatch.setattr(run, "save", slow_save)
+    return log
+
+
+def test_a_slow_save_spaces_the_next_ones_out(tmp_path, monkeypatch):
+    """A save that takes D seconds is followed by none for SAVE_COST_FACTOR x D (a large sweep's
+    state takes long to write: saving must not take over the run), whatever --checkpoint-seconds."""
+    from agents.run import SAVE_COST_FACTOR
+
+    config = DQNConfig(total_steps=3000, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                       eval_episodes=4, hidden=(16,))
+    log = _timed_saves(monkeypatch, seconds_per_save=0.05)
+    train_run("cartpole", config, out_dir=tmp_path, progress=False, checkpoint_seconds=0.001)
+    periodic = log[:-1]  # the last one is the end-of-run save, which always happens
+    assert 1 <= len(periodic) < config.num_chunks // 2
+    for (before, _), (after, _) in zip(periodic, periodic[1:]):
+        assert after - before >= SAVE_COST_FACTOR * 0.05  # this save's own 0.05 s included
+
+
+def test_checkpoint_seconds_0_still_saves_every_checkpoint_every_chunks(tmp_path, monkeypatch):
+    log = _timed_saves(monkeypatch, seconds_per_save=0.05)
+    config = DQNConfig(total_steps=600, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                       eval_episodes=4, hidden=(16,))
+    train_run("cartpole", config, out_dir=tmp_path, progress=False, checkpoint_seconds=0, checkpoint_every=2)
+    assert [chunks for _, chunks in log] == [2, 4, 6]
