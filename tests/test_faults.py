@@ -4,6 +4,7 @@ docs/reliability.md lists the guarantees these tests prove."""
 
 import errno
 import json
+import math
 import os
 import random
 import shutil
@@ -251,38 +252,54 @@ def test_resume_refuses_another_run(tmp_path, reference, capsys):
                   resume=True, progress=False)
 
 
-def _timed_saves(monkeypatch, seconds_per_save: float) -> list[tuple[float, int]]:
-    """Replace `agents.run.save` by one that takes `seconds_per_save`; its (end time, chunks) log."""
+class _FakeTime:
+    """`time` for agents.run: a clock that moves only when told (and 1 us per reading, so no interval
+    is zero), so a test fakes slow chunks and saves exactly, without sleeping or depending on load."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        self.now += 1e-6
+        return self.now
+
+
+def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int], dict]:
+    """Make every chunk take `chunk_s` and every save `save_s` on agents.run's clock (saving nothing);
+    the chunks each save was called at, and `on_chunk` for train_run."""
     from agents import run
 
-    log = []
+    clock, saves = _FakeTime(), []
 
     def slow_save(out, env_name, placement, ts, chunks_done):
-        time.sleep(seconds_per_save)
-        log.append((time.perf_counter(), chunks_done))
+        clock.now += save_s
+        saves.append(chunks_done)
 
+    monkeypatch.setattr(run, "time", clock)
     monkeypatch.setattr(run, "save", slow_save)
-    return log
+    return saves, {"on_chunk": lambda index, ts, record: setattr(clock, "now", clock.now + chunk_s)}
 
 
-def test_a_slow_save_spaces_the_next_ones_out(tmp_path, monkeypatch):
-    """A save that takes D seconds is followed by none for SAVE_COST_FACTOR x D (a large sweep's
-    state takes long to write: saving must not take over the run), whatever --checkpoint-seconds."""
+@pytest.mark.parametrize("save_s, checkpoint_seconds", [(0.52, 0.001), (0.01, 2.5)], ids=["slow", "fast"])
+def test_a_slow_save_spaces_the_next_ones_out(tmp_path, monkeypatch, save_s, checkpoint_seconds):
+    """After a save that took D seconds the next periodic one waits max(checkpoint_seconds,
+    SAVE_COST_FACTOR x D) (a large sweep's state takes long to write: saving must not take over the
+    run); saves faster than checkpoint_seconds / SAVE_COST_FACTOR keep the checkpoint_seconds rhythm."""
     from agents.run import SAVE_COST_FACTOR
 
     config = DQNConfig(total_steps=3000, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                        eval_episodes=4, hidden=(16,))
-    log = _timed_saves(monkeypatch, seconds_per_save=0.05)
-    train_run("cartpole", config, out_dir=tmp_path, progress=False, checkpoint_seconds=0.001)
-    periodic = log[:-1]  # the last one is the end-of-run save, which always happens
-    assert 1 <= len(periodic) < config.num_chunks // 2
-    for (before, _), (after, _) in zip(periodic, periodic[1:]):
-        assert after - before >= SAVE_COST_FACTOR * 0.05  # this save's own 0.05 s included
+    saves, hooks = _faked_saves(monkeypatch, save_s, chunk_s=1.0)
+    train_run("cartpole", config, out_dir=tmp_path, progress=False, checkpoint_seconds=checkpoint_seconds, **hooks)
+    first = math.ceil(checkpoint_seconds)  # nothing saved yet: checkpoint_seconds alone (1 s chunks)
+    gap = math.ceil(max(checkpoint_seconds, SAVE_COST_FACTOR * save_s))  # 11 chunks slow, 3 fast
+    periodic = list(range(first, config.num_chunks + 1, gap))
+    assert saves == periodic + ([config.num_chunks] if periodic[-1] != config.num_chunks else [])  # + the final save
+    assert len(periodic) >= 3
 
 
 def test_checkpoint_seconds_0_still_saves_every_checkpoint_every_chunks(tmp_path, monkeypatch):
-    log = _timed_saves(monkeypatch, seconds_per_save=0.05)
-    config = DQNConfig(total_steps=600, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
-                       eval_episodes=4, hidden=(16,))
-    train_run("cartpole", config, out_dir=tmp_path, progress=False, checkpoint_seconds=0, checkpoint_every=2)
-    assert [chunks for _, chunks in log] == [2, 4, 6]
+    """However long a save takes (here 100 s)."""
+    saves, hooks = _faked_saves(monkeypatch, save_s=100.0, chunk_s=1.0)
+    train_run("cartpole", CONFIG, out_dir=tmp_path, progress=False, checkpoint_seconds=0, checkpoint_every=2, **hooks)
+    assert saves == [2, 4, 6]
