@@ -245,7 +245,7 @@ class DQN:
             raise ValueError(f"DQN needs a discrete-action env; {env!r} has continuous actions")
         self.config = config
         self.env = env
-        self.train_env = wrap_for_training(env, config.num_envs)
+        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
                                 transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
         # A dueling head stays in Flax (its two outputs are not one MLP's), and so do networks

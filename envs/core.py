@@ -12,11 +12,16 @@ The contract, shaped for a GPU step as well as for learners:
   the env's own key stream, independent of other envs and episodes.
 - Per env, a batch carries only values its next step reads, each a scalar (so `[N]` for
   a batch): the physics state (`pipeline_state`: a `CartPoleState` of four scalars, or an
-  `mjx.Data`), the key stream (`info["rng"]`: two `uint32` words), the time limit's step
-  counter, and the episode statistics of `EpisodeStats` (left out by
-  `wrap_for_training(..., episode_stats=False)`). On a GPU, XLA then computes a whole
-  auto-resetting step in one kernel with one thread per env; an `[N, k]` array instead
-  makes each of its k columns recompute the env's physics and reset draw.
+  `mjx.Data`), the key stream (`info["rng"]`: two `uint32` words, a seed that never changes
+  and a counter that a finished episode advances), the time limit's step counter, and the
+  episode statistics of `EpisodeStats` (left out by `wrap_for_training(...,
+  episode_stats=False)`). On a GPU, XLA then computes a whole auto-resetting step in one
+  kernel with one thread per env, writing each value over its old one; an `[N, k]` array
+  instead makes each of its k columns recompute the env's physics and reset draw, and a
+  key stream whose two words each hashed both was copied between loop buffers every step.
+- A batch of one env that is not itself vmapped steps as scalars on a GPU (`BatchedAutoReset`),
+  where XLA merges the kernels of a step into fewer launches than over `[1]` arrays; its
+  state keeps the `[1]` axis.
 - `obs`, `reward`, `done` and `info["final_obs"]` are outputs: nothing inside a step reads
   them, so a jitted loop that does not read them either leaves them out.
 """
@@ -61,6 +66,9 @@ class Env(abc.ABC):
     num_actions: int | None = None
     action_size: int | None = None
     backend: str = "jax"  # Brax's wrappers read this attribute.
+    # Whether `BatchedAutoReset` may step a batch of one as one env of scalars on a GPU (fewer
+    # kernels for XLA to launch there); MJX's unbatched step is the slower one (`MjxEnv`).
+    batch_of_one_as_scalars: bool = True
 
     @abc.abstractmethod
     def reset(self, key: jax.Array) -> State:
@@ -120,6 +128,7 @@ class Wrapper(Env):
     num_actions = property(lambda self: self.env.num_actions)
     action_size = property(lambda self: self.env.action_size)
     backend = property(lambda self: self.env.backend)
+    batch_of_one_as_scalars = property(lambda self: self.env.batch_of_one_as_scalars)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.env!r})"

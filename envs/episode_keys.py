@@ -11,11 +11,19 @@ words. At 2**20 CartPoles on an H200 a batched step went from 93 to 64 µs.
 
 The keys are ordinary JAX typed keys (`jax.extend.random.define_prng_impl`), so an
 env's `reset` draws from them with `jax.random.uniform`, `split`, `normal`... as
-from any key. Env state stores the stream as its two raw words, two `uint32` scalars
-(a pair, not one `uint32[2]`: a batch's streams are then two `[N]` arrays, which XLA
-fuses with the rest of a GPU step instead of hashing once per column), so checkpoints
-and buffers see plain arrays. A user's own keys stay threefry: only the per-episode
-stream of `AutoReset` uses this generator.
+from any key. A user's own keys stay threefry: only the per-episode stream of
+`AutoReset` uses this generator.
+
+An env's stream is two `uint32` scalars, (seed, counter), both drawn at random when the
+env is first reset: episode k after that is drawn from the key of `jax.random.split` of
+the pcg4d key (seed, counter + k), and a finished episode only adds one to the counter.
+The seed word never changes and the counter's update reads nothing else, so on a GPU XLA
+writes the new counter over the old one in place, where a stream whose two words each
+hashed both made it copy them between loop buffers on every step (docs/results.md, "The
+GPU step"). Two scalars rather
+than one `uint32[2]`, so that a batch's streams are two `[N]` arrays, which XLA fuses
+with the rest of a step instead of hashing once per column. Envs (or restarts) share a
+stream only if both their random seed words and their counter ranges coincide.
 """
 
 from __future__ import annotations
@@ -89,13 +97,15 @@ PCG4D = define_prng_impl(
 
 
 def episode_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The two raw words (`uint32` scalars) that start an env's episode-key stream, drawn from any key."""
+    """A new stream, (seed, counter): two random `uint32` scalars drawn from any key."""
     words = jax.random.bits(key, (2,), jnp.uint32)
     return words[0], words[1]
 
 
 def next_episode_key(stream: tuple[jax.Array, jax.Array]) -> tuple[tuple[jax.Array, jax.Array], jax.Array]:
-    """(the stream's next two words, a typed key for one episode's `reset`): one pcg4d call,
-    the words of `jax.random.split` of the stream's key into two (a test checks it)."""
-    words = pcg4d(stream[0], stream[1], jnp.uint32(0), _SPLIT)
-    return (words[0], words[1]), jax.random.wrap_key_data(jnp.stack(words[2:], axis=-1), impl=PCG4D)
+    """(the stream with its counter advanced, a typed key for one episode's `reset`): the
+    second key of `jax.random.split` of the pcg4d key (seed, counter), from one pcg4d call
+    (a test checks it)."""
+    seed, counter = stream
+    words = pcg4d(seed, counter, jnp.uint32(0), _SPLIT)
+    return (seed, counter + jnp.uint32(1)), jax.random.wrap_key_data(jnp.stack(words[2:], axis=-1), impl=PCG4D)

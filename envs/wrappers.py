@@ -52,11 +52,11 @@ class AutoReset(Wrapper):
     observation the step actually produced in `info["final_obs"]` (equal to `obs`
     when the episode did not end), so learners can bootstrap from the true final
     state of a truncated episode. Each env keeps its own stream of episode keys in
-    `info["rng"]`; it advances once per finished episode, so an env's episodes do not
-    depend on how the resets are batched (`BatchedAutoReset` gives the same states).
-    The stream is a cheap counter-based generator (`envs.episode_keys`), as every env
-    draws a fresh episode on every step under `vmap`; the first episode is drawn from
-    the key given to `reset`.
+    `info["rng"]`, a seed word and a counter that advances once per finished episode, so
+    an env's episodes do not depend on how the resets are batched (`BatchedAutoReset`
+    gives the same states). The stream is a cheap counter-based generator
+    (`envs.episode_keys`), as every env draws a fresh episode on every step under `vmap`;
+    the first episode is drawn from the key given to `reset`.
     """
 
     def reset(self, key: jax.Array) -> State:
@@ -86,11 +86,13 @@ def kept_info(env: Env) -> tuple[str, ...]:
     return tuple(getattr(env, "info_kept_across_episodes", ()))
 
 
-def _merge_fresh(stepped: State, fresh: State, next_rng: jax.Array, merge, kept: tuple[str, ...] = ()) -> State:
+def _merge_fresh(stepped: State, fresh: State, next_rng: tuple[jax.Array, jax.Array], merge, kept: tuple[str, ...] = ()) -> State:
     """`stepped` with `fresh` episodes merged in by `merge(new, old)`: state, obs, the
-    stream's next key and the info entries a fresh episode brings (not those that
+    stream's next state and the info entries a fresh episode brings (not those that
     describe the finished transition, nor those in `kept`)."""
     carried = [k for k in fresh.info if k not in TRANSITION_INFO and k not in kept and k != "rng"]
+    # The stream's seed word is merged with itself: XLA drops that select on a GPU, and on the
+    # CPU the scatter ran faster than the seed passed around the `lax.switch` (MJX, 4,096 envs).
     info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
             "rng": jax.tree.map(merge, next_rng, stepped.info["rng"])}
     return stepped.replace(
@@ -119,9 +121,18 @@ class BatchedAutoReset(Wrapper):
     `max_resets` defaults to a sixteenth of the batch; random play on CartPole
     ends about one episode in twenty per step. Inside a `vmap` over seeds the switch
     itself becomes a select (every branch runs), so keep the batch in this wrapper.
+
+    Without `reset_by_index`, a batch of one steps its env unbatched, as `AutoReset` on
+    scalars: XLA:GPU merges kernels that share inputs only over arrays of more than one
+    element, so a `[1]`-shaped step ran as two more kernels than a scalar one, and a step
+    of one env is that many kernel launches (measured: docs/results.md, "The GPU step").
+    Not `under_vmap` (a batch that is itself vmapped, e.g. over seeds, where the arrays
+    have more elements anyway and the scalar step made the DQN 8-10% slower at 16 and 256
+    seeds on an H200), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
     """
 
-    def __init__(self, env: Env, num_envs: int, max_resets: int | None = None, reset_by_index: bool | None = None):
+    def __init__(self, env: Env, num_envs: int, max_resets: int | None = None, reset_by_index: bool | None = None,
+                 under_vmap: bool = False):
         super().__init__(env)
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
@@ -131,12 +142,16 @@ class BatchedAutoReset(Wrapper):
             raise ValueError(f"max_resets must be in [1, num_envs={num_envs}], got {max_resets}")
         self.reset_by_index = jax.default_backend() == "cpu" if reset_by_index is None else reset_by_index
         self.auto_reset = AutoReset(env)
+        self.step_unbatched = num_envs == 1 and not (self.reset_by_index or under_vmap) and env.batch_of_one_as_scalars
 
     def reset(self, key: jax.Array) -> State:
         return jax.vmap(self.auto_reset.reset)(jax.random.split(key, self.num_envs))
 
     def step(self, state: State, action: jax.Array) -> State:
         action = _check_batched_action(action, self.num_envs)
+        if self.step_unbatched:
+            one = self.auto_reset.step(jax.tree.map(lambda x: x[0], state), action[0])
+            return jax.tree.map(lambda x: x[None], one)
         stepped = jax.vmap(self.env.step)(state, action)
         stepped = stepped.replace(info={**stepped.info, "final_obs": stepped.obs})
         every = jax.vmap(self.auto_reset.reset_if_done)
@@ -225,8 +240,9 @@ def _check_batched_action(action, num_envs: int) -> jax.Array:
     return action
 
 
-def wrap_for_training(env: Env, num_envs: int, episode_stats: bool = True) -> Env:
+def wrap_for_training(env: Env, num_envs: int, episode_stats: bool = True, under_vmap: bool = False) -> Env:
     """`num_envs` auto-resetting copies of `env`, with episode statistics unless
-    `episode_stats=False` (a loop that reads none saves carrying five values per env)."""
-    batch = BatchedAutoReset(env, num_envs)
+    `episode_stats=False` (a loop that reads none saves carrying five values per env);
+    `under_vmap=True` for a batch that will itself be vmapped (`BatchedAutoReset`)."""
+    batch = BatchedAutoReset(env, num_envs, under_vmap=under_vmap)
     return EpisodeStats(batch) if episode_stats else batch

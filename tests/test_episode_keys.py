@@ -78,11 +78,13 @@ def test_auto_reset_draws_the_first_episode_from_the_given_key_and_later_ones_fr
     assert not np.array_equal(fresh.info["rng"], words)
 
 
-def test_next_episode_key_is_a_split_of_the_stream_key():
-    """The hand-fused stream step gives exactly the two keys of `jax.random.split`."""
-    stream = episode_keys(jax.random.key(5))
-    key = jax.random.wrap_key_data(jnp.stack(stream), impl=PCG4D)
-    next_key, episode_key = jax.random.split(key)
-    words, ours = next_episode_key(stream)
-    np.testing.assert_array_equal(np.stack(words), jax.random.key_data(next_key))
-    np.testing.assert_array_equal(jax.random.key_data(ours), jax.random.key_data(episode_key))
+def test_next_episode_key_splits_the_key_of_seed_and_counter_and_advances_only_the_counter():
+    """The hand-fused stream step gives exactly the second key of `jax.random.split`."""
+    seed, counter = episode_keys(jax.random.key(5))
+    for k in range(3):
+        key = jax.random.wrap_key_data(jnp.stack([seed, counter + jnp.uint32(k)]), impl=PCG4D)
+        (next_seed, next_counter), ours = next_episode_key((seed, counter + jnp.uint32(k)))
+        assert next_seed == seed and next_counter == counter + jnp.uint32(k + 1)
+        np.testing.assert_array_equal(jax.random.key_data(ours), jax.random.key_data(jax.random.split(key)[1]))
+    (_, wrapped), _ = next_episode_key((seed, jnp.uint32(0xFFFFFFFF)))
+    assert wrapped == 0  # the counter wraps around
