@@ -20,10 +20,10 @@ the pcg4d key (seed, counter + k), and a finished episode only adds one to the c
 The seed word never changes and the counter's update reads nothing else, so on a GPU XLA
 writes the new counter over the old one in place, where a stream whose two words each
 hashed both made it copy them between loop buffers on every step (docs/results.md, "The
-GPU step"). Two scalars rather
-than one `uint32[2]`, so that a batch's streams are two `[N]` arrays, which XLA fuses
-with the rest of a step instead of hashing once per column. Envs (or restarts) share a
-stream only if both their random seed words and their counter ranges coincide.
+GPU step"). Two scalars rather than one `uint32[2]`, so that a batch's streams are two
+`[N]` arrays, which XLA fuses with the rest of a step instead of hashing once per column.
+Envs (or restarts) share a stream only if both their random seed words and their counter
+ranges coincide.
 """
 
 from __future__ import annotations

@@ -86,7 +86,8 @@ def kept_info(env: Env) -> tuple[str, ...]:
     return tuple(getattr(env, "info_kept_across_episodes", ()))
 
 
-def _merge_fresh(stepped: State, fresh: State, next_rng: tuple[jax.Array, jax.Array], merge, kept: tuple[str, ...] = ()) -> State:
+def _merge_fresh(stepped: State, fresh: State, next_rng: tuple[jax.Array, jax.Array], merge,
+                 kept: tuple[str, ...] = ()) -> State:
     """`stepped` with `fresh` episodes merged in by `merge(new, old)`: state, obs, the
     stream's next state and the info entries a fresh episode brings (not those that
     describe the finished transition, nor those in `kept`)."""
