@@ -4,9 +4,11 @@ Why: with many agents vmapped on a GPU, every layer of every agent's small netwo
 batched matmul whose activations (e.g. 2,048 agents x 128 rows x 120 units) go to memory
 and back between kernels; on an H200 those matmuls and the ReLU/bias kernels around them
 were over half of a DQN iteration with the default config and three quarters with
-PureJaxRL's, in our program and in PureJaxRL's alike (docs/results.md, "DQN on the GPU"). Here one program per agent keeps a block of rows in
-registers through every layer: the forward kernel writes only the Q-values, and the
-backward kernel recomputes the activations and writes only the gradients.
+PureJaxRL's, in our program and in PureJaxRL's alike (docs/results.md, "DQN on the GPU").
+Here no activation leaves the chip: in the forward kernel one program per block of rows
+carries them through every layer and writes only the Q-values; in the backward kernel one
+program per agent recomputes the activations block by block, adds up the gradients in
+registers and writes them once.
 
 The arithmetic is the network's: `x @ kernel + bias`, ReLU between layers, plain
 products on the way back, at the float32 products' default GPU precision (TF32 on recent
@@ -24,12 +26,13 @@ import jax.numpy as jnp
 from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as plgpu
 
-ROWS_PER_BLOCK = 64  # rows each loop step carries through all layers
+ROWS_PER_BLOCK = 64  # rows per forward program and per backward loop step
 # The widest layer (inputs, hidden units or actions, padded) for which the kernels are used. On an
-# H200, 2,048 agents' forward and backward pass took 148 us fused against 209 us in XLA for a
-# 64-64 network on 64 rows, but 1,433 against 751 us for PureJaxRL's 120-84 on 128 rows
-# (padded to 128 wide, the blocks no longer fit the registers), and 256 wide overflowed
-# shared memory.
+# H200, 2,048 agents' forward and backward pass took 119-121 us fused against 202-203 us in XLA
+# for a 64-64 network on 64 rows, but XLA wins at PureJaxRL's 120-84 on 128 rows (padded to 128
+# wide the blocks no longer fit the registers): 1,433 us fused against 751 us, and 1,294 against
+# 662 us for a variant whose backward programs each take a slab of the last hidden layer's units.
+# 256 wide overflowed shared memory.
 MAX_WIDTH = 64
 
 
@@ -69,46 +72,44 @@ def _dot(a, b, trans_a=False, trans_b=False):
     return plgpu.dot(a, b, trans_a=trans_a, trans_b=trans_b)
 
 
-def _forward_kernel(num_layers, block, x_ref, *refs):
+def _forward_kernel(num_layers, x_ref, *refs):
+    """One block of rows through every layer."""
     weights, q_ref = refs[: 2 * num_layers], refs[2 * num_layers]
-
-    def body(i, carry):
-        rows = pl.ds(pl.multiple_of(i * block, block), block)
-        h = x_ref[rows, :]
-        for layer in range(num_layers):
-            h = _dot(h, weights[2 * layer][...]) + weights[2 * layer + 1][...]
-            if layer < num_layers - 1:
-                h = jnp.maximum(h, 0.0)
-        q_ref[rows, :] = h
-        return carry
-
-    jax.lax.fori_loop(0, x_ref.shape[0] // block, body, 0)
+    h = x_ref[...]
+    for layer in range(num_layers):
+        h = _dot(h, weights[2 * layer][...]) + weights[2 * layer + 1][...]
+        if layer < num_layers - 1:
+            h = jnp.maximum(h, 0.0)
+    q_ref[...] = h
 
 
 def _backward_kernel(num_layers, block, x_ref, *refs):
     weights = refs[: 2 * num_layers]
     dq_ref = refs[2 * num_layers]
-    grads, dx_ref = refs[2 * num_layers + 1 : 4 * num_layers + 1], refs[4 * num_layers + 1]
-    for ref in grads:
-        ref[...] = jnp.zeros(ref.shape, ref.dtype)
+    grad_refs, dx_ref = refs[2 * num_layers + 1 : 4 * num_layers + 1], refs[4 * num_layers + 1]
 
-    def body(i, carry):
+    def body(i, grads):
         rows = pl.ds(pl.multiple_of(i * block, block), block)
         inputs = [x_ref[rows, :]]  # each layer's input, recomputed
         for layer in range(num_layers - 1):
             h = _dot(inputs[-1], weights[2 * layer][...]) + weights[2 * layer + 1][...]
             inputs.append(jnp.maximum(h, 0.0))
         g = dq_ref[rows, :]  # gradient at the current layer's output
+        grads = list(grads)
         for layer in reversed(range(num_layers)):
-            grads[2 * layer][...] += _dot(inputs[layer], g, trans_a=True)
-            grads[2 * layer + 1][...] += jnp.sum(g, axis=0, keepdims=True)
+            grads[2 * layer] += _dot(inputs[layer], g, trans_a=True)
+            grads[2 * layer + 1] += jnp.sum(g, axis=0, keepdims=True)
             g = _dot(g, weights[2 * layer][...], trans_b=True)
             if layer > 0:
                 g = jnp.where(inputs[layer] > 0, g, 0.0)
         dx_ref[rows, :] = g
-        return carry
+        return tuple(grads)
 
-    jax.lax.fori_loop(0, x_ref.shape[0] // block, body, 0)
+    # The gradients add up in registers and are written once.
+    zeros = tuple(jnp.zeros(ref.shape, ref.dtype) for ref in grad_refs)
+    grads = jax.lax.fori_loop(0, x_ref.shape[0] // block, body, zeros)
+    for ref, grad in zip(grad_refs, grads):
+        ref[...] = grad
 
 
 def _num_warps(kernels) -> int:
@@ -117,9 +118,8 @@ def _num_warps(kernels) -> int:
     return 4 if max(max(k.shape) for k in kernels) <= 64 else 8
 
 
-def _call(kernel, out_shape, interpret, num_warps, *args):
-    return pl.pallas_call(kernel, out_shape=out_shape, interpret=interpret,
-                          compiler_params=plgpu.CompilerParams(num_warps=num_warps, num_stages=1))(*args)
+def _compiler_params(num_warps):
+    return plgpu.CompilerParams(num_warps=num_warps, num_stages=1)
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(2,))
@@ -137,8 +137,15 @@ def _padded(layers, x):
 
 def _forward(layers, x, interpret):
     xp, flat, block, width = _padded(layers, x)
-    out = jax.ShapeDtypeStruct((xp.shape[0], width), x.dtype)
-    q = _call(partial(_forward_kernel, len(layers), block), out, interpret, _num_warps(flat[::2]), xp, *flat)
+    q = pl.pallas_call(  # one program per block of rows
+        partial(_forward_kernel, len(layers)),
+        out_shape=jax.ShapeDtypeStruct((xp.shape[0], width), x.dtype),
+        grid=(xp.shape[0] // block,),
+        in_specs=[pl.BlockSpec((block, xp.shape[1]), lambda i: (i, 0))]
+        + [pl.BlockSpec(a.shape, lambda i: (0, 0)) for a in flat],
+        out_specs=pl.BlockSpec((block, width), lambda i: (i, 0)),
+        interpret=interpret, compiler_params=_compiler_params(_num_warps(flat[::2])),
+    )(xp, *flat)
     return q[: x.shape[0], : layers[-1][0].shape[1]]
 
 
@@ -151,8 +158,8 @@ def _mlp_bwd(interpret, saved, dq):
     xp, flat, block, width = _padded(layers, x)
     dqp = jnp.pad(dq, ((0, xp.shape[0] - dq.shape[0]), (0, width - dq.shape[1])))
     out = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in flat] + [jax.ShapeDtypeStruct(xp.shape, x.dtype)]
-    *grads, dx = _call(partial(_backward_kernel, len(layers), block), out, interpret, _num_warps(flat[::2]),
-                       xp, *flat, dqp)
+    *grads, dx = pl.pallas_call(partial(_backward_kernel, len(layers), block), out_shape=out, interpret=interpret,
+                                compiler_params=_compiler_params(_num_warps(flat[::2])))(xp, *flat, dqp)
     layer_grads = [(dk[: k.shape[0], : k.shape[1]], db[0, : b.shape[0]])
                    for (k, b), dk, db in zip(layers, grads[::2], grads[1::2])]
     return layer_grads, dx[: x.shape[0], : x.shape[1]]
