@@ -9,6 +9,7 @@ network program of one training iteration is compiled and timed alone:
 - `update forward+backward`: the gradient of the loss on the replayed batch;
 - `adam`: Adam's direction from those gradients, applied to the parameters.
 
+Each is timed as 20 calls chained in one jitted program (Python's dispatch left out).
 Beside each time: XLA's own count of the bytes its compiled program reads and writes
 (`cost_analysis()["bytes accessed"]`, the operands and outputs of every kernel) and
 those bytes at the device's streaming bandwidth (`x * 2 + 1` over `--stream-mib`, measured
@@ -49,6 +50,23 @@ def median_us(fn, *args, calls: int = 30, repeats: int = 5) -> float:
     return statistics.median(times)
 
 
+def chained_us(fn, next_args, args, calls: int = 20) -> float:
+    """Device time of one call of `fn`: `calls` calls in one jitted program, each one's
+    arguments `next_args(args, output, zero)` of the one before (`zero` is a traced 0, so
+    no call can be hoisted) and every output returned (so none can be dropped), so
+    Python's dispatch of each call is not timed."""
+
+    @jax.jit
+    def run(args, zero):
+        outputs = []
+        for _ in range(calls):
+            outputs.append(fn(*args))
+            args = next_args(args, outputs[-1], zero)
+        return outputs
+
+    return median_us(run, args, jnp.zeros((), jnp.float32), calls=3) / calls
+
+
 def bytes_and_flops(fn, *args) -> tuple[float, float]:
     cost = fn.lower(*args).compile().cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost  # a list of one in older JAX
@@ -63,8 +81,10 @@ def stream_bandwidth(mib: int) -> float:
 
 
 def programs(config_name: str, agents: int) -> tuple[DQN, dict]:
-    """The DQN of `config_name` and its network programs, each a jitted vmap over agents
-    with its example arguments."""
+    """The DQN of `config_name` and its network programs: for each, a vmap over agents, its
+    example arguments, and how the next call's arguments follow from a call's output (a
+    forward's Q-values nudge its observations, the update's TD errors its targets, each by
+    `zero` times a value; Adam's step takes its own new state and parameters)."""
     config = MATCHED[config_name][0]
     dqn = DQN(config, envs.make("cartpole"), agents=agents)
     key = jax.random.PRNGKey(0)
@@ -85,12 +105,23 @@ def programs(config_name: str, agents: int) -> tuple[DQN, dict]:
         direction, opt_state = dqn.optimizer.update(grads, opt_state, params)
         return jax.tree.map(lambda p, d: p + dqn.hyper.neg_learning_rate * d, params, direction), opt_state
 
+    def nudge_obs(args, q_values, zero):
+        return args[0], args[1] + zero * q_values[..., :1]
+
+    def nudge_targets(args, grads_and_aux, zero):
+        td_error = grads_and_aux[1][0]
+        return args[0], args[1], args[2] + zero * td_error, args[3]
+
+    def adam_next(args, out, zero):
+        params, opt_state = out
+        return args[0], opt_state, params
+
     found = {
-        "act forward": (jax.jit(jax.vmap(dqn.q_values)), (params, current_obs)),
-        "target forward": (jax.jit(jax.vmap(dqn.replay_q_values)), (params, replayed.next_obs)),
-        "update forward+backward": (jax.jit(jax.vmap(jax.grad(dqn.loss, has_aux=True))),
-                                    (params, replayed, targets, weights)),
-        "adam": (jax.jit(jax.vmap(adam_step)), (grads, jax.vmap(dqn.optimizer.init)(params), params)),
+        "act forward": (jax.vmap(dqn.q_values), (params, current_obs), nudge_obs),
+        "target forward": (jax.vmap(dqn.replay_q_values), (params, replayed.next_obs), nudge_obs),
+        "update forward+backward": (jax.vmap(jax.grad(dqn.loss, has_aux=True)),
+                                    (params, replayed, targets, weights), nudge_targets),
+        "adam": (jax.vmap(adam_step), (grads, jax.vmap(dqn.optimizer.init)(params), params), adam_next),
     }
     return dqn, found
 
@@ -101,9 +132,9 @@ def records(config_name: str = "10 envs", agents: int = 2048, stream_mib: int = 
     common = {"kind": "network-traffic", "lib": "mjxsuite", "device": device_name(), "config": config_name,
               "agents": agents, "hidden": list(dqn.config.hidden), "fused_network": dqn.fused_network}
     rows = [{**common, "program": "stream x * 2 + 1", "stream_mib": stream_mib, "bytes_per_s": bandwidth}]
-    for name, (fn, args) in found.items():
-        us = median_us(fn, *args)
-        accessed, flops = bytes_and_flops(fn, *args)
+    for name, (fn, args, next_args) in found.items():
+        us = chained_us(fn, next_args, args)
+        accessed, flops = bytes_and_flops(jax.jit(fn), *args)
         rows.append({**common, "program": name, "us": us, "bytes_accessed": accessed, "flops": flops,
                      "floor_us": accessed / bandwidth * 1e6})
     return rows
