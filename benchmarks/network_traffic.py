@@ -54,16 +54,16 @@ def median_us(fn, *args, calls: int = 30, repeats: int = 5) -> float:
 def chained_us(fn, next_args, args, calls: int = 20) -> float:
     """Device time of one call of `fn`: `calls` calls in one jitted program, each one's
     arguments `next_args(args, output, zero)` of the one before (`zero` is a traced 0, so
-    no call can be hoisted or merged with another), every output returned (so none can be
-    dropped) and an optimization barrier between calls (so XLA cannot fuse one call's
-    kernels into the next's), so Python's dispatch of each call is not timed."""
+    no call can be hoisted or merged with another; `next_args` puts what changes through an
+    optimization barrier, so XLA cannot fuse one call's kernels into the next's) and every
+    output returned (so none can be dropped), so Python's dispatch of each call is not timed."""
 
     @jax.jit
     def run(args, zero):
         outputs = []
         for _ in range(calls):
             outputs.append(fn(*args))
-            args = jax.lax.optimization_barrier(next_args(args, outputs[-1], zero))
+            args = next_args(args, outputs[-1], zero)
         return outputs
 
     return median_us(run, args, jnp.zeros((), jnp.float32), calls=3) / calls
@@ -108,15 +108,16 @@ def programs(config_name: str, agents: int) -> tuple[DQN, dict]:
         return jax.tree.map(lambda p, d: p + dqn.hyper.neg_learning_rate * d, params, direction), opt_state
 
     def nudge_obs(args, q_values, zero):
-        return args[0], args[1] + zero * q_values[..., :1]
+        return args[0], jax.lax.optimization_barrier(args[1] + zero * q_values[..., :1])
 
     def nudge_replayed_obs(args, grads_and_aux, zero):
         params, batch, targets, weights = args
         td_error = grads_and_aux[1][0]
-        return params, batch._replace(obs=batch.obs + zero * td_error[..., None]), targets, weights
+        obs = jax.lax.optimization_barrier(batch.obs + zero * td_error[..., None])
+        return params, batch._replace(obs=obs), targets, weights
 
     def adam_next(args, out, zero):
-        params, opt_state = out
+        params, opt_state = jax.lax.optimization_barrier(out)
         return args[0], opt_state, params
 
     found = {
