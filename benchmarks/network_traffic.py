@@ -14,8 +14,8 @@ for comparison one call at a time.
 Beside each time: XLA's own count of the bytes its compiled program reads and writes
 (`cost_analysis()["bytes accessed"]`, the operands and outputs of every kernel) and
 those bytes at the device's streaming bandwidth (`x * 2 + 1` over `--stream-mib`, measured
-in the same run). No program whose kernels pass their intermediate arrays through memory
-can run faster than that floor; only kernels that keep them on chip can. Where the
+in the same run). The compiled program cannot run faster than that floor; a faster one
+has to move fewer bytes (for the network: keep the activations on chip). Where the
 update runs `agents.fused_mlp`'s kernels (`fused_network`), XLA cannot see inside them
 and its count leaves their own traffic out.
 
