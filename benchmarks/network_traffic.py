@@ -26,9 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
-import time
-
 import jax
 import jax.numpy as jnp
 
@@ -36,19 +33,18 @@ import envs
 from agents.dqn import DQN, Transition
 from benchmarks.dqn_peer import MATCHED
 from benchmarks.env_throughput import device_name
+from benchmarks.replay import median_time
 
 
 def median_us(fn, *args, calls: int = 30, repeats: int = 5) -> float:
     """Median over `repeats` of the mean time of `calls` back-to-back calls, after a warm-up."""
-    jax.block_until_ready(fn(*args))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
+
+    def back_to_back():
         for _ in range(calls):
             out = fn(*args)
         jax.block_until_ready(out)
-        times.append((time.perf_counter() - start) / calls * 1e6)
-    return statistics.median(times)
+
+    return median_time(back_to_back, repeats) / calls * 1e6
 
 
 def chained_us(fn, next_args, args, calls: int = 20) -> float:
@@ -69,8 +65,8 @@ def chained_us(fn, next_args, args, calls: int = 20) -> float:
     return median_us(run, args, jnp.zeros((), jnp.float32), calls=3) / calls
 
 
-def bytes_and_flops(fn, *args) -> tuple[float, float]:
-    cost = fn.lower(*args).compile().cost_analysis()
+def bytes_and_flops(compiled) -> tuple[float, float]:
+    cost = compiled.cost_analysis()
     cost = cost[0] if isinstance(cost, (list, tuple)) else cost  # a list of one in older JAX
     return float(cost["bytes accessed"]), float(cost.get("flops", float("nan")))
 
@@ -138,8 +134,9 @@ def records(config_name: str = "10 envs", agents: int = 2048, stream_mib: int = 
     rows = [{**common, "program": "stream x * 2 + 1", "stream_mib": stream_mib, "bytes_per_s": bandwidth}]
     for name, (fn, args, next_args) in found.items():
         us = chained_us(fn, next_args, args)
-        one_call_us = median_us(jax.jit(fn), *args)  # dispatched from Python, call by call
-        accessed, flops = bytes_and_flops(jax.jit(fn), *args)
+        compiled = jax.jit(fn).lower(*args).compile()
+        one_call_us = median_us(compiled, *args)  # dispatched from Python, call by call
+        accessed, flops = bytes_and_flops(compiled)
         rows.append({**common, "program": name, "us": us, "one_call_us": one_call_us,
                      "bytes_accessed": accessed, "flops": flops,
                      "floor_us": accessed / bandwidth * 1e6})

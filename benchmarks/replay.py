@@ -64,7 +64,7 @@ def _import_flashbax():
     return flashbax
 
 
-def _median_time(fn, repeats: int) -> float:
+def median_time(fn, repeats: int) -> float:
     """Median seconds of `fn()` (which must block) over `repeats` runs, after a warm-up."""
     fn()
     times = []
@@ -89,13 +89,13 @@ def _time_call(op, state, arg, donate: bool, n: int, repeats: int) -> float:
                 out = f(holder[0], arg)
         jax.block_until_ready(holder[0] if donate else out)
 
-    return _median_time(loop, repeats) / n * 1e6
+    return median_time(loop, repeats) / n * 1e6
 
 
 def _time_scan(step, carry, n: int, repeats: int) -> float:
     """µs per step of `lax.scan(step)` over `n` steps."""
     f = jax.jit(lambda c: jax.lax.scan(lambda c, _: (step(c), None), c, None, length=n)[0])
-    return _median_time(lambda: jax.block_until_ready(f(carry)), repeats) / n * 1e6
+    return median_time(lambda: jax.block_until_ready(f(carry)), repeats) / n * 1e6
 
 
 def _filled(add_batch_fn, state, capacity: int):
