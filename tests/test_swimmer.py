@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_resets_match, assert_same_options, assert_steps_match, exact_noise_bounds,
-                              gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
+from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options,
+                              assert_steps_match, exact_noise_bounds, gymnasium_reset_samples,
+                              gymnasium_steps, reset_samples, transitions)
 
 NAME, GYMNASIUM_ID = "swimmer", "Swimmer-v5"
 # float32 (ours) against float64 (Gymnasium), one env step of 4 RK4 steps in the fluid, measured:
@@ -49,3 +50,8 @@ def test_reset_distribution_matches_gymnasium():
     exact_noise_bounds(qpos, 0.0, 0.1, "qpos")
     exact_noise_bounds(qvel, 0.0, 0.1, "qvel")
     np.testing.assert_array_equal(obs, np.concatenate([qpos[:, 2:], qvel], axis=1))
+
+
+@pytest.mark.slow  # a compile of its own; test_gym_interop's slow check_env test covers every env too
+def test_to_gymnasium_passes_check_env():
+    assert_passes_check_env(NAME, GYMNASIUM_ID)

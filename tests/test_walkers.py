@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_resets_match, assert_same_options, assert_steps_match, exact_noise_bounds,
-                              gymnasium_env, gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
+from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options,
+                              assert_steps_match, exact_noise_bounds, gymnasium_env, gymnasium_reset_samples,
+                              gymnasium_steps, reset_samples, transitions)
 
 # float32 (ours) against float64 (Gymnasium), one env step of 4 RK4 steps with contacts, measured:
 # positions agree to ~5e-7, velocities to ~1e-5 (Hopper) and ~1.2e-4 (Walker2d, up to 10 rad/s after
@@ -93,3 +94,9 @@ def test_reset_distribution_matches_gymnasium(name):
     exact_noise_bounds(qpos, env.init_qpos, 5e-3, "qpos")
     exact_noise_bounds(qvel, 0.0, 5e-3, "qvel")
     np.testing.assert_array_equal(obs, np.concatenate([qpos[:, 1:], qvel], axis=1))
+
+
+@pytest.mark.slow  # a compile of its own; test_gym_interop's slow check_env test covers every env too
+@pytest.mark.parametrize("name", TASKS)
+def test_to_gymnasium_passes_check_env(name):
+    assert_passes_check_env(name, TASKS[name][0])
