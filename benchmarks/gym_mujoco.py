@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import statistics
+import sys
 import time
 
 import jax
@@ -35,7 +36,7 @@ import numpy as np
 
 import envs
 from benchmarks import env_throughput
-from benchmarks.peers import PeerMissing
+from benchmarks.peers import PeerMissing, version
 
 # Brax's environments that copy a Gymnasium task (with their own models and solver options).
 BRAX_NAMES = {"half-cheetah": "halfcheetah", "hopper": "hopper", "walker2d": "walker2d", "ant": "ant"}
@@ -253,13 +254,17 @@ def main(argv=None) -> None:
     impls = args.impls or (["jax", "warp"] if warp_available() else ["jax"])
     if "warp" in impls:
         envs.mjx_env.require_warp()  # a clear error now, not after the first task's figures
-    records = run_benchmark(tasks, args.sizes, impls, brax=not args.no_brax, gymnasium=not args.no_gymnasium,
-                            steps=args.steps, gymnasium_steps=args.gymnasium_steps, repeats=args.repeats)
     meta = {"kind": "meta", "device": env_throughput.device_name(), "platform": env_throughput.platform(),
-            "jax": jax.__version__, "cpu_count": os.cpu_count(), "argv": argv if argv is not None else None}
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump([meta] + records, f, indent=2, default=lambda x: x.item() if isinstance(x, np.generic) else str(x))
+            "jax": jax.__version__, "cpu_count": os.cpu_count(), "argv": sys.argv[1:] if argv is None else list(argv),
+            "versions": {package: version(package) for package in
+                         ("mujoco", "mujoco-mjx", "mujoco-warp", "warp-lang", "brax", "gymnasium")}}
+    records = [meta]
+    for name in tasks:  # the file is rewritten after each task: a run cut short keeps what it measured
+        records += run_benchmark([name], args.sizes, impls, brax=not args.no_brax, gymnasium=not args.no_gymnasium,
+                                 steps=args.steps, gymnasium_steps=args.gymnasium_steps, repeats=args.repeats)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(records, f, indent=2, default=lambda x: x.item() if isinstance(x, np.generic) else str(x))
 
 
 if __name__ == "__main__":
