@@ -18,7 +18,10 @@ from envs.tasks.acrobot_mjx import AcrobotMjx
 from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.tasks.cartpole_mjx import CartPoleMjx
 from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
+from envs.tasks.half_cheetah import HalfCheetah, HalfCheetahParams
 from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
+from envs.tasks.swimmer import Swimmer, SwimmerParams
+from envs.tasks.walkers import Hopper, HopperParams, Walker2d, Walker2dParams
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 
@@ -37,6 +40,11 @@ register("cartpole-mjx", CartPoleMjx, episode_length=500)
 register("cartpole-swingup-mjx", CartPoleSwingUpMjx, episode_length=1000)
 register("pendulum-mjx", PendulumMjx, episode_length=200)
 register("pendulum-mjx-discrete", functools.partial(PendulumMjx, action_bins=DISCRETE_TORQUE_BINS), episode_length=200)
+# Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
+register("half-cheetah", HalfCheetah, episode_length=1000)
+register("hopper", Hopper, episode_length=1000)
+register("walker2d", Walker2d, episode_length=1000)
+register("swimmer", Swimmer, episode_length=1000)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
@@ -45,4 +53,6 @@ __all__ = [
     "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
     "PendulumMjx", "PendulumParams",
     "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
+    "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
+    "Swimmer", "SwimmerParams",
 ]
