@@ -80,7 +80,7 @@ def show(bar: tqdm, steps: int, record: dict) -> None:
     """Advance `bar` by `steps` env steps and show the record's evaluation and speed."""
     bar.update(steps)
     postfix = {"eval": f"{np.mean(record['eval_return']):.1f}"}
-    if "best_return" in record:
+    if record.get("best_return") is not None:
         postfix["best"] = f"{np.mean(record['best_return']):.1f}"
     if record.get("steps_per_s"):
         postfix["sps"] = f"{record['steps_per_s']:.0f}"
