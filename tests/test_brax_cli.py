@@ -136,6 +136,7 @@ def test_to_gymnasium_takes_an_env_instance():
         envs.to_gymnasium(envs.make("pendulum-mjx"), speed_cost=1.0)
 
 
+@pytest.mark.slow  # two more Brax compiles: ~40 s on a quiet 2-core machine
 def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
     """A run stopped after its second evaluation resumes from the checkpoint's parameters
     (handed to Brax as restore_params) and ends at the uninterrupted run's step, with the
@@ -167,6 +168,7 @@ def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
     assert np.isfinite(resumed.mean_return[0])
 
 
+@pytest.mark.slow  # SAC's compile: ~40 s on a quiet 2-core machine
 def test_sac_smoke(tmp_path):
     """SAC through the same driver: its parameters come back through Brax's checkpoint folder."""
     out = tmp_path / "sac"
