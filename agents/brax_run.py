@@ -39,7 +39,6 @@ import envs
 from agents import brax_agents, checkpoint, driver
 from agents.brax_agents import PPOConfig, SACConfig
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
-from envs import recording
 
 SCRATCH_DIR = "brax_checkpoints"  # SAC's own checkpoints, read back after each evaluation
 
@@ -266,22 +265,27 @@ def params_template(config: PPOConfig | SACConfig, env: envs.Env) -> Any:
 
 
 # ---- acting and evaluating with the trained policy, in our own env ------------------------
-def greedy_episode(env: envs.Env, policy: recording.PolicyFn, params: Any, key: jax.Array | None = None) -> recording.Rollout:
-    """One episode of the deterministic policy in `env` (host arrays, one env), for Rerun."""
+# (envs.recording, which imports rerun, is imported where it is used: `import agents` stays light.)
+def greedy_episode(env: envs.Env, policy: Callable, params: Any, key: jax.Array | None = None):
+    """One episode of the deterministic policy in `env` (a one-env host `envs.recording.Rollout`), for Rerun."""
+    from envs import recording
+
     steps = env.episode_length
     rollout = recording.collect_rollout(env, policy, jax.random.PRNGKey(0) if key is None else key,
                                         num_envs=1, steps=steps, params=params)
     return jax.device_get(recording.trim_to_episodes(rollout, 1))
 
 
-def evaluate(env: envs.Env, policy: recording.PolicyFn, params: Any, key: jax.Array, episodes: int) -> np.ndarray:
+def evaluate(env: envs.Env, policy: Callable, params: Any, key: jax.Array, episodes: int) -> np.ndarray:
     """The returns of `episodes` episodes of the deterministic policy in `env` (time limit included)."""
+    from envs import recording
+
     rollout = recording.collect_rollout(env, policy, key, num_envs=episodes, steps=env.episode_length,
                                         params=params, scene_envs=0)
     return first_episode_returns(rollout)
 
 
-def first_episode_returns(rollout: recording.Rollout) -> np.ndarray:
+def first_episode_returns(rollout) -> np.ndarray:
     """Each env's first finished episode's return in a rollout at least one time limit long."""
     done = np.asarray(rollout.done) > 0
     first = np.argmax(done, axis=0)
