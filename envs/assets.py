@@ -7,6 +7,7 @@ checkout's top-level `assets/` there); in a source checkout they are read from
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -26,6 +27,21 @@ def asset_path(name: str | os.PathLike) -> Path:
             return directory / path
     available = sorted({p.name for d in ASSET_DIRS if d.is_dir() for p in d.glob("*.xml")})
     raise FileNotFoundError(f"MJCF file {str(name)!r} not found; the suite's assets are {available}")
+
+
+def gymnasium_asset(file_name: str) -> Path:
+    """An MJCF file of Gymnasium's MuJoCo tasks, read from the installed `gymnasium` package
+    (never copied into this repo). Found without importing Gymnasium's MuJoCo envs, which need
+    imageio even when nothing is rendered."""
+    spec = importlib.util.find_spec("gymnasium")
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError(f"Gymnasium's MuJoCo tasks load {file_name} from the installed gymnasium "
+                                  "package: pip install gymnasium==1.4.0")
+    path = Path(spec.origin).parent / "envs" / "mujoco" / "assets" / file_name
+    if not path.is_file():
+        raise FileNotFoundError(f"{file_name} is not in the installed gymnasium package ({path.parent}); "
+                                "mjxsuite is checked with gymnasium==1.4.0")
+    return path
 
 
 def load_model(name: str | os.PathLike) -> mujoco.MjModel:

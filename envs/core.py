@@ -33,6 +33,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 
@@ -82,6 +83,28 @@ class Env(abc.ABC):
     def unwrapped(self) -> Env:
         return self
 
+    # Gymnasium's action space of a continuous env, elementwise (numpy, shape (action_size,)).
+    # The env itself takes actions in [-1, 1]; `to_env_action` maps them to these bounds, which is
+    # what a policy hands to Gymnasium's own env of the same task (`agents.load_policy`,
+    # `envs.to_gymnasium`). MjxEnv uses the actuators' ctrlrange.
+    @property
+    def action_low(self) -> np.ndarray:
+        return -np.ones(self.action_size or 0, np.float32)
+
+    @property
+    def action_high(self) -> np.ndarray:
+        return np.ones(self.action_size or 0, np.float32)
+
+    def to_env_action(self, unit_action: Any) -> Any:
+        """A continuous action in [-1, 1] as the same action in [action_low, action_high]."""
+        low, high = self.action_low, self.action_high
+        return 0.5 * (high + low) + np.clip(unit_action, -1.0, 1.0) * 0.5 * (high - low)
+
+    def from_env_action(self, action: Any) -> Any:
+        """An action in [action_low, action_high] as the env's own action in [-1, 1]."""
+        low, high = self.action_low, self.action_high
+        return (np.asarray(action) - 0.5 * (high + low)) / (0.5 * (high - low))
+
     def check_action(self, action: Any) -> jax.Array:
         """Reject a wrongly shaped or typed action while tracing, with a clear message."""
         action = jnp.asarray(action)
@@ -129,6 +152,8 @@ class Wrapper(Env):
     action_size = property(lambda self: self.env.action_size)
     backend = property(lambda self: self.env.backend)
     batch_of_one_as_scalars = property(lambda self: self.env.batch_of_one_as_scalars)
+    action_low = property(lambda self: self.env.action_low)
+    action_high = property(lambda self: self.env.action_high)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.env!r})"

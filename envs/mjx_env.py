@@ -149,6 +149,17 @@ class MjxEnv(Env):
         return type(self).__name__
 
     @property
+    def action_low(self) -> np.ndarray:
+        """Gymnasium's action space: each actuator's ctrlrange (-1 where it has none)."""
+        limited = self.mj_model.actuator_ctrllimited.astype(bool)
+        return np.where(limited, self.mj_model.actuator_ctrlrange[:, 0], -1.0).astype(np.float32)
+
+    @property
+    def action_high(self) -> np.ndarray:
+        limited = self.mj_model.actuator_ctrllimited.astype(bool)
+        return np.where(limited, self.mj_model.actuator_ctrlrange[:, 1], 1.0).astype(np.float32)
+
+    @property
     def dt(self) -> float:
         return float(self.mj_model.opt.timestep) * self.n_substeps
 
@@ -169,8 +180,9 @@ class MjxEnv(Env):
         """A vector of shape (observation_size,)."""
 
     @abc.abstractmethod
-    def reward(self, data: mjx.Data, action: jax.Array, prev: mjx.Data) -> jax.Array:
-        """The reward for the transition prev --action--> data (a scalar)."""
+    def reward(self, data: mjx.Data, action: jax.Array, prev: mjx.Data) -> jax.Array | tuple[jax.Array, dict]:
+        """The reward for the transition prev --action--> data (a scalar), or (reward, terms) with
+        terms a dict of scalars that `step` reports in `state.metrics` (Gymnasium's info names)."""
 
     @abc.abstractmethod
     def terminated(self, data: mjx.Data) -> jax.Array:
@@ -218,7 +230,11 @@ class MjxEnv(Env):
                 f"but observation_size is {self.observation_size}"
             )
         zero = jnp.zeros((), obs.dtype)
-        return State(data, obs, zero, zero, info={"truncation": zero, "nan": zero})
+        # The reward terms' names and shapes, to start every metric at zero (State's structure is fixed).
+        no_action = jnp.zeros((self.action_size,), obs.dtype) if self.action_size else jnp.zeros((), jnp.int32)
+        _, terms = jax.eval_shape(lambda: self._reward_and_terms(data, no_action, data))
+        metrics = {name: jnp.zeros(term.shape, obs.dtype) for name, term in terms.items()}
+        return State(data, obs, zero, zero, metrics=metrics, info={"truncation": zero, "nan": zero})
 
     def step_with_model(self, state: State, action: jax.Array, model: mjx.Model) -> State:
         """`step`, with `model` in place of the task's own `mjx_model`."""
@@ -232,13 +248,22 @@ class MjxEnv(Env):
             data = jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(model, d), data)
         data = self.post_step(prev, data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
-        obs, reward, terminated = self.observation(data), self.reward(data, action, prev), self.terminated(data)
+        obs, terminated = self.observation(data), self.terminated(data)
+        reward, terms = self._reward_and_terms(data, action, prev)
         self._check_step_shapes(state.obs, obs, reward, terminated)
         obs = jnp.where(finite, obs, state.obs)
         reward = jnp.where(finite, reward, 0.0).astype(obs.dtype)
+        metrics = {**state.metrics, **{name: jnp.where(finite, term, 0.0).astype(obs.dtype) for name, term in terms.items()}}
         done = (terminated | ~finite).astype(obs.dtype)
         info = {**state.info, "nan": (~finite).astype(obs.dtype)}
-        return state.replace(pipeline_state=self._without_shared(data), obs=obs, reward=reward, done=done, info=info)
+        return state.replace(pipeline_state=self._without_shared(data), obs=obs, reward=reward, done=done,
+                             metrics=metrics, info=info)
+
+    def _reward_and_terms(self, data: mjx.Data, action: jax.Array, prev: mjx.Data) -> tuple[jax.Array, dict]:
+        """`reward()` as (reward, terms): a task may return its reward's terms beside it (a dict of
+        scalars under Gymnasium's info names, e.g. "reward_forward"); they become `state.metrics`."""
+        result = self.reward(data, action, prev)
+        return result if isinstance(result, tuple) else (result, {})
 
     # Under impl="warp" MuJoCo Warp keeps some buffers once for all worlds of a batch: the
     # contact pool (leading dim `naconmax`), `nacon`, `ncollision` and constant index tables
