@@ -302,20 +302,9 @@ def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, PPOConfig | SACConfi
 
 
 def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
-    """Gymnasium's action space of `env`: what the policy's [-1, 1] means to the task.
-
-    An MJX task scales [-1, 1] to each limited actuator's ctrlrange (`MjxEnv.action_to_ctrl`),
-    so its Gymnasium action space is the ctrlrange; other tasks take [-1, 1] as they are."""
-    low, high = getattr(env, "action_low", None), getattr(env, "action_high", None)
-    if low is not None and high is not None:
-        return np.asarray(low, np.float32), np.asarray(high, np.float32)
-    ones = np.ones(env.action_size, np.float32)
-    model = getattr(env, "mj_model", None)
-    if model is None or getattr(env, "action_bins", None) is not None:
-        return -ones, ones
-    limited = np.asarray(model.actuator_ctrllimited, bool)
-    low, high = np.asarray(model.actuator_ctrlrange, np.float32).T
-    return np.where(limited, low, -ones), np.where(limited, high, ones)
+    """Gymnasium's action space of `env` (`Env.action_low`/`action_high`: for an MJX task each
+    actuator's ctrlrange, which `MjxEnv.action_to_ctrl` scales [-1, 1] to)."""
+    return np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32)
 
 
 def to_action_space(action: jax.Array, low: np.ndarray, high: np.ndarray) -> jax.Array:
