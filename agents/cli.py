@@ -308,7 +308,10 @@ def cmd_sweep(args, extra: list[str]) -> int:
         if args.env is None:
             raise UsageError("sweep needs --env (or --resume with the --out of a saved sweep)")
         _require_registered(args.env)
-        _choose_agent(args.env, "dqn", {})  # sweeps train DQN
+        try:
+            _choose_agent(args.env, "dqn", {})
+        except UsageError as err:
+            raise UsageError(f"mjxsuite sweep trains DQN only: {err}")
         _refuse_fixed_field_lists(extra)
         if not grid:
             raise UsageError("sweep needs at least one field with several values, e.g. --learning_rate 5e-4,1e-3; "
