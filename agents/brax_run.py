@@ -117,6 +117,9 @@ def train_brax(
     clock.last = evals_done
     epochs_left = config.num_evals - max(evals_done, 1)  # training epochs, one before each later evaluation
     restarting = evals_done > 0
+    # Brax counts a resumed run's steps from 0 (SAC's fresh first fill of its buffer included):
+    # the run's step is the checkpoint's plus Brax's after that fill.
+    step_offset = int(state.env_steps) - config.prefill_steps if restarting else 0
 
     result = BraxRunResult(params=None, eval_episodes=config.num_eval_envs)
     total = config.prefill_steps + (config.num_evals - 1) * config.steps_per_epoch
@@ -128,7 +131,7 @@ def train_brax(
         nonlocal state, evals_done
         if restarting and brax_step == 0:
             return  # Brax re-evaluates the restored parameters first: that record exists already
-        steps = int(state.env_steps) if brax_step == 0 else _run_step(config, brax_step, restarting, state)
+        steps = step_offset + brax_step
         params = _evaluated_params(config, out, evaluated, brax_step)
         record = _record(metrics, evals_done, steps)
         if params is not None and (state.best_params is None or record["eval_return"] > float(state.best_return[0])):
@@ -203,14 +206,6 @@ def _call_brax(config, env, seed, out, restored: BraxState | None, epochs: int, 
         if restored is not None:
             kwargs["restore_checkpoint_path"] = str(_sac_restore_point(config, env, out, restored.params))
     brax_agents.trainer(config)(brax_env, episode_length=brax_env.episode_length, **kwargs)
-
-
-def _run_step(config, brax_step: int, restarting: bool, state: BraxState) -> int:
-    """The run's env step for Brax's `brax_step`: a resumed run counts on from its checkpoint
-    (its own first fill of SAC's buffer is not counted again)."""
-    if not restarting:
-        return brax_step
-    return int(state.env_steps) + brax_step - config.prefill_steps
 
 
 def _record(metrics: dict, index: int, steps: int) -> dict:

@@ -6,6 +6,7 @@ against what an uninterrupted run writes; the table against the config classes' 
 Fast tests train a few hundred steps; the slow ones train pendulum-mjx with the defaults.
 """
 
+import dataclasses
 import json
 import os
 import signal
@@ -138,16 +139,17 @@ def test_to_gymnasium_takes_an_env_instance():
 
 @pytest.mark.slow  # two more Brax compiles: ~40 s on a quiet 2-core machine
 def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
-    """A run stopped after its second evaluation resumes from the checkpoint's parameters
-    (handed to Brax as restore_params) and ends at the uninterrupted run's step, with the
-    same metrics.jsonl steps; Adam's state and the envs restart (module docs of agents.brax_run)."""
+    """A run stopped after its second evaluation (of four) resumes from the checkpoint's
+    parameters (handed to Brax as restore_params) and ends at the uninterrupted run's step,
+    with the same metrics.jsonl steps; Adam's state and the envs restart (agents.brax_run's docs)."""
+    config = dataclasses.replace(TINY_PPO, num_timesteps=768, num_evals=4)
     out = tmp_path / "run"
-    first = brax_run.train_brax("pendulum-mjx", TINY_PPO, seed=3, out_dir=out, progress=False, checkpoint_seconds=0,
+    first = brax_run.train_brax("pendulum-mjx", config, seed=3, out_dir=out, progress=False, checkpoint_seconds=0,
                                 stop_after_evals=2)
     assert first.params is None and len(first.history) == 2
+    template = brax_run.params_template(config, envs.make("pendulum-mjx"))
     state, evals = checkpoint.load_state(out, "pendulum-mjx", jax.eval_shape(
-        lambda: brax_run.BraxState(*(2 * [brax_run.params_template(TINY_PPO, envs.make("pendulum-mjx"))]),
-                                   np.zeros(1, np.float32), np.zeros((), np.int64))))
+        lambda: brax_run.BraxState(template, template, np.zeros(1, np.float32), np.zeros((), np.int64))))
     assert evals == 2 and int(state.env_steps) == 256
     handed = {}
     real_trainer = brax_agents.trainer
@@ -159,11 +161,12 @@ def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
         return train
 
     monkeypatch.setattr(brax_agents, "trainer", spy)
-    resumed = brax_run.train_brax("pendulum-mjx", TINY_PPO, seed=3, out_dir=out, progress=False, resume=True)
+    resumed = brax_run.train_brax("pendulum-mjx", config, seed=3, out_dir=out, progress=False, resume=True)
     jax.tree.map(np.testing.assert_array_equal, handed["restore_params"], state.params)
-    assert (handed["num_timesteps"], handed["num_evals"]) == (256, 2)  # the one epoch left, as long as before
+    assert (handed["num_timesteps"], handed["num_evals"]) == (512, 3)  # the two epochs left, as long as before
     records = [json.loads(line) for line in (out / checkpoint.METRICS_FILE).read_text().splitlines()]
-    assert [r["env_steps"] for r in records] == [0, 256, 512] and [r["evaluation"] for r in records] == [0, 1, 2]
+    assert [r["env_steps"] for r in records] == [0, 256, 512, 768]
+    assert [r["evaluation"] for r in records] == [0, 1, 2, 3]
     assert resumed.history == records[2:]
     assert np.isfinite(resumed.mean_return[0])
 
