@@ -17,11 +17,18 @@ PPO, `restore_checkpoint_path` for SAC):
   seed again). The resumed run makes the evaluations that remain, each after as many env
   steps as in an uninterrupted run, so both end at the same env step with the same
   metrics.jsonl steps; their parameters differ.
-- SAC: the observation normalizer and the policy, the evaluations done and the best
-  parameters. The Q networks, the entropy temperature, the optimizers and the replay buffer
-  start afresh: Brax refills the buffer with `min_replay_size` steps of the restored policy
-  (steps not counted on the run's step axis) before training again.
+- SAC: nothing to resume from, with brax 0.14.2: its `restore_checkpoint_path` puts the
+  loaded (unreplicated) arrays into its device-replicated training state and fails at its
+  first evaluation (`'numpy.ndarray' object has no attribute 'addressable_shards'`), so a
+  SAC run with a checkpoint is refused by `--resume` (before anything compiles). Its
+  checkpoint still holds the best parameters for `eval`, `rollout` and `load_policy`; a SAC
+  run killed before its first checkpoint resumes from the start. The code that would hand
+  the parameters over (`_sac_restore_point`) stays for a Brax that restores correctly: the
+  policy and normalizer only (Q networks, temperature, optimizers and buffer start afresh).
 """
+
+# Brax versions whose SAC restores a checkpoint (see the module docstring); none known yet.
+SAC_RESTORES = False
 
 from __future__ import annotations
 
@@ -107,6 +114,10 @@ def train_brax(
     state = BraxState(template, template, np.full(1, -np.inf, np.float32), np.zeros((), np.int64))
     evals_done = 0  # evaluations recorded in metrics.jsonl, Brax's first (before training) included
     if resume and (out / checkpoint.STATE_FILE).is_file():
+        if agent == "sac" and not SAC_RESTORES:
+            raise ValueError(f"--resume: {out} holds a SAC checkpoint, and brax 0.14.2's SAC cannot restart from one "
+                             "(its restore_checkpoint_path fails: docs/brax.md); its best parameters still work with "
+                             f"`mjxsuite eval --checkpoint {out}`; start the run again in a new --out")
         state, evals_done = checkpoint.load_state(out, env_name, jax.eval_shape(lambda s: s, state))
     else:
         state = state._replace(params=None, best_params=None)
