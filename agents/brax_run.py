@@ -27,9 +27,6 @@ PPO, `restore_checkpoint_path` for SAC):
   policy and normalizer only (Q networks, temperature, optimizers and buffer start afresh).
 """
 
-# Brax versions whose SAC restores a checkpoint (see the module docstring); none known yet.
-SAC_RESTORES = False
-
 from __future__ import annotations
 
 import dataclasses
@@ -47,6 +44,8 @@ from agents import brax_agents, checkpoint, driver
 from agents.brax_agents import PPOConfig, SACConfig
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 
+# Whether Brax's SAC restores a checkpoint (see the module docstring): not in brax 0.14.2.
+SAC_RESTORES = False
 SCRATCH_DIR = "brax_checkpoints"  # SAC's own checkpoints, read back after each evaluation
 
 
