@@ -1,11 +1,14 @@
 """Saving and loading training runs: the full train state (to resume) and the best parameters (to act).
 
 A run directory (`mjxsuite train --out DIR`) holds:
-- config.json: env, env options, seeds, seed and the DQNConfig, written when the run starts;
-- train_state.msgpack: the whole seed-batched train state (replay buffer included) and the
-  number of chunks it has done: everything a resume needs;
+- config.json: the agent ("dqn", "ppo", "sac"), env, env options, seeds, seed and the agent's
+  config (DQNConfig, PPOConfig, SACConfig), written when the run starts;
+- train_state.msgpack: DQN: the whole seed-batched train state (replay buffer included) and the
+  number of chunks it has done: everything a resume needs. PPO/SAC: what Brax's trainers let a
+  run restart from (`agents.brax_run` says what that is) and the evaluations done;
 - best_params.msgpack: the best parameters of each seed and their greedy returns (eval, rollout);
-- metrics.jsonl: one record per chunk; progress.json: chunks done and best returns, for people.
+- metrics.jsonl: one record per chunk (DQN) or evaluation (PPO, SAC); progress.json: chunks or
+  evaluations done and best returns, for people.
 
 Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
 kill at any moment leaves the previous complete file. Each msgpack file is self-contained (its
@@ -26,6 +29,7 @@ import jax
 import numpy as np
 from flax import serialization
 
+from agents.brax_agents import CONFIGS as BRAX_CONFIGS
 from agents.dqn import DQNConfig
 
 CONFIG_FILE = "config.json"
@@ -34,6 +38,7 @@ POLICY_FILE = "best_params.msgpack"
 PROGRESS_FILE = "progress.json"
 METRICS_FILE = "metrics.jsonl"
 FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
+CONFIGS = {"dqn": DQNConfig, **BRAX_CONFIGS}  # each agent's config class, by the name config.json records
 
 
 class CheckpointError(Exception):
@@ -45,10 +50,11 @@ class SavedRun(NamedTuple):
 
     env: str
     seeds: int
-    config: DQNConfig
+    config: Any  # the agent's config: DQNConfig, PPOConfig or SACConfig
     env_options: dict
     seed: int
     sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
+    agent: str = "dqn"
 
 
 def check_writable(out_dir: str | os.PathLike) -> Path:
@@ -88,8 +94,8 @@ def start_run(out_dir: Path, run: SavedRun) -> None:
     `out_dir`: a resume must never continue a run other than this one."""
     for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json"):
         (out_dir / stale).unlink(missing_ok=True)
-    record = {"env": run.env, "seeds": run.seeds, "seed": run.seed, "env_options": run.env_options or {},
-              "config": dataclasses.asdict(run.config)}
+    record = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "seed": run.seed,
+              "env_options": run.env_options or {}, "config": dataclasses.asdict(run.config)}
     if run.sweep:
         record["sweep"] = run.sweep
     _atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
@@ -101,13 +107,21 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
         raise FileNotFoundError(f"{path} not found: is {out_dir} a directory written by `mjxsuite train --out`?")
     try:
         record = json.loads(path.read_text())
-        fields = record["config"]
-        fields["hidden"] = tuple(fields["hidden"])
-        return SavedRun(record["env"], record["seeds"], DQNConfig(**fields), record.get("env_options", {}),
-                        record.get("seed", 0), record.get("sweep"))
+        agent = record.get("agent", "dqn")  # runs from before PPO and SAC existed are DQN's
+        if agent not in CONFIGS:
+            raise ValueError(f"unknown agent {agent!r} (this mjxsuite knows {', '.join(CONFIGS)})")
+        config = config_from_record(CONFIGS[agent], record["config"])
+        return SavedRun(record["env"], record["seeds"], config, record.get("env_options", {}),
+                        record.get("seed", 0), record.get("sweep"), agent)
     except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
         raise CheckpointError(f"{path} is damaged or was written by another mjxsuite version "
                               f"({type(err).__name__}: {err}); restore it or start a new run") from err
+
+
+def config_from_record(config_class: type, fields: dict) -> Any:
+    """A config dataclass from its JSON record (JSON's lists back to the tuples of layer widths)."""
+    tuples = {f.name for f in dataclasses.fields(config_class) if "tuple" in str(f.type)}
+    return config_class(**{name: tuple(value) if name in tuples else value for name, value in fields.items()})
 
 
 def _pack(kind: str, tree: Any, meta: dict) -> bytes:
@@ -205,9 +219,10 @@ def check_resumable(out_dir: Path, run: SavedRun) -> None:
                          sweep=json.loads(json.dumps(run.sweep)) if run.sweep else None)
     differ = [f"{name} {getattr(saved, name)!r} (given {getattr(asked, name)!r})"
               for name in SavedRun._fields if name != "config" and getattr(saved, name) != getattr(asked, name)]
-    saved_config, asked_config = dataclasses.asdict(saved.config), dataclasses.asdict(asked.config)
-    differ += [f"config.{name} {value!r} (given {asked_config[name]!r})"
-               for name, value in saved_config.items() if value != asked_config[name]]
+    if saved.agent == asked.agent:
+        saved_config, asked_config = dataclasses.asdict(saved.config), dataclasses.asdict(asked.config)
+        differ += [f"config.{name} {value!r} (given {asked_config[name]!r})"
+                   for name, value in saved_config.items() if value != asked_config[name]]
     if differ:
         raise ValueError(f"--resume continues the run saved in {out_dir}, which has {'; '.join(differ)}; "
                          "drop those options (they come from the directory) or start a new --out")

@@ -24,7 +24,7 @@ from pathlib import Path
 from agents import env_options
 from agents import sweep as sweeps
 from agents.dqn import PRESETS, SWEEPABLE, DQNConfig, sweep_configs
-from agents.run import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
+from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 
@@ -62,8 +62,8 @@ class Command(typing.NamedTuple):
     run: Callable[[argparse.Namespace, list[str]], int]  # (parsed args, unparsed rest) -> exit code
 
 
-def _parse_value(field: dataclasses.Field, text: str):
-    kind = typing.get_type_hints(DQNConfig)[field.name]
+def _parse_value(config_class: type, field: dataclasses.Field, text: str):
+    kind = typing.get_type_hints(config_class)[field.name]
     if kind is bool:
         if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
             raise ValueError(f"expected true/false, got {text!r}")
@@ -75,10 +75,11 @@ def _parse_value(field: dataclasses.Field, text: str):
     return kind(text)
 
 
-def config_from_args(base: DQNConfig, pairs: list[str], **given) -> DQNConfig:
+def config_from_args(base, pairs: list[str], **given):
     """Apply `--key value` pairs (dashes or underscores), then the fields `given` by the
-    command's own options (None: not given), to a DQNConfig, with clear errors."""
-    fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
+    command's own options (None: not given), to a config (DQNConfig, PPOConfig, SACConfig),
+    with clear errors."""
+    fields = {f.name: f for f in dataclasses.fields(base)}
     changes = {}
     i = 0
     while i < len(pairs):
@@ -88,14 +89,14 @@ def config_from_args(base: DQNConfig, pairs: list[str], **given) -> DQNConfig:
         name, _, value = flag[2:].partition("=")
         name = name.replace("-", "_")
         if name not in fields:
-            raise UsageError(f"unknown option --{name}; config fields: {', '.join(sorted(fields))}")
+            raise UsageError(f"unknown option --{name}; {type(base).__name__} fields: {', '.join(sorted(fields))}")
         if not value:
             if i + 1 >= len(pairs):
                 raise UsageError(f"--{name} needs a value")
             value = pairs[i + 1]
             i += 1
         try:
-            changes[name] = _parse_value(fields[name], value)
+            changes[name] = _parse_value(type(base), fields[name], value)
         except ValueError as err:
             raise UsageError(f"bad value for --{name}: {err}")
         i += 1
@@ -104,6 +105,46 @@ def config_from_args(base: DQNConfig, pairs: list[str], **given) -> DQNConfig:
         return dataclasses.replace(base, **changes)
     except ValueError as err:
         raise UsageError(str(err))
+
+
+AGENTS = ("dqn", "ppo", "sac")
+
+
+def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
+    """--agent, by default dqn for a discrete task and ppo for a continuous one; a mismatch is refused."""
+    import envs
+
+    env = envs.make(env_name, **env_opts)
+    discrete = env.num_actions is not None
+    fits = ("dqn",) if discrete else ("ppo", "sac")
+    agent = agent or fits[0]
+    if agent not in fits:
+        kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
+        raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
+                         f"{' or '.join(fits)}" + ("" if discrete else " (or a discrete variant of the task with dqn)"))
+    return agent
+
+
+def _brax_config(env_name: str, agent: str, preset: str | None, extra: list[str], steps: int | None):
+    """PPOConfig/SACConfig: the base recipe, the task's row of agents/brax_defaults.py, then --FIELD VALUE."""
+    from agents import brax_defaults
+    from agents.brax_agents import CONFIGS
+
+    try:
+        base = CONFIGS[agent](**brax_defaults.settings(env_name, agent, preset or "default"))
+    except ValueError as err:
+        raise UsageError(str(err))
+    return config_from_args(base, extra, num_timesteps=steps)
+
+
+def _refuse_for_brax(args, agent: str) -> None:
+    """Options that DQN's driver has and Brax's trainers do not."""
+    given = [flag for flag, value in (("--seeds", args.seeds if args.seeds not in (None, 1) else None),
+                                      ("--replay", args.replay), ("--devices", args.devices),
+                                      ("--distributed", args.distributed or None)) if value is not None]
+    if given:
+        raise UsageError(f"--agent {agent} trains one seed on this machine's devices as Brax's trainer places it; "
+                         f"drop {' '.join(given)} (they are DQN's options)")
 
 
 def _require_registered(env_name: str) -> None:
@@ -117,16 +158,66 @@ def _require_registered(env_name: str) -> None:
 def cmd_train(args, extra: list[str]) -> int:
     if args.resume:
         saved = _saved_run(args, extra, sweep=False)
+        if saved.agent != "dqn":
+            _refuse_for_brax(args, saved.agent)
+            return _report_brax(args, saved.config, _train_brax(args, saved.config, resume=True,
+                                                                env_options=saved.env_options))
         result = _train(args, saved.config, resume=True, env_options=saved.env_options)
         return _report(args, saved.config, result)
     if args.env is None:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
-    args.seeds, args.seed = args.seeds or 1, args.seed or 0
     options = env_options.from_args(args.env, args)
-    config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
+    agent = _choose_agent(args.env, args.agent, options)
+    if agent != "dqn":
+        _refuse_for_brax(args, agent)
+        args.seed = args.seed or 0
+        config = _brax_config(args.env, agent, args.preset, extra, args.steps)
+        return _report_brax(args, config, _train_brax(args, config, env_options=options))
+    args.seeds, args.seed = args.seeds or 1, args.seed or 0
+    config = config_from_args(_dqn_preset(args.preset), extra, total_steps=args.steps, replay=args.replay)
     result = _train(args, config, env_options=options)
     return _report(args, config, result)
+
+
+def _dqn_preset(preset: str | None) -> DQNConfig:
+    if (preset or "default") not in PRESETS:
+        raise UsageError(f"--preset {preset!r} does not exist for --agent dqn; choose one of {', '.join(sorted(PRESETS))}")
+    return PRESETS[preset or "default"]
+
+
+def _train_brax(args, config, **kwargs):
+    """train_brax, writing a Rerun file with --rerun (its path is checked before training starts)."""
+    from agents.brax_run import agent_name, train_brax
+
+    kwargs.update(seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
+                  checkpoint_seconds=args.checkpoint_seconds)
+    if agent_name(config) == "sac" and not args.out:
+        raise UsageError("--agent sac needs --out: SAC's parameters reach mjxsuite through Brax's checkpoint folder")
+    if not args.rerun:
+        return train_brax(args.env, config, **kwargs)
+    from agents.recording import BRAX_CURVES, TrainingLogger
+
+    logger = TrainingLogger(args.rerun, args.env, config, overwrite=args.overwrite, rollout_every=args.rerun_every,
+                            env_options=kwargs.get("env_options"), curves=BRAX_CURVES[agent_name(config)])
+    try:
+        return train_brax(args.env, config, on_eval=logger, **kwargs)
+    finally:
+        logger.close()
+        print(f"wrote Rerun recording {args.rerun}")
+
+
+def _report_brax(args, config, result) -> int:
+    if result.interrupted:
+        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
+        return 130
+    solve = result.solve_step[0]
+    reached = "" if config.solve_return is None else (
+        f"; Brax's evaluation first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
+    print(f"deterministic policy: mean return {result.mean_return[0]:.1f} over {result.eval_episodes} episodes{reached}")
+    print(f"wall {result.wall_s:.1f}s (to the first evaluation {result.compile_s:.1f}s)"
+          + (f"; wrote {args.out}" if args.out else ""))
+    return 0
 
 
 def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ()):
@@ -141,6 +232,7 @@ def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ())
         raise UsageError(f"{args.out} holds a `mjxsuite {command}` run; continue it with "
                          f"`mjxsuite {command} --out {args.out} --resume`")
     own = (("--steps", args.steps), ("--replay", args.replay), ("--preset", args.preset),
+           ("--agent", getattr(args, "agent", None)),
            ("--impl", getattr(args, "impl", None)), ("--randomize-per", getattr(args, "randomize_per", None)),
            ("--env-opt", getattr(args, "env_opts", None) or None), ("--randomize", getattr(args, "randomize", None) or None))
     given = [flag for flag, value in own if value is not None] + [f"--{name}" for name in swept]
@@ -216,12 +308,16 @@ def cmd_sweep(args, extra: list[str]) -> int:
         if args.env is None:
             raise UsageError("sweep needs --env (or --resume with the --out of a saved sweep)")
         _require_registered(args.env)
+        try:
+            _choose_agent(args.env, "dqn", {})
+        except UsageError as err:
+            raise UsageError(f"mjxsuite sweep trains DQN only: {err}")
         _refuse_fixed_field_lists(extra)
         if not grid:
             raise UsageError("sweep needs at least one field with several values, e.g. --learning_rate 5e-4,1e-3; "
                              f"sweepable fields: {', '.join(SWEEPABLE)}")
         args.seeds, args.seed = args.seeds or 1, args.seed or 0
-        config = config_from_args(PRESETS[args.preset or "default"], extra, total_steps=args.steps, replay=args.replay)
+        config = config_from_args(_dqn_preset(args.preset), extra, total_steps=args.steps, replay=args.replay)
         try:
             sweep_configs(config, grid)  # every combination in range, before anything compiles
         except ValueError as err:
@@ -279,6 +375,8 @@ def cmd_eval(args, extra: list[str]) -> int:
 
     if extra:
         raise UsageError(f"eval: unexpected arguments {extra}")
+    if checkpoint.load_config(args.checkpoint).agent != "dqn":
+        return _eval_brax(args)
     env_name, _, dqn, params = load_agent(args.checkpoint)
     options = checkpoint.load_config(args.checkpoint).env_options
     if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
@@ -295,6 +393,29 @@ def cmd_eval(args, extra: list[str]) -> int:
         print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
     print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes,
                       "mean_return": means.tolist()}))
+    return 0
+
+
+def _eval_brax(args) -> int:
+    """`mjxsuite eval` of a PPO/SAC run: its deterministic policy in our env, one episode per env."""
+    import jax
+    import numpy as np
+
+    import envs
+    from agents import brax_agents, brax_run, checkpoint
+    from agents.recording import collect_rollout_cached
+
+    env_name, env, config, params = brax_run.load_agent(args.checkpoint)
+    options = checkpoint.load_config(args.checkpoint).env_options
+    if env_options.given(args):
+        options = {**options, **env_options.from_args(env_name, args)}
+        env = envs.make(env_name, **options)
+    policy = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)
+    rollout = collect_rollout_cached(env, env_name, options, policy, {"deterministic": config}, jax.random.PRNGKey(args.seed),
+                                     num_envs=args.episodes, steps=env.episode_length, params=params, scene_envs=0)
+    mean = float(np.mean(brax_run.first_episode_returns(rollout)))
+    print(f"deterministic policy: mean return {mean:.1f} over {args.episodes} episodes")
+    print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes, "mean_return": [mean]}))
     return 0
 
 
@@ -318,10 +439,11 @@ def cmd_rollout(args, extra: list[str]) -> int:
         trained_on, env, policy, params = load_greedy(args.checkpoint)
         saved = checkpoint.load_config(args.checkpoint)
         config, options = saved.config, saved.env_options
-        env_name, policy_name = trained_on, {"greedy": config}
+        env_name, policy_name = trained_on, {"greedy": config} if saved.agent == "dqn" else {"deterministic": config}
         if args.env is not None and args.env != trained_on:
             other = envs.make(args.env, **env_options.from_args(args.env, args))
-            if (other.observation_size, other.num_actions) != (env.observation_size, env.num_actions):
+            spaces = lambda e: (e.observation_size, e.num_actions, e.action_size)  # noqa: E731
+            if spaces(other) != spaces(env):
                 raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
             env, env_name, options = other, args.env, env_options.from_args(args.env, args)
@@ -405,18 +527,28 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                         help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
                              "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
 
-    train = sub.add_parser("train", help="train DQN; any DQNConfig field can be set with --FIELD VALUE",
-                           parents=[cached, tasks, spread],
-                           epilog="config fields: " + ", ".join(f.name for f in dataclasses.fields(DQNConfig)))
+    from agents.brax_agents import PPOConfig, SACConfig
+
+    train = sub.add_parser("train", help="train DQN, or Brax's PPO or SAC (--agent); any field of the agent's config "
+                                         "can be set with --FIELD VALUE", parents=[cached, tasks, spread],
+                           epilog="; ".join(f"{cls.__name__} fields (--agent {agent}): "
+                                            + ", ".join(f.name for f in dataclasses.fields(cls))
+                                            for agent, cls in (("dqn", DQNConfig), ("ppo", PPOConfig), ("sac", SACConfig)))
+                                  + ". PPO/SAC defaults per task: agents/brax_defaults.py")
     train.add_argument("--env", help="registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)")
+    train.add_argument("--agent", choices=AGENTS,
+                       help="dqn (ours) for discrete tasks, Brax's ppo or sac for continuous ones "
+                            "(default: dqn for a discrete task, ppo for a continuous one)")
     train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
     train.add_argument("--seed", type=int, help="random seed (default 0)")
-    train.add_argument("--steps", type=ranged(int, COUNT), help="env steps per seed (DQNConfig.total_steps)")
+    train.add_argument("--steps", type=ranged(int, COUNT),
+                       help="env steps per seed (DQNConfig.total_steps; PPO/SAC: num_timesteps)")
     env_options.add_arguments(train)
     train.add_argument("--replay", choices=["uniform", "prioritized"])
-    train.add_argument("--preset", choices=sorted(PRESETS),
-                       help="a named DQNConfig (default: default) that --FIELD options then change: many-envs is for GPUs "
-                            "(32 envs per agent, batch 512, 4 updates per iteration; docs/training.md)")
+    train.add_argument("--preset",
+                       help=f"a named config (default: default) that --FIELD options then change. DQN: {', '.join(sorted(PRESETS))} "
+                            "(many-envs is for GPUs: 32 envs per agent, batch 512, 4 updates per iteration; "
+                            "docs/training.md); PPO/SAC: the task's recipes in agents/brax_defaults.py")
     train.add_argument("--out", help="directory for config.json, metrics.jsonl, checkpoint and eval.json")
     train.add_argument("--resume", action="store_true",
                        help="continue the run saved in --out from its last checkpoint (env, seeds and config from there)")
@@ -428,7 +560,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
     train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",
-                       help="chunks between logged evaluation rollouts (0: none)")
+                       help="chunks (PPO/SAC: evaluations) between logged evaluation rollouts (0: none)")
 
     sweep = sub.add_parser("sweep", parents=[cached, tasks, spread],
                            help="train a grid of configs x seeds as one program; swept fields take comma-separated "

@@ -1,4 +1,4 @@
-"""Rerun logging of DQN training: curves per seed and greedy evaluation rollouts.
+"""Rerun logging of training (DQN, PPO, SAC): curves per seed and greedy evaluation rollouts.
 
 `TrainingLogger` is an `on_chunk(index, train_state, record)` callback for
 `agents.run.train_run`. After every chunk it sends, on the `train_step` timeline,
@@ -12,6 +12,11 @@ logging it costs no extra rollout or compile), drawn like `mjxsuite rollout` und
 `eval/seed_<s>/` (env/0/..., world/env_0/...). Successive evaluations follow each
 other on that prefix's `step` timeline; `eval/seed_<s>/train_step` marks where each
 one starts and the train step it shows.
+
+It is also `agents.brax_run.train_brax`'s `on_eval` callback for Brax's PPO and SAC, with
+`curves=BRAX_CURVES[agent]`: after every evaluation, train/seed_0/eval_return and Brax's
+losses, and every `rollout_every` evaluations one episode of the deterministic policy
+(collected after the evaluation, one jitted rollout compiled once).
 """
 
 from __future__ import annotations
@@ -31,6 +36,12 @@ from envs import recording
 
 SEED_CURVES = {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", "eval_return": "eval_return",
                "train_return": "train_return"}
+# Brax's PPO and SAC (`agents.brax_run` records): their evaluation and Brax's training losses.
+BRAX_CURVES = {
+    "ppo": {"eval_return": "eval_return", "policy_loss": "policy_loss", "v_loss": "v_loss",
+            "entropy_loss": "entropy_loss"},
+    "sac": {"eval_return": "eval_return", "actor_loss": "actor_loss", "critic_loss": "critic_loss", "alpha": "alpha"},
+}
 
 
 def greedy_policy(dqn: DQN) -> recording.PolicyFn:
@@ -42,8 +53,16 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):
     """The env and jittable greedy policy saved by `mjxsuite train --out DIR`: `(env_name, env, policy, params)`.
 
     With several trained seeds it takes the one with the best greedy evaluation unless `seed_index` picks one.
+    A PPO/SAC run's policy is the mode of Brax's policy, acting in [-1, 1] as our envs take it.
     """
+    from agents import checkpoint
     from agents.run import load_agent, pick_seed
+
+    if checkpoint.load_config(out_dir).agent != "dqn":
+        from agents import brax_agents, brax_run
+
+        env_name, env, config, params = brax_run.load_agent(out_dir)
+        return env_name, env, brax_agents.deterministic_policy(config, env.observation_size, env.action_size), params
 
     env_name, env, dqn, params = load_agent(out_dir)
     return env_name, env, greedy_policy(dqn), pick_seed(out_dir, params, seed_index)
@@ -69,11 +88,13 @@ class TrainingLogger:
     so an interrupted run still leaves a readable file.
     """
 
-    def __init__(self, path: str | os.PathLike, env_name: str, config: DQNConfig, *, seeds: int = 1,
+    def __init__(self, path: str | os.PathLike, env_name: str, config: DQNConfig | Any, *, seeds: int = 1,
                  env_options: dict | None = None, overwrite: bool = False, rollout_every: int = 1,
-                 agent_paths: tuple[list[str], list[str]] | None = None):
+                 agent_paths: tuple[list[str], list[str]] | None = None, curves: dict[str, str] = SEED_CURVES):
         """`agent_paths`: (entity path, series label) of every agent, for a sweep's
-        `config_<c>/seed_<s>` (`agents.sweep.agent_paths`); default `seed_<s>`, "seed <s>"."""
+        `config_<c>/seed_<s>` (`agents.sweep.agent_paths`); default `seed_<s>`, "seed <s>".
+        `curves`: {record key: curve name} (default DQN's; `BRAX_CURVES` for PPO and SAC, whose
+        records carry their greedy episode as "eval_rollout", a function that collects it)."""
         if rollout_every < 0:
             raise ValueError(f"rollout_every must be >= 0 (0: no evaluation rollouts), got {rollout_every}")
         self.rec = recording.open_recording(path, overwrite)
@@ -85,7 +106,8 @@ class TrainingLogger:
         self.steps_logged = 0  # evaluation steps already on the eval/ `step` timeline
         self.rollouts_logged = 0
         self.scene = recording.env_scene(self.env)
-        for name in SEED_CURVES.values():
+        self.curves = curves
+        for name in curves.values():
             for s in range(seeds):
                 self.rec.log(f"train/{self.paths[s]}/{name}", rr.SeriesLines(names=f"{name} ({self.labels[s]})"),
                              static=True)
@@ -94,26 +116,34 @@ class TrainingLogger:
         train_step = int(np.atleast_1d(record["env_steps"])[0])
         self._log_curves(train_step, record)
         if self.rollout_every and index % self.rollout_every == 0:
-            self._log_episodes(train_step, jax.device_get(record["eval_episode"]))
+            if "eval_episode" in record:  # DQN: recorded inside the training chunk, per seed
+                episode = jax.device_get(record["eval_episode"])
+                self._log_episodes(train_step, [episode_rollout(jax.tree.map(lambda x: x[s], episode))
+                                                for s in range(self.seeds)])
+            elif record.get("eval_rollout") is not None:  # PPO/SAC: collected now, one seed
+                self._log_episodes(train_step, [record["eval_rollout"]()])
 
     def _send(self, path: str, train_step: int, value: float) -> None:
         self.rec.send_columns(path, indexes=[rr.TimeColumn("train_step", sequence=[train_step])],
                               columns=rr.Scalars.columns(scalars=[float(value)]))
 
     def _log_curves(self, train_step: int, record: dict) -> None:
-        for key, name in SEED_CURVES.items():
+        for key, name in self.curves.items():
+            if record.get(key) is None:
+                continue
             for s, value in enumerate(np.atleast_1d(record[key])):
                 self._send(f"train/{self.paths[s]}/{name}", train_step, value)
+        if record.get("steps_per_s") is None:  # Brax's first evaluation comes before any training
+            return
         self._send("train/env_steps_per_s", train_step, record["steps_per_s"])
         for s in range(self.seeds):
             self._send(f"train/{self.paths[s]}/env_steps_per_s", train_step, record["steps_per_s"] / self.seeds)
 
-    def _log_episodes(self, train_step: int, episode: EvalEpisode) -> None:
-        """The recorded greedy episode of each seed (host arrays with a leading seed axis)."""
+    def _log_episodes(self, train_step: int, rollouts: list[recording.Rollout]) -> None:
+        """One greedy episode of each seed (one-env host rollouts)."""
         longest = 0
-        for s in range(self.seeds):
+        for s, rollout in enumerate(rollouts):
             root = f"eval/{self.paths[s]}"
-            rollout = episode_rollout(jax.tree.map(lambda x: x[s], episode))
             recording.log_rollout(self.rec, self.env, rollout, root=root, step_offset=self.steps_logged,
                                   static=self.rollouts_logged == 0, scene=self.scene)
             self.rec.send_columns(f"{root}/train_step", indexes=[rr.TimeColumn("step", sequence=[self.steps_logged])],

@@ -4,7 +4,6 @@ bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
 
 from __future__ import annotations
 
-import json
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -15,25 +14,13 @@ from typing import Any, Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 import envs
-from agents import checkpoint, export_cache, sharding
+from agents import checkpoint, driver, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
-from envs.ranges import COUNT, NON_NEGATIVE
-
-# Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once CHECKPOINT_SECONDS have
-# passed since the last save. On the 2-core CPU a default 50k-step CartPole run saves every
-# ~5 s, so a kill loses at most ~5 s of training, and saving costs ~1% of the wall time
-# (docs/reliability.md has the measurements).
-CHECKPOINT_EVERY = 1
-CHECKPOINT_SECONDS = 5.0
-# A save's cost grows with the agents (each holds its replay buffer: 1,024 agents took 26 s per
-# save on 2 cores), so the next periodic save also waits SAVE_COST_FACTOR times the last save's
-# duration: saving then takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%) however
-# large the state, while runs whose saves take under 0.25 s keep the CHECKPOINT_SECONDS rhythm.
-SAVE_COST_FACTOR = 20.0
+from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from envs.ranges import COUNT
 
 
 @dataclass
@@ -142,19 +129,14 @@ def train_run(
     the same program as ever; several give every agent the same result."""
     start = time.perf_counter()
     COUNT.check("seeds", seeds)
-    COUNT.check("checkpoint_every", checkpoint_every)
-    NON_NEGATIVE.check("checkpoint_seconds", checkpoint_seconds)
+    clock = driver.SaveClock(checkpoint_every, checkpoint_seconds)
     sweep = sweep or None
     configs = sweep_configs(config, sweep)
     agents = seeds * len(configs)
     placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs)))
     writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
-    out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
     run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
-    if resume:
-        if out is None:
-            raise ValueError("resume needs out_dir, the directory of the run to continue")
-        checkpoint.check_resumable(out, run)
+    out = driver.open_run_dir(out_dir, run, resume, writer)
     env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env, agents=agents // placement.count)
     init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
@@ -198,11 +180,9 @@ def train_run(
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                        devices=placement.count)
-    bar = tqdm(total=config.num_chunks * config.eval_every, initial=chunks_done * config.eval_every,
-               unit="step", disable=not progress or not writer, desc=env_name, dynamic_ncols=True)
-    last = saved = chunks_done
-    saved_at = time.perf_counter()
-    save_s = 0.0  # how long the last periodic save took
+    bar = driver.progress_bar(config.num_chunks * config.eval_every, chunks_done * config.eval_every, env_name,
+                              enabled=progress and writer)
+    last = clock.last = chunks_done
     solved_early = False
     try:
         for index in range(chunks_done, config.num_chunks):
@@ -223,24 +203,18 @@ def train_run(
             for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
                 if solve >= config.solve_return and result.solve_wall_s[i] is None:
                     result.solve_wall_s[i] = now
-            if out is not None and writer:
-                with open(out / checkpoint.METRICS_FILE, "a") as f:
-                    f.write(json.dumps(record) + "\n")
+            if writer:
+                driver.append_metrics(out, record)
             if on_chunk is not None:
                 on_chunk(index, ts, {**record, "eval_episode": eval_episode})
-            bar.update(config.eval_every)
-            bar.set_postfix(eval=f"{np.mean(record['eval_return']):.1f}", best=f"{np.mean(record['best_return']):.1f}",
-                            sps=f"{record['steps_per_s']:.0f}")
+            driver.show(bar, config.eval_every, record)
             if stop_when_solved and None not in result.solve_wall_s:
                 solved_early = True
                 break
-            wait_s = max(checkpoint_seconds, SAVE_COST_FACTOR * save_s) if checkpoint_seconds > 0 else 0.0
-            if placement.agree(out is not None and last - saved >= checkpoint_every  # process 0's clock decides
-                               and time.perf_counter() - saved_at >= wait_s):
+            if placement.agree(out is not None and clock.due(last)):  # process 0's clock decides
                 save_start = time.perf_counter()
                 save(out, env_name, placement, ts, last)
-                saved, saved_at = last, time.perf_counter()
-                save_s = saved_at - save_start
+                clock.saved(last, save_start)
     except KeyboardInterrupt:
         result.interrupted = True
         bar.write("interrupted: saving a checkpoint")
@@ -249,7 +223,7 @@ def train_run(
         result.train_state = ts
     # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
     # over it, and a failed chunk may have consumed its donated train state).
-    if out is not None and saved != last:
+    if out is not None and clock.last != last:
         save(out, env_name, placement, ts, last)
     if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
         return result
@@ -267,11 +241,10 @@ def train_run(
     returns = evaluate(ts.best_params, eval_keys)
     result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
     result.wall_s = time.perf_counter() - start
-    if out is not None and writer:
-        summary = {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
-                   "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-                   "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count}
-        (out / "eval.json").write_text(json.dumps(summary, indent=2))
+    if writer:
+        driver.write_eval(out, {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
+                                "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
+                                "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count})
     return result
 
 
@@ -313,8 +286,13 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
 
     Takes one observation or a batch (numpy or JAX), returns integer actions as numpy.
     With several trained seeds it uses the one with the best greedy evaluation
-    unless `seed_index` picks one.
+    unless `seed_index` picks one. A PPO/SAC run gives its deterministic policy, whose
+    float32 actions are in the task's Gymnasium action space (`agents.brax_run.load_policy`).
     """
+    if checkpoint.load_config(out_dir).agent != "dqn":
+        from agents import brax_run
+
+        return brax_run.load_policy(out_dir)
     env_name, env, dqn, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
     greedy = jax.jit(lambda obs: jnp.argmax(dqn.q_values(params, obs), axis=-1))

@@ -25,9 +25,10 @@ from envs.tasks.walkers import Hopper, HopperParams, Walker2d, Walker2dParams
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 
-def to_gymnasium(name: str, num_envs: int | None = None, **kwargs):
-    """A registered env as a `gymnasium.Env`, or with `num_envs` a `gymnasium.vector.VectorEnv`
-    (see `envs.interop.gymnasium`). Gymnasium is optional, so it is imported only here."""
+def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
+    """A registered env (by name) or an env instance as a `gymnasium.Env`, or with `num_envs` a
+    `gymnasium.vector.VectorEnv` (see `envs.interop.gymnasium`). Gymnasium is optional, so it is
+    imported only here."""
     from envs.interop.gymnasium import to_gymnasium as bridge
 
     return bridge(name, num_envs, **kwargs)

@@ -54,21 +54,47 @@ except ImportError as err:  # gymnasium is an optional extra
 
 from envs.core import Env, State
 from envs.registry import make
-from envs.wrappers import AutoReset, VmapWrapper
+from envs.core import Wrapper
+from envs.wrappers import AutoReset, TimeLimit, VmapWrapper
 
 # Packed per-env step results after the observation: reward, terminated, truncated, nan.
 _REWARD, _TERMINATED, _TRUNCATED, _NAN = range(4)
 _STEP_SCALARS = 4
 
 
-def to_gymnasium(name: str, num_envs: int | None = None, *, render_mode: str | None = None, **overrides: Any):
-    """`envs.make(name, **overrides)` as a `gymnasium.Env`, or with `num_envs` as a
-    `gymnasium.vector.VectorEnv` of that many auto-resetting copies (see the module docs)."""
+def to_gymnasium(name: str | Env, num_envs: int | None = None, *, render_mode: str | None = None, **overrides: Any):
+    """`envs.make(name, **overrides)`, or an env instance (as `envs.to_brax` takes one: from
+    `envs.make`, or a bare task with `episode_length=...`), as a `gymnasium.Env`, or with
+    `num_envs` as a `gymnasium.vector.VectorEnv` of that many auto-resetting copies (see the
+    module docs)."""
     if num_envs is None:
         return GymnasiumEnv(name, render_mode=render_mode, **overrides)
     if render_mode is not None:
         raise ValueError(f"env {name!r}: the vector env does not render; render_mode must be None, got {render_mode!r}")
     return GymnasiumVectorEnv(name, num_envs, **overrides)
+
+
+def _time_limited(name: str | Env, overrides: dict) -> tuple[str, Env, bool]:
+    """(label, the env with its time limit, whether it came by name) for `to_gymnasium`'s argument."""
+    if isinstance(name, str):
+        return name, make(name, **overrides), True
+    label = repr(name)
+    unknown = sorted(set(overrides) - {"episode_length"})
+    if unknown:
+        raise ValueError(f"to_gymnasium({label}): options {unknown} only apply to a registered name "
+                         "(envs.make does them); for an env instance only episode_length is accepted")
+    env, episode_length = name, overrides.get("episode_length")
+    if isinstance(env, TimeLimit):
+        env, episode_length = env.env, episode_length or env.episode_length
+    layer = env
+    while isinstance(layer, Wrapper):  # auto-reset, vmap or statistics: the adapter adds what it needs
+        if type(layer).__module__ == TimeLimit.__module__:
+            raise ValueError(f"to_gymnasium({label}): the env is already wrapped in {type(layer).__name__}; "
+                             "pass the env from envs.make(name) or the bare task")
+        layer = layer.env
+    if episode_length is None:
+        raise ValueError(f"to_gymnasium({label}): the env has no time limit; pass episode_length=...")
+    return label, TimeLimit(env, episode_length), False
 
 
 # ---- spaces and action checks, shared by the single and the vector env ----------
@@ -133,9 +159,8 @@ class GymnasiumEnv(gymnasium.Env):
     # narrows it to its env: envs without an MJCF scene do not render.
     metadata = {"render_modes": ["rgb_array"]}  # noqa: RUF012 (instances replace it)
 
-    def __init__(self, name: str, render_mode: str | None = None, **overrides: Any):
-        self.name = name
-        self.env = make(name, **overrides)  # TimeLimit(task): truncation from the registry
+    def __init__(self, name: str | Env, render_mode: str | None = None, **overrides: Any):
+        self.name, self.env, by_name = _time_limited(name, overrides)  # TimeLimit(task): truncation
         self.episode_length: int = self.env.episode_length
         self.observation_space, self.action_space = _single_spaces(self.env)
 
@@ -148,20 +173,21 @@ class GymnasiumEnv(gymnasium.Env):
             self.metadata["render_fps"] = 1.0 / dt
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
-                f"env {name!r}: render_mode {render_mode!r} is not supported; "
+                f"env {self.name!r}: render_mode {render_mode!r} is not supported; "
                 f"choose one of {self.metadata['render_modes'] + [None]}"
             )
         self.render_mode = render_mode
         self._renderer = None
         self._scene_data = None
 
-        # gymnasium.make(self.spec) (used by check_env and RecordVideo) builds the same env again.
+        # gymnasium.make(self.spec) (used by check_env and RecordVideo) builds the same env again;
+        # an env instance has no name to build it from.
         self.spec = EnvSpec(
             id=f"mjxsuite/{name}",
             entry_point="envs.interop.gymnasium:GymnasiumEnv",
             kwargs={"name": name, **overrides},
             nondeterministic=False,
-        )
+        ) if by_name else None
 
         self._reset = jax.jit(self._reset_and_observe)
         self._step = jax.jit(self._step_and_pack)
@@ -250,12 +276,11 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
 
     metadata: ClassVar[dict[str, Any]] = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
-    def __init__(self, name: str, num_envs: int, **overrides: Any):
+    def __init__(self, name: str | Env, num_envs: int, **overrides: Any):
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"env {name!r}: num_envs must be a positive int, got {num_envs!r}")
-        self.name = name
+        self.name, self.env, _ = _time_limited(name, overrides)
         self.num_envs = num_envs
-        self.env = make(name, **overrides)
         self.episode_length: int = self.env.episode_length
         self._batched = VmapWrapper(AutoReset(self.env), num_envs)
         self.single_observation_space, self.single_action_space = _single_spaces(self.env)

@@ -1,0 +1,100 @@
+"""The host-side steps every training driver takes between its jitted work, in one place:
+`agents.run` (DQN) and `agents.brax_run` (Brax's PPO and SAC) both call them, so a run
+directory, its progress bar and its periodic saves behave the same whatever the agent.
+
+    out = open_run_dir(out_dir, run, resume)      # checked before anything compiles
+    bar = progress_bar(total, done, env_name)
+    ... for each evaluation:
+        append_metrics(out, record); show(bar, steps, record)
+        if clock.due(evaluations): save(...); clock.saved(evaluations, seconds)
+    write_eval(out, summary)
+
+The files themselves (config.json, the checkpoints, metrics.jsonl) are `agents.checkpoint`'s.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from agents import checkpoint
+from envs.ranges import COUNT, NON_NEGATIVE
+
+# Periodic checkpoints: after every CHECKPOINT_EVERY chunks (DQN) or evaluations (PPO, SAC), once
+# CHECKPOINT_SECONDS have passed since the last save. On the 2-core CPU a default 50k-step
+# CartPole run saves every ~5 s, so a kill loses at most ~5 s of training, and saving costs ~1%
+# of the wall time (docs/reliability.md has the measurements).
+CHECKPOINT_EVERY = 1
+CHECKPOINT_SECONDS = 5.0
+# A save's cost grows with the agents (each DQN agent holds its replay buffer: 1,024 agents took
+# 26 s per save on 2 cores), so the next periodic save also waits SAVE_COST_FACTOR times the last
+# save's duration: saving then takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%)
+# however large the state, while runs whose saves take under 0.25 s keep the CHECKPOINT_SECONDS rhythm.
+SAVE_COST_FACTOR = 20.0
+
+
+def open_run_dir(out_dir, run: checkpoint.SavedRun, resume: bool, writer: bool = True) -> Path | None:
+    """The run directory, checked before anything compiles: writable (for the process that
+    writes), and with `resume` holding this very run (ValueError naming what differs)."""
+    out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
+    if resume:
+        if out is None:
+            raise ValueError("resume needs out_dir, the directory of the run to continue")
+        checkpoint.check_resumable(out, run)
+    return out
+
+
+class SaveClock:
+    """When the next periodic save is due: `every` units (chunks or evaluations) after the last,
+    and at least `seconds` later, or SAVE_COST_FACTOR x the last save's duration if longer
+    (`seconds` 0: every `every` units)."""
+
+    def __init__(self, every: int = CHECKPOINT_EVERY, seconds: float = CHECKPOINT_SECONDS, done: int = 0):
+        COUNT.check("checkpoint_every", every)
+        NON_NEGATIVE.check("checkpoint_seconds", seconds)
+        self.every, self.seconds = every, seconds
+        self.last = done  # units done at the last save (or at the start)
+        self.at = time.perf_counter()
+        self.save_s = 0.0  # how long the last save took
+
+    def due(self, done: int) -> bool:
+        wait_s = max(self.seconds, SAVE_COST_FACTOR * self.save_s) if self.seconds > 0 else 0.0
+        return done - self.last >= self.every and time.perf_counter() - self.at >= wait_s
+
+    def saved(self, done: int, started: float) -> None:
+        """Record a save of `done` units that began at `started` (time.perf_counter())."""
+        self.last, self.at = done, time.perf_counter()
+        self.save_s = self.at - started
+
+
+def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> tqdm:
+    """The progress bar over env steps every driver shows."""
+    return tqdm(total=total, initial=initial, unit="step", disable=not enabled, desc=desc, dynamic_ncols=True)
+
+
+def show(bar: tqdm, steps: int, record: dict) -> None:
+    """Advance `bar` by `steps` env steps and show the record's evaluation and speed."""
+    bar.update(steps)
+    postfix = {"eval": f"{np.mean(record['eval_return']):.1f}"}
+    if record.get("best_return") is not None:
+        postfix["best"] = f"{np.mean(record['best_return']):.1f}"
+    if record.get("steps_per_s"):
+        postfix["sps"] = f"{record['steps_per_s']:.0f}"
+    bar.set_postfix(**postfix)
+
+
+def append_metrics(out: Path | None, record: dict) -> None:
+    """One evaluation's record as a line of metrics.jsonl (nothing without a run directory)."""
+    if out is not None:
+        with open(out / checkpoint.METRICS_FILE, "a") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def write_eval(out: Path | None, summary: dict) -> None:
+    """The finished run's eval.json."""
+    if out is not None:
+        (out / "eval.json").write_text(json.dumps(summary, indent=2))
