@@ -5,6 +5,10 @@ import tempfile
 
 # Tests run on the CPU; keep XLA from grabbing every core's worth of threads per test.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# The CPU compiler options `mjxsuite train` uses for its programs (`agents.backend.CPU_COMPILER_OPTIONS`)
+# for every program the tests compile, their directly jitted DQN and MJX programs too: half the compile
+# time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it.
+os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false"]).strip()
 
 # Many tests compile the same programs (the same tiny training run, evaluation, rollout):
 # JAX's persistent compilation cache, in a directory of this session's own (deleted at exit,
