@@ -19,8 +19,8 @@ On a GPU, the issue's run (about 2 minutes for both):
 
     python -m benchmarks.end_to_end --peer /path/to/purejaxrl_dqn.py --json e2e.json
 
-A smoke test on the CPU: `--seeds 2 --steps 2000 --eval-every 1000 --learning-starts 200
---exploration-steps 1000`.
+A smoke test on the CPU: `--seeds 2 --steps 400 --eval-every 200 --learning-starts 200
+--exploration-steps 200`.
 """
 
 from __future__ import annotations

@@ -27,8 +27,8 @@ def test_both_sides_run_at_tiny_sizes(tmp_path):
     pytest.importorskip("flashbax")
     if not PEER.is_file():
         pytest.skip(f"no peer file at {PEER}")
-    record = end_to_end.main(["--peer", str(PEER), "--seeds", "2", "--steps", "200", "--eval-every", "100",
-                              "--learning-starts", "50", "--exploration-steps", "100", "--json", str(tmp_path / "e.json")])
+    record = end_to_end.main(["--peer", str(PEER), "--seeds", "2", "--steps", "400", "--eval-every", "200",
+                              "--learning-starts", "200", "--exploration-steps", "200", "--json", str(tmp_path / "e.json")])
     ours, peer = record["ours"], record["peer"]
     assert ours["agents"] == 2 and set(ours["parts_s"]) == {"start-up", "compile", "train", "saves", "evaluation", "other"}
     assert sum(ours["parts_s"].values()) <= ours["process_s"] + 0.5  # the parts are inside the process's time
