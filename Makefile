@@ -18,7 +18,7 @@ train: $(BIN)/.installed  ## train DQN on the MJX CartPole: checkpoint + Rerun r
 test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 	$(BIN)/python -m pytest -q
 
-test-slow: $(BIN)/.installed  ## long training tests: 16 seeds to 50k steps on both backends
+test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
 	$(BIN)/python -m pytest -q -m slow
 
 # `make bench BENCH_TAG=gpu` on a GPU machine

@@ -76,20 +76,33 @@ def transposed_kernel_gradient(platform: str | None = None) -> bool:
 GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
 
 
+# XLA:CPU's newer fusion emitters (its default in jax 0.10) took twice the compile time of its
+# classic ones for the DQN's training and evaluation programs, with no faster training: on the 2-core CPU, cartpole-mjx's
+# chunk 14.5 -> 7.6 s and its evaluation 6.0 -> 3.8 s of CPU time, chunks 0.21 -> 0.18 s
+# (docs/results.md, "Compile time on the CPU"). They round a few operations differently.
+CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
 def init_compiler_options(platform: str | None = None) -> dict:
     """XLA options for a run's init program, which runs once: no GEMM autotuning on a GPU
-    (autotuning its one forward pass took most of its ~2 s compile on an H100)."""
+    (autotuning its one forward pass took most of its ~2 s compile on an H100). The CPU keeps
+    XLA's defaults here: the classic emitters compiled cartpole-mjx's init in 5.2 s of CPU
+    time against 3.2 s."""
     if (platform or jax.default_backend()) != "gpu":
         return {}
     return {"xla_gpu_autotune_level": 0}
 
 
 def training_compiler_options(platform: str | None = None) -> dict:
-    """XLA options for the training programs: CUDA graphs for loops on a GPU, nothing elsewhere.
+    """XLA options for the training programs: CUDA graphs for loops on a GPU, XLA:CPU's classic
+    fusion emitters on the CPU (`CPU_COMPILER_OPTIONS`), nothing elsewhere.
 
     GEMM autotuning stays on: turning it off (`xla_gpu_autotune_level` 0) halved the chunk's
     compile on an H100 (3.4 -> 1.9 s) but cost 13% of one seed's speed and half of 256
     seeds' (10 envs per agent) in fresh processes."""
-    if (platform or jax.default_backend()) != "gpu":
+    platform = platform or jax.default_backend()
+    if platform == "cpu":
+        return dict(CPU_COMPILER_OPTIONS)
+    if platform != "gpu":
         return {}
     return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS}

@@ -285,8 +285,30 @@ def _report(args, config: DQNConfig, result) -> int:
     for i, (ret, solve) in enumerate(zip(result.mean_return, result.solve_step)):
         print(f"seed {i}: greedy mean return {ret:.1f} over {config.eval_episodes} episodes; "
               f"first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
-    print(f"wall {result.wall_s:.1f}s (compile {result.compile_s:.1f}s)" + (f"; wrote {args.out}" if args.out else ""))
+    print(wall_line(result) + (f"; wrote {args.out}" if args.out else ""))
     return 0
+
+
+def process_age_s() -> float | None:
+    """Seconds since this process started (from Linux's /proc; None where there is none)."""
+    try:
+        fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        started = int(fields[19]) / os.sysconf("SC_CLK_TCK")  # field 22, starttime, in ticks after boot
+        return float(Path("/proc/uptime").read_text().split()[0]) - started
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
+def wall_line(result) -> str:
+    """Where the process's wall time went: start-up (Python, imports, setting the run up),
+    compile, training, checkpoint saves, the final evaluation, and the rest (host work
+    between chunks: metrics, the Rerun logger, progress)."""
+    parts = result.wall_parts()
+    age = process_age_s()
+    wall = result.wall_s if age is None else max(age, result.wall_s)
+    parts = {"start-up": parts.pop("setup") + wall - result.wall_s, **parts}
+    parts["other"] = parts.pop("host")
+    return f"wall {wall:.1f}s = " + " + ".join(f"{name} {seconds:.1f}" for name, seconds in parts.items()) + " s"
 
 
 def _report_devices(result) -> None:
@@ -333,8 +355,7 @@ def cmd_sweep(args, extra: list[str]) -> int:
     summary = sweeps.summarize(args.env, config, grid, args.seeds, result)
     print(sweeps.markdown_table(summary))
     _report_devices(result)
-    print(f"{len(summary['configs'])} configs x {args.seeds} seeds: wall {result.wall_s:.1f}s "
-          f"(compile {result.compile_s:.1f}s)")
+    print(f"{len(summary['configs'])} configs x {args.seeds} seeds: {wall_line(result)}")
     if args.out:
         print(f"wrote {sweeps.write_summary(args.out, summary)}")
     plot_path = args.plot or (Path(args.out) / sweeps.PLOT_FILE if args.out else None)

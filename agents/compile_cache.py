@@ -91,13 +91,17 @@ class CompileCounter:
     def __init__(self):
         self.traces = self.compiles = self.cache_hits = 0
         self.compile_s = 0.0
+        self.traced: list[str] = []  # the functions traced and the programs compiled, by name, in order
+        self.compiled: list[str] = []
 
-    def _on_duration(self, event: str, seconds: float, **_) -> None:
+    def _on_duration(self, event: str, seconds: float, fun_name: str = "", **_) -> None:
         if event == self._TRACE:
             self.traces += 1
+            self.traced.append(fun_name)
         elif event == self._COMPILE:
             self.compiles += 1
             self.compile_s += seconds
+            self.compiled.append(fun_name)
 
     def _on_event(self, event: str, **_) -> None:
         if event == self._HIT:

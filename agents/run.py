@@ -20,6 +20,7 @@ from agents import checkpoint, driver, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from envs.mjx_env import overflow_report
 from envs.ranges import COUNT
 
 
@@ -31,8 +32,27 @@ class RunResult:
     mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
     solve_step: list[int | None] = field(default_factory=list)
     solve_wall_s: list[float | None] = field(default_factory=list)  # seconds from the start (compile included)
-    wall_s: float = 0.0
+    wall_s: float = 0.0  # train_run's whole call; the parts below add up to it
     compile_s: float = 0.0
+    # Where the rest of wall_s went: setting up (the env, the first JAX calls, placing the agents,
+    # loading a checkpoint), the training chunks (with their greedy evaluations), checkpoint
+    # saves, the final greedy evaluation (its compile included), and the rest (`host_s`): the
+    # host's work between chunks (metrics files, `on_chunk`, e.g. the Rerun logger).
+    setup_s: float = 0.0
+    train_s: float = 0.0
+    save_s: float = 0.0
+    eval_s: float = 0.0
+    host_s: float = 0.0
+
+    def wall_parts(self) -> dict[str, float]:
+        """wall_s's parts by name, in the order they happen."""
+        return {"setup": self.setup_s, "compile": self.compile_s, "train": self.train_s, "saves": self.save_s,
+                "evaluation": self.eval_s, "host": self.host_s}
+
+    def finish(self, start: float) -> None:
+        """Set wall_s to the time since `start`, and host_s to what the other parts leave of it."""
+        self.wall_s = time.perf_counter() - start
+        self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.save_s - self.eval_s)
     interrupted: bool = False  # Ctrl-C; like `stop_after_chunks`, leaves params None and a checkpoint
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
 
@@ -65,15 +85,16 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
-def _compile_aside(lowered) -> Future:
-    """`lowered.compile()` on another thread. XLA compiles without holding Python's lock, so a
+def _compile_aside(compile_program: Callable[[], Any], name: str) -> Future:
+    """`compile_program()` on another thread. XLA compiles without holding Python's lock, so a
     fresh run's init program (about 1 s on a 2-core CPU) compiles while this thread traces and
     lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for cartpole-mjx) and
-    while XLA compiles the chunk. It is the program, with the options, that calling the jitted
-    init compiles: the same train state, bit for bit."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="mjxsuite-init-compile")
+    while XLA compiles the chunk, and the final evaluation's program (~5 s for cartpole-mjx on 2
+    cores) while the agents train. They are the programs, with the options, that compiling
+    them here would give: the same results, bit for bit."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mjxsuite-{name}-compile")
     try:
-        return pool.submit(lowered.compile)
+        return pool.submit(compile_program)
     finally:
         pool.shutdown(wait=False)  # its one thread ends with its one task
 
@@ -154,7 +175,7 @@ def train_run(
     else:  # a run killed before its first checkpoint resumes from the start, as it began
         if placement.mesh is None:
             traced = init.trace(*init_args)
-            init_program = _compile_aside(traced.lower())
+            init_program = _compile_aside(traced.lower().compile, "init")
             ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
         else:
             ts = init(*init_args)
@@ -177,13 +198,23 @@ def train_run(
     if init_program is not None:
         ts = init_program.result()(*init_args)
     compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
+    eval_keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), seeds)
+    eval_keys = placement.put(eval_keys if sweep is None else jnp.tile(eval_keys, (len(configs), 1)))
+    final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
+    if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
+        params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
+                                    ts.best_params)  # not the arrays: the first chunk consumes them
+        final_evaluation = _compile_aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
+                                                  (params_shape, eval_keys), dqn, agents, env_name, env_options),
+                                          "evaluation")
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
-                       devices=placement.count)
+                       devices=placement.count, setup_s=compile_start - start)
     bar = driver.progress_bar(config.num_chunks * config.eval_every, chunks_done * config.eval_every, env_name,
                               enabled=progress and writer)
     last = clock.last = chunks_done
     solved_early = False
+    overflow_told = False
     try:
         for index in range(chunks_done, config.num_chunks):
             if stop_after_chunks is not None and index >= stop_after_chunks:
@@ -195,8 +226,10 @@ def train_run(
             if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
                 eval_episode = placement.to_host(eval_episode)
             elapsed = time.perf_counter() - tick
+            result.train_s += elapsed
             record["chunk"] = index
             record["steps_per_s"] = config.eval_every * agents / elapsed
+            overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
             result.history.append(record)
             last = index + 1
             now = time.perf_counter() - start
@@ -215,6 +248,7 @@ def train_run(
                 save_start = time.perf_counter()
                 save(out, env_name, placement, ts, last)
                 clock.saved(last, save_start)
+                result.save_s += clock.save_s
     except KeyboardInterrupt:
         result.interrupted = True
         bar.write("interrupted: saving a checkpoint")
@@ -224,28 +258,55 @@ def train_run(
     # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
     # over it, and a failed chunk may have consumed its donated train state).
     if out is not None and clock.last != last:
+        save_start = time.perf_counter()
         save(out, env_name, placement, ts, last)
+        result.save_s += time.perf_counter() - save_start
     if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
+        result.finish(start)
         return result
 
+    eval_start = time.perf_counter()
     result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
     solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
     result.solve_step = [s if s >= 0 else None for s in solve]
-    eval_keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), seeds)
-    eval_keys = placement.put(eval_keys if sweep is None else jnp.tile(eval_keys, (len(configs), 1)))
-    if placement.mesh is None:
+    if final_evaluation is not None:
+        evaluate = final_evaluation.result()
+    elif placement.mesh is None:
         evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, agents,
                                   env_name, env_options)
     else:
         evaluate = jax.jit(placement.spread(jax.vmap(dqn.evaluate)))
     returns = evaluate(ts.best_params, eval_keys)
     result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
-    result.wall_s = time.perf_counter() - start
+    result.eval_s = time.perf_counter() - eval_start
+    result.finish(start)
     if writer:
         driver.write_eval(out, {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
                                 "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-                                "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count})
+                                "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
+                                "wall_parts_s": result.wall_parts()})
     return result
+
+
+# A run whose env-steps overflow MuJoCo Warp's buffers more often than this stops: its agents
+# would learn from the few steps that fit, in a state distribution the overflows cut short.
+MOST_STEPS_OVERFLOWING = 0.5
+
+
+def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
+    """Say once in a run which Warp buffer overflowed (and how to raise it); stop the run with that
+    message when most of a chunk's steps of some agent overflowed. Returns whether it was said."""
+    contacts = int(np.max(record.get("overflow_contacts", 0)))
+    constraints = int(np.max(record.get("overflow_constraints", 0)))
+    if not contacts and not constraints:
+        return told
+    report = overflow_report(env, contacts, constraints, chunk_steps)
+    if max(contacts, constraints) > MOST_STEPS_OVERFLOWING * chunk_steps:
+        raise RuntimeError(f"{report} Most steps of chunk {record['chunk']} overflowed: the run stops rather than "
+                           "train on them.")
+    if not told:
+        bar.write(f"chunk {record['chunk']}: {report}")
+    return True
 
 
 def per_agent(configs: list[DQNConfig], seeds: int) -> Hyperparams:

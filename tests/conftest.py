@@ -1,6 +1,44 @@
+import atexit
 import os
+import shutil
+import tempfile
 
 # Tests run on the CPU; keep XLA from grabbing every core's worth of threads per test.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# CLI tests run in-process: keep them from writing JAX's compilation cache to ~/.cache.
-os.environ.setdefault("MJXSUITE_COMPILE_CACHE", "0")
+# The CPU compiler options `mjxsuite train` uses for its programs (`agents.backend.CPU_COMPILER_OPTIONS`)
+# for every program the tests compile, their directly jitted DQN and MJX programs too: half the compile
+# time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it.
+os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false"]).strip()
+
+# Many tests compile the same programs (the same tiny training run, evaluation, rollout):
+# JAX's persistent compilation cache, in a directory of this session's own (deleted at exit,
+# never ~/.cache), compiles each once and loads it afterwards. It is keyed by the compiled
+# program itself, so a test that changes what is traced (a monkeypatched step) misses it.
+# Subprocesses the tests start (the CLI, kill -9 and resume, two-process runs) inherit it
+# through MJXSUITE_COMPILE_CACHE, with `agents.export_cache` beside it as a user has it.
+_CACHE_DIR = tempfile.mkdtemp(prefix="mjxsuite-test-compile-cache-")
+atexit.register(shutil.rmtree, _CACHE_DIR, ignore_errors=True)
+os.environ.setdefault("MJXSUITE_COMPILE_CACHE", _CACHE_DIR)
+
+import jax  # noqa: E402 (after the environment above)
+import pytest  # noqa: E402
+
+from agents import export_cache  # noqa: E402
+
+if os.environ["MJXSUITE_COMPILE_CACHE"] == _CACHE_DIR:
+    jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
+    # As `agents.compile_cache.enable()`: the tests' programs are small, each well under
+    # JAX's default one-second threshold, and they add up.
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+else:
+    shutil.rmtree(_CACHE_DIR, ignore_errors=True)
+
+
+@pytest.fixture(autouse=True)
+def _export_cache_off_between_tests():
+    """In-process CLI tests turn on the export cache (`compile_cache.enable()`, as the CLI
+    does); it keys traced programs by config and env, not by code, so it must not carry
+    over into a test that traces its own variant (a monkeypatched backend choice)."""
+    yield
+    export_cache.disable()

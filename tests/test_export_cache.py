@@ -146,7 +146,20 @@ def test_donation_is_kept(cache_dir):
     assert program.hit
 
 
-def test_nothing_is_written_while_the_cache_is_off(monkeypatch, tmp_path):
+@pytest.fixture
+def no_jax_cache_dir():
+    """A process where JAX's own cache directory is unset (tests/conftest.py sets one for the
+    session, which `compile_cache.enable()` would respect)."""
+    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
+             "jax_persistent_cache_min_entry_size_bytes", "jax_enable_compilation_cache")
+    saved = {name: getattr(jax.config, name) for name in names}
+    jax.config.update("jax_compilation_cache_dir", None)
+    yield
+    for name, value in saved.items():
+        jax.config.update(name, value)
+
+
+def test_nothing_is_written_while_the_cache_is_off(monkeypatch, tmp_path, no_jax_cache_dir):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     monkeypatch.setenv(compile_cache.ENV_VAR, "0")
     assert compile_cache.enable() is None and export_cache.directory() is None
@@ -154,11 +167,8 @@ def test_nothing_is_written_while_the_cache_is_off(monkeypatch, tmp_path):
     assert not (tmp_path / "xdg").exists()
 
 
-def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch, tmp_path):
+def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch, tmp_path, no_jax_cache_dir):
     """`compile_cache.enable()` (what the CLI calls) puts the export cache inside its directory."""
-    names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
-             "jax_persistent_cache_min_entry_size_bytes", "jax_enable_compilation_cache")
-    saved = {name: getattr(jax.config, name) for name in names}
     monkeypatch.setenv(compile_cache.ENV_VAR, str(tmp_path / "jax"))
     try:
         assert compile_cache.enable() == tmp_path / "jax"
@@ -167,8 +177,6 @@ def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch,
         assert export_cache.directory() is None
     finally:
         export_cache.disable()
-        for name, value in saved.items():
-            jax.config.update(name, value)
 
 
 def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypatch, capsys):

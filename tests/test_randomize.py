@@ -185,6 +185,11 @@ def test_env_options_and_ranges_round_trip_through_the_saved_run(tmp_path, capsy
     with pytest.raises(SystemExit, match="drop --env-opt"):
         cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume", "--env-opt", "masspole=0.2"])
 
+
+@pytest.mark.slow  # three MJX programs compiled (make test-slow, which CI runs)
+def test_randomize_ranges_round_trip_through_the_saved_run(tmp_path, capsys):
+    small = ["--steps", "300", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "4",
+             "--hidden", "16"]
     out = tmp_path / "mjx"
     assert cli_main(["train", "--env", "cartpole-mjx", "--randomize", "body_mass:pole=0.05:0.5",
                      "--randomize", "dof_damping:slider=x0.5:1.5", "--out", str(out), *small]) == 0

@@ -24,7 +24,8 @@ SEEDS = 8
 
 
 def environment(devices: int) -> dict:
-    return {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}",
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}".strip()
+    return {**os.environ, "XLA_FLAGS": flags,
             "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
 
 
@@ -105,17 +106,21 @@ def single_host(tmp_path_factory):
     return out, json.loads(line[len("RESULT "):])
 
 
+# Slow (make test-slow, which CI runs): each of these starts processes that train on 2 or 4 CPU devices.
+@pytest.mark.slow
 def test_eight_seeds_on_four_devices_equal_the_same_seeds_on_one(single_host):
     _, found = single_host
     assert found["devices"] == [1, 4, 4]
     assert found["four_equals_one"] == {"params": True, "train_state": True, "eval_json": True, "metrics": True}
 
 
+@pytest.mark.slow
 def test_saved_on_two_devices_resumes_on_one_and_on_four_as_the_uninterrupted_run(single_host):
     _, found = single_host
     assert found["resumed"] == {"1": True, "4": True}
 
 
+@pytest.mark.slow
 def test_a_sweep_member_equals_a_separate_train_of_its_config_and_seed(single_host):
     _, found = single_host
     assert found["sweep_exit"] == 0 and found["train_exit"] == 0
@@ -126,6 +131,7 @@ def test_a_sweep_member_equals_a_separate_train_of_its_config_and_seed(single_ho
     assert all(len(c["mean_return"]) == len(c["solve_step"]) == 2 for c in summary["configs"])
 
 
+@pytest.mark.slow
 def test_uneven_seeds_are_refused_naming_what_works_and_the_default_uses_the_devices_that_fit(single_host):
     _, found = single_host
     assert found["uneven"] == "6 seeds do not split evenly over 4 devices: use --seeds 4 or 8, or --devices 3"
@@ -146,6 +152,7 @@ def without_gloo_logs(stdout: str) -> str:
     return re.sub(r"\d+ is connected to \d+ peer ranks\. Expected number of connected peer ranks is : \d+", "", stdout)
 
 
+@pytest.mark.slow
 def test_two_processes_with_jax_distributed_train_and_write_one_output_directory(tmp_path, single_host):
     out = tmp_path / "run"
     port = free_port()
@@ -193,6 +200,7 @@ def test_sweep_refuses_shape_fields_and_resume_of_the_other_kind(tmp_path, capsy
         main(["sweep", "--out", str(run), "--resume"])
 
 
+@pytest.mark.slow
 def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_path):
     tiny = ["--total_steps", "400", "--eval_every", "200", "--learning_starts", "64", "--batch_size", "32",
             "--buffer_size", "256", "--eval_episodes", "2", "--hidden", "16"]
