@@ -18,6 +18,7 @@ from envs.tasks.acrobot_mjx import AcrobotMjx
 from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.tasks.cartpole_mjx import CartPoleMjx
 from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
+from envs.tasks.half_cheetah import HalfCheetah, HalfCheetahParams
 from envs.tasks.inverted_pendulums import (
     InvertedDoublePendulum, InvertedDoublePendulumParams, InvertedPendulum, InvertedPendulumParams,
 )
@@ -41,7 +42,8 @@ register("cartpole-mjx", CartPoleMjx, episode_length=500)
 register("cartpole-swingup-mjx", CartPoleSwingUpMjx, episode_length=1000)
 register("pendulum-mjx", PendulumMjx, episode_length=200)
 register("pendulum-mjx-discrete", functools.partial(PendulumMjx, action_bins=DISCRETE_TORQUE_BINS), episode_length=200)
-# Gymnasium's MuJoCo v5 tasks; episode_length is Gymnasium's max_episode_steps.
+# Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
+register("half-cheetah", HalfCheetah, episode_length=1000)
 register("inverted-pendulum", InvertedPendulum, episode_length=1000)
 register("inverted-double-pendulum", InvertedDoublePendulum, episode_length=1000)
 register("reacher", Reacher, episode_length=50)
@@ -52,7 +54,8 @@ __all__ = [
     "EpisodeStats", "MjxEnv", "State", "TimeLimit", "VmapWrapper", "Wrapper",
     "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
     "PendulumMjx", "PendulumParams",
-    "CartPoleSwingUpMjx", "SwingUpRules",
+    "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
+    "HalfCheetah", "HalfCheetahParams",
     "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
-    "Reacher", "ReacherParams", "BraxEnv", "to_brax", "Randomize", "randomize",
+    "Reacher", "ReacherParams",
 ]

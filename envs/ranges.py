@@ -11,8 +11,20 @@ from typing import Any, Mapping
 import numpy as np
 
 
+class Valid:
+    """What a table of valid values holds: `value in valid`, `str(valid)` and `check`."""
+
+    def __contains__(self, value: Any) -> bool:
+        raise NotImplementedError
+
+    def check(self, option: str, value: Any) -> Any:
+        if value not in self:
+            raise ValueError(f"{option} must be {self}, got {value!r}")
+        return value
+
+
 @dataclasses.dataclass(frozen=True)
-class Range:
+class Range(Valid):
     """Finite numbers from `low` to `high`; NaN and infinities are never in a range."""
 
     low: float = -math.inf
@@ -39,10 +51,34 @@ class Range:
             return f"a finite number {'>' if self.low_open else '>='} {self.low:g}"
         return f"in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
 
-    def check(self, option: str, value: Any) -> Any:
-        if value not in self:
-            raise ValueError(f"{option} must be {self}, got {value!r}")
-        return value
+
+class Interval(Valid):
+    """A pair (low, high) of numbers with low < high, either end possibly infinite: the open
+    interval a value must lie in, as Gymnasium's `healthy_z_range=(0.7, inf)`."""
+
+    def __contains__(self, value: Any) -> bool:
+        if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or len(value) != 2:
+            return False
+        if any(isinstance(v, bool) for v in value):
+            return False
+        try:
+            low, high = (float(v) for v in value)
+        except (TypeError, ValueError):
+            return False
+        return low < high  # False for NaN too
+
+    def __str__(self) -> str:
+        return "a pair (low, high) of numbers with low < high (either may be +-inf)"
+
+
+class Flag(Valid):
+    """True or False (a switch such as Gymnasium's `terminate_when_unhealthy`)."""
+
+    def __contains__(self, value: Any) -> bool:
+        return isinstance(value, (bool, np.bool_))
+
+    def __str__(self) -> str:
+        return "True or False"
 
 
 FINITE = Range()
@@ -51,9 +87,11 @@ NON_NEGATIVE = Range(0.0)
 PROBABILITY = Range(0.0, 1.0)
 COUNT = Range(1, integer=True)
 NON_NEGATIVE_COUNT = Range(0, integer=True)
+INTERVAL = Interval()
+FLAG = Flag()
 
 
-def check_fields(obj: Any, ranges: Mapping[str, Range]) -> None:
+def check_fields(obj: Any, ranges: Mapping[str, Valid]) -> None:
     """Check the fields of a config dataclass against its `RANGES` table."""
     for name, valid in ranges.items():
         valid.check(f"{type(obj).__name__}.{name}", getattr(obj, name))

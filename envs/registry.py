@@ -101,6 +101,8 @@ def parse_option(name: str, option: str, text: str) -> Any:
             return text.lower() in ("true", "1", "yes")
         if isinstance(default, (int, float)):
             return type(default)(text)
+        if isinstance(default, tuple):  # an interval such as healthy_z_range, written LOW,HIGH (inf allowed)
+            return tuple(float(part) for part in text.split(","))
         if default is None:  # no type to go by: a number if it reads as one
             for kind in (int, float):
                 try:

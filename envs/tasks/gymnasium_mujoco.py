@@ -1,0 +1,86 @@
+"""What Gymnasium's MuJoCo v5 tasks share, read from gymnasium/envs/mujoco/mujoco_env.py.
+
+A task is Gymnasium's MJCF (loaded from the installed gymnasium package, never copied here)
+stepped `frame_skip` times per env step, reset to the model's `qpos0` (and zero velocity)
+plus noise, observing qpos and qvel with the first `skipped_qpos` positions (the
+horizontal position, which no reward depends on) left out unless
+`exclude_current_positions_from_observation=False`. The forward reward is the
+torso's displacement over the env step divided by its duration, measured from qpos
+before and after the step, as Gymnasium does; the control cost is the weight times
+the sum of the squared controls (Gymnasium's action is the ctrl it sets: the env's
+[-1, 1] action scaled to the actuators' ctrlrange, `data.ctrl` here).
+
+Each task reports the terms of its reward and Gymnasium's other `info` values
+(`reward_forward`, `reward_ctrl`, `x_velocity`, `x_position`, ...) in `state.metrics`.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs.assets import gymnasium_asset
+from envs.mjx_env import MjxEnv, mjx
+from envs.ranges import check_fields
+
+
+class GymnasiumMujocoEnv(MjxEnv):
+    """A Gymnasium MuJoCo v5 task. Subclasses set the class attributes below, take a params
+    dataclass (v5's constructor arguments, with `RANGES`) and fill in `reward`, `terminated`
+    and, where Gymnasium draws velocities differently, `initial_qvel_noise`."""
+
+    gymnasium_id: ClassVar[str]  # Gymnasium's name of the task, e.g. "HalfCheetah-v5"
+    xml_file: ClassVar[str]  # the MJCF file in gymnasium/envs/mujoco/assets
+    frame_skip: ClassVar[int]  # MuJoCo steps per env step (Gymnasium's default for the task)
+    skipped_qpos: ClassVar[int] = 1  # leading qpos left out by exclude_current_positions_from_observation
+    velocity_clip: ClassVar[float | None] = None  # Hopper and Walker2d clip qvel to +-10 in the observation
+
+    def __init__(self, params, xml: str | None = None):
+        check_fields(params, getattr(params, "RANGES", {}))  # also when built without envs.make
+        self.params = params
+        self.n_substeps = self.frame_skip
+        super().__init__(xml if xml is not None else gymnasium_asset(self.xml_file))
+        # Gymnasium's init_qpos/init_qvel: what mj_resetData leaves (qpos0, zero velocity).
+        self.init_qpos = self.mj_model.qpos0.copy()
+        self.init_qvel = np.zeros(self.mj_model.nv)
+
+    @property
+    def name(self) -> str:
+        return self.gymnasium_id
+
+    @property
+    def observation_size(self) -> int:
+        skipped = self.skipped_qpos if self.params.exclude_current_positions_from_observation else 0
+        return self.mj_model.nq - skipped + self.mj_model.nv
+
+    # ---- reset --------------------------------------------------------------
+    def initial_qpos_qvel(self, key):
+        qpos_key, qvel_key = jax.random.split(key)
+        scale = self.params.reset_noise_scale
+        qpos = self.init_qpos + jax.random.uniform(qpos_key, self.init_qpos.shape, minval=-scale, maxval=scale)
+        return qpos, self.init_qvel + self.initial_qvel_noise(qvel_key)
+
+    def initial_qvel_noise(self, key: jax.Array) -> jax.Array:
+        """Most v5 tasks add U(-reset_noise_scale, reset_noise_scale) to every velocity."""
+        scale = self.params.reset_noise_scale
+        return jax.random.uniform(key, self.init_qvel.shape, minval=-scale, maxval=scale)
+
+    # ---- what the tasks compute alike ------------------------------------------
+    def observation(self, data: mjx.Data) -> jax.Array:
+        position = data.qpos[self.skipped_qpos:] if self.params.exclude_current_positions_from_observation else data.qpos
+        velocity = data.qvel if self.velocity_clip is None else jnp.clip(data.qvel, -self.velocity_clip, self.velocity_clip)
+        return jnp.concatenate([position, velocity])
+
+    def velocity(self, data: mjx.Data, prev: mjx.Data, index: int = 0) -> jax.Array:
+        """qpos[index]'s change over the env step divided by its duration (Gymnasium's x_velocity)."""
+        return (data.qpos[index] - prev.qpos[index]) / self.dt
+
+    def control_cost(self, data: mjx.Data) -> jax.Array:
+        return self.params.ctrl_cost_weight * jnp.sum(jnp.square(data.ctrl))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(params={self.params})"
+
