@@ -18,6 +18,7 @@ from envs.tasks.acrobot_mjx import AcrobotMjx
 from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.tasks.cartpole_mjx import CartPoleMjx
 from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
+from envs.tasks.ant import Ant, AntParams
 from envs.tasks.half_cheetah import HalfCheetah, HalfCheetahParams
 from envs.tasks.inverted_pendulums import (
     InvertedDoublePendulum, InvertedDoublePendulumParams, InvertedPendulum, InvertedPendulumParams,
@@ -47,6 +48,7 @@ register("half-cheetah", HalfCheetah, episode_length=1000)
 register("inverted-pendulum", InvertedPendulum, episode_length=1000)
 register("inverted-double-pendulum", InvertedDoublePendulum, episode_length=1000)
 register("reacher", Reacher, episode_length=50)
+register("ant", Ant, episode_length=1000)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
@@ -57,5 +59,5 @@ __all__ = [
     "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
     "HalfCheetah", "HalfCheetahParams",
     "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
-    "Reacher", "ReacherParams",
+    "Reacher", "ReacherParams", "Ant", "AntParams",
 ]

@@ -26,90 +26,77 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from envs.assets import gymnasium_asset
-from envs.mjx_env import MjxEnv, mjx
-from envs.ranges import FINITE, NON_NEGATIVE, Range
+from envs.mjx_env import mjx
+from envs.ranges import FINITE, NON_NEGATIVE, Valid
+from envs.tasks.gymnasium_mujoco import GymnasiumMujocoEnv
 
 
 @struct.dataclass
 class InvertedPendulumParams:
-    """InvertedPendulum-v5's constructor arguments (envs.make overrides)."""
+    """InvertedPendulum-v5's constructor arguments (same names and defaults)."""
 
     reset_noise_scale: float = 0.01  # qpos, qvel = init + U(-scale, scale)
 
-    RANGES: ClassVar[dict[str, Range]] = {"reset_noise_scale": NON_NEGATIVE}
+    RANGES: ClassVar[dict[str, Valid]] = {"reset_noise_scale": NON_NEGATIVE}
 
 
 @struct.dataclass
 class InvertedDoublePendulumParams:
-    """InvertedDoublePendulum-v5's constructor arguments (envs.make overrides)."""
+    """InvertedDoublePendulum-v5's constructor arguments (same names and defaults)."""
 
     healthy_reward: float = 10.0  # paid on every step that does not terminate
     reset_noise_scale: float = 0.1  # qpos = init + U(-scale, scale), qvel = init + scale * N(0, 1)
 
-    RANGES: ClassVar[dict[str, Range]] = {"healthy_reward": FINITE, "reset_noise_scale": NON_NEGATIVE}
+    RANGES: ClassVar[dict[str, Valid]] = {"healthy_reward": FINITE, "reset_noise_scale": NON_NEGATIVE}
 
 
-class InvertedPendulum(MjxEnv):
+class InvertedPendulum(GymnasiumMujocoEnv):
     """Gymnasium's InvertedPendulum-v5: balance a pole on a cart (see the module docs)."""
 
-    observation_size = 4
+    gymnasium_id = "InvertedPendulum-v5"
+    xml_file = "inverted_pendulum.xml"
+    frame_skip = 2
+    observation_size = 4  # qpos and qvel, nothing left out
     observation_names = ("cart_x", "pole_angle", "cart_velocity", "pole_angular_velocity")
-    n_substeps = 2  # Gymnasium's frame_skip
     max_pole_angle = 0.2  # rad; Gymnasium terminates past it
 
-    def __init__(self, params: InvertedPendulumParams = InvertedPendulumParams()):
-        super().__init__(gymnasium_asset("inverted_pendulum.xml"))
-        self.params = params
-
-    def initial_qpos_qvel(self, key):
-        qpos_key, qvel_key = jax.random.split(key)
-        scale = self.params.reset_noise_scale
-        qpos = self.mjx_model.qpos0 + jax.random.uniform(qpos_key, (self.mj_model.nq,), minval=-scale, maxval=scale)
-        qvel = jax.random.uniform(qvel_key, (self.mj_model.nv,), minval=-scale, maxval=scale)
-        return qpos, qvel
+    def __init__(self, params: InvertedPendulumParams = InvertedPendulumParams(), xml: str | None = None):
+        super().__init__(params, xml)
 
     def observation(self, data: mjx.Data) -> jax.Array:
         return jnp.concatenate([data.qpos, data.qvel])
 
     def terminated(self, data: mjx.Data) -> jax.Array:
-        obs = self.observation(data)
-        return ~jnp.isfinite(obs).all() | (jnp.abs(data.qpos[1]) > self.max_pole_angle)
+        return ~jnp.isfinite(self.observation(data)).all() | (jnp.abs(data.qpos[1]) > self.max_pole_angle)
 
     def reward(self, data, action, prev):
         survive = jnp.where(self.terminated(data), 0.0, 1.0)
         return survive, {"reward_survive": survive}
 
-    def __repr__(self) -> str:
-        return f"InvertedPendulum(params={self.params})"
 
-
-class InvertedDoublePendulum(MjxEnv):
+class InvertedDoublePendulum(GymnasiumMujocoEnv):
     """Gymnasium's InvertedDoublePendulum-v5: balance two stacked poles on a cart."""
 
+    gymnasium_id = "InvertedDoublePendulum-v5"
+    xml_file = "inverted_double_pendulum.xml"
+    frame_skip = 5
     observation_size = 9
     observation_names = ("cart_x", "sin_hinge1", "sin_hinge2", "cos_hinge1", "cos_hinge2",
                          "cart_velocity", "hinge1_velocity", "hinge2_velocity", "cart_constraint_force")
-    n_substeps = 5  # Gymnasium's frame_skip
     # The observation reads the tip site and the cart's constraint force, which mjx.forward
     # computes at reset as Gymnasium's set_state (mj_forward) does.
     forward_on_reset = True
     min_tip_height = 1.0  # m; Gymnasium terminates when the tip is at or below it
-    velocity_clip = 10.0  # Gymnasium clips qvel and the constraint force to +-10 in the observation
+    observation_clip = 10.0  # Gymnasium clips qvel and the constraint force to +-10 in the observation
 
-    def __init__(self, params: InvertedDoublePendulumParams = InvertedDoublePendulumParams()):
-        super().__init__(gymnasium_asset("inverted_double_pendulum.xml"))
-        self.params = params
+    def __init__(self, params: InvertedDoublePendulumParams = InvertedDoublePendulumParams(), xml: str | None = None):
+        super().__init__(params, xml)
 
-    def initial_qpos_qvel(self, key):
-        qpos_key, qvel_key = jax.random.split(key)
-        scale = self.params.reset_noise_scale
-        qpos = self.mjx_model.qpos0 + jax.random.uniform(qpos_key, (self.mj_model.nq,), minval=-scale, maxval=scale)
-        qvel = scale * jax.random.normal(qvel_key, (self.mj_model.nv,))
-        return qpos, qvel
+    def initial_qvel_noise(self, key: jax.Array) -> jax.Array:
+        return self.params.reset_noise_scale * jax.random.normal(key, self.init_qvel.shape)
 
     def observation(self, data: mjx.Data) -> jax.Array:
-        clip = self.velocity_clip
+        clip = self.observation_clip
         return jnp.concatenate([
             data.qpos[:1],
             jnp.sin(data.qpos[1:]),
@@ -129,6 +116,3 @@ class InvertedDoublePendulum(MjxEnv):
         survive = jnp.where(self.terminated(data), 0.0, self.params.healthy_reward)
         terms = {"reward_survive": survive, "distance_penalty": -distance_penalty, "velocity_penalty": -velocity_penalty}
         return survive - distance_penalty - velocity_penalty, terms
-
-    def __repr__(self) -> str:
-        return f"InvertedDoublePendulum(params={self.params})"

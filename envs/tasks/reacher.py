@@ -26,43 +26,44 @@ import jax.numpy as jnp
 import mujoco
 from flax import struct
 
-from envs.assets import gymnasium_asset
-from envs.mjx_env import MjxEnv, mjx
-from envs.ranges import FINITE, Range
+from envs.mjx_env import mjx
+from envs.ranges import FINITE, Valid
+from envs.tasks.gymnasium_mujoco import GymnasiumMujocoEnv
 
 
 @struct.dataclass
 class ReacherParams:
-    """Reacher-v5's constructor arguments (envs.make overrides)."""
+    """Reacher-v5's constructor arguments (same names and defaults)."""
 
     reward_dist_weight: float = 1.0
     reward_control_weight: float = 1.0
 
-    RANGES: ClassVar[dict[str, Range]] = {"reward_dist_weight": FINITE, "reward_control_weight": FINITE}
+    RANGES: ClassVar[dict[str, Valid]] = {"reward_dist_weight": FINITE, "reward_control_weight": FINITE}
 
 
-class Reacher(MjxEnv):
+class Reacher(GymnasiumMujocoEnv):
     """Gymnasium's Reacher-v5 (see the module docs)."""
 
+    gymnasium_id = "Reacher-v5"
+    xml_file = "reacher.xml"
+    frame_skip = 2
     observation_size = 10
     observation_names = ("cos_joint0", "cos_joint1", "sin_joint0", "sin_joint1", "target_x", "target_y",
                          "joint0_velocity", "joint1_velocity", "fingertip_minus_target_x", "fingertip_minus_target_y")
-    n_substeps = 2  # Gymnasium's frame_skip
     forward_on_reset = True  # the observation reads body positions, which mj_forward computes at reset
     arm_angle_noise = 0.1  # arm angles = qpos0 + U(-0.1, 0.1) at reset
     arm_speed_noise = 0.005  # arm angular velocities U(-0.005, 0.005) at reset
     target_radius = 0.2  # the target is uniform in the disc of this radius
 
-    def __init__(self, params: ReacherParams = ReacherParams()):
-        super().__init__(gymnasium_asset("reacher.xml"))
-        self.params = params
+    def __init__(self, params: ReacherParams = ReacherParams(), xml: str | None = None):
+        super().__init__(params, xml)
         self._fingertip = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_BODY, "fingertip")
         self._target = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_BODY, "target")
 
     def initial_qpos_qvel(self, key):
         arm_key, radius_key, angle_key, speed_key = jax.random.split(key, 4)
-        arm = self.mjx_model.qpos0[:2] + jax.random.uniform(
-            arm_key, (2,), minval=-self.arm_angle_noise, maxval=self.arm_angle_noise)
+        arm = self.init_qpos[:2] + jax.random.uniform(arm_key, (2,), minval=-self.arm_angle_noise,
+                                                      maxval=self.arm_angle_noise)
         radius = self.target_radius * jnp.sqrt(jax.random.uniform(radius_key))
         angle = jax.random.uniform(angle_key, minval=-jnp.pi, maxval=jnp.pi)
         target = radius * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
@@ -80,11 +81,8 @@ class Reacher(MjxEnv):
 
     def reward(self, data, action, prev):
         reward_dist = -jnp.linalg.norm(self._fingertip_to_target(data)) * self.params.reward_dist_weight
-        reward_ctrl = -jnp.sum(data.ctrl**2) * self.params.reward_control_weight
+        reward_ctrl = -jnp.sum(jnp.square(data.ctrl)) * self.params.reward_control_weight
         return reward_dist + reward_ctrl, {"reward_dist": reward_dist, "reward_ctrl": reward_ctrl}
 
     def terminated(self, data: mjx.Data) -> jax.Array:
         return jnp.zeros((), bool)
-
-    def __repr__(self) -> str:
-        return f"Reacher(params={self.params})"
