@@ -12,8 +12,9 @@ import os
 import sys
 from pathlib import Path
 
+import envs
 from agents import cli
-from benchmarks.suite import SECTIONS
+from benchmarks.suite import DEFAULT_SECTIONS, SECTIONS
 
 
 def add_parser(sub) -> None:
@@ -22,10 +23,10 @@ def add_parser(sub) -> None:
                                        "Peers come from the bench extra; a missing one is recorded as skipped.")
     bench.add_argument("--quick", action="store_true", help="fewer batch sizes, repeats and DQN runs (minutes on a CPU)")
     bench.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
-    bench.add_argument("--sections", nargs="+", default=list(SECTIONS), choices=SECTIONS,
-                       help="what to run (default: all)")
-    bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=["cartpole", "cartpole-mjx"],
-                       help="our envs in the env section (default: both)")
+    bench.add_argument("--sections", nargs="+", default=list(DEFAULT_SECTIONS), choices=SECTIONS,
+                       help=f"what to run (default: {' '.join(DEFAULT_SECTIONS)})")
+    bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=envs.names(),
+                       help="our envs in the env section (default: the two CartPoles; any registered env)")
     bench.add_argument("--batch", nargs="+", type=int, metavar="N", help="env batch sizes (default: by device)")
     bench.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=["gymnax", "playground"],
                        help="peer libraries in the env section (none: ours only)")

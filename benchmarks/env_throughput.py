@@ -9,7 +9,9 @@ alternating, so their ratio is not skewed by a change in the machine's speed.
 
 Pairs compared: our analytic `cartpole` with gymnax `CartPole-v1`, our
 `cartpole-mjx` with MuJoCo Playground `CartpoleBalance` (impl="jax"); see
-`benchmarks.peers`. The batch sizes depend on the device (`batch_sizes`).
+`benchmarks.peers`. Any other registered env runs alone (`--envs half-cheetah`; a
+continuous env under uniform actions in [-1, 1]; `benchmarks.gym_mujoco` sets Gymnasium's
+MuJoCo tasks beside Brax and Gymnasium). The batch sizes depend on the device (`batch_sizes`).
 
     python -m benchmarks.env_throughput [--quick] [--envs cartpole cartpole-mjx] [--peers gymnax playground]
                          [--batch 1 256 4096] [--json FILE]
@@ -51,13 +53,27 @@ def batch_sizes(env_name: str, quick: bool = False, on: str | None = None) -> li
     size is recorded as skipped and ends the series).
     """
     on = on or platform()
-    mjx = env_name in ("cartpole-mjx", "playground")
+    mjx = is_mjx(env_name)
     if on == "cpu":
         return [1, 4096] if quick else [1, 16, 256, 1024, 4096, 16384]
     largest = 2**18 if mjx else 2**20
     sizes = [1, 256, 4096, 32768, 131072] + ([262144] if mjx else [1048576])
     sizes = [n for n in sizes if n <= largest]
     return [1, 4096, 131072] + ([] if mjx else [1048576]) if quick else sizes
+
+
+def is_mjx(env_name: str) -> bool:
+    """Whether `env_name` (one of ours, a peer library or a peer's env) steps MJX physics."""
+    if env_name in ("playground", "CartpoleBalance"):
+        return True
+    return env_name in envs.names() and isinstance(envs.make(env_name).unwrapped, envs.MjxEnv)
+
+
+def random_env_actions(key: jax.Array, env: envs.Env, num_envs: int) -> jax.Array:
+    """Uniform random actions of a batch: action indices, or continuous actions in [-1, 1]."""
+    if env.num_actions:
+        return random_actions(key, num_envs, env.num_actions)
+    return jax.random.uniform(key, (num_envs, env.action_size), minval=-1.0, maxval=1.0)
 
 
 def steps_for(num_envs: int, mjx: bool = False, on: str | None = None) -> int:
@@ -87,7 +103,7 @@ def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | Non
     def body(carry, _):
         state, key, total = carry
         key, action_key = jax.random.split(key)
-        action = random_actions(action_key, num_envs, env.num_actions)
+        action = random_env_actions(action_key, env, num_envs)
         state = env.step(state, action)
         return (state, key, total + state.reward.sum()), None
 
@@ -145,7 +161,7 @@ def measure(jobs: list[tuple[str, str]], num_envs: int, steps: int | None = None
     cannot run (peer missing, out of memory) is recorded as skipped, with the reason."""
     records, compiled = [], []
     for lib, env_name in jobs:
-        n_steps = steps or steps_for(num_envs, mjx=env_name in ("cartpole-mjx", "CartpoleBalance"))
+        n_steps = steps or steps_for(num_envs, mjx=is_mjx(env_name))
         run, compile_s, skipped = _compile(lib, env_name, num_envs, n_steps)
         record = _record(lib, env_name, num_envs, n_steps, repeats)
         records.append({**record, "skipped": skipped} if skipped else {**record, "compile_s": compile_s})
@@ -172,8 +188,8 @@ def throughput_records(ours=OURS, peers=("gymnax", "playground"), batch=None, qu
     is not tried at larger sizes."""
     repeats = repeats or (3 if quick else 5)
     groups = [[("mjxsuite", name)] + ([(PEER_OF[name], peer_libs.PEER_ENVS[PEER_OF[name]])]
-                                      if PEER_OF[name] in peers else []) for name in ours]
-    paired = {PEER_OF[name] for name in ours}
+                                      if PEER_OF.get(name) in peers else []) for name in ours]
+    paired = {PEER_OF.get(name) for name in ours}
     groups += [[(peer, peer_libs.PEER_ENVS[peer])] for peer in peers if peer not in paired]
     records = []
     if print_rows:
@@ -235,7 +251,7 @@ def step_hlo_counts(env_name: str, num_envs: int) -> dict:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="fewer batch sizes and repeats")
-    parser.add_argument("--envs", nargs="+", default=list(OURS), choices=list(OURS))
+    parser.add_argument("--envs", nargs="+", default=list(OURS), choices=envs.names())
     parser.add_argument("--peers", nargs="*", default=["gymnax", "playground"], choices=list(peer_libs.ROLLOUTS))
     parser.add_argument("--batch", nargs="+", type=int, help="batch sizes (default: by device)")
     parser.add_argument("--repeats", type=int)

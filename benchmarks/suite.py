@@ -9,7 +9,10 @@ Sections (all by default; pick with `--sections`):
   CartPole-v1 on both backends with and without compile (`benchmarks.dqn`);
 - `logging`: writing a 100,000-step rollout to a Rerun file (`benchmarks.rerun_logging`);
 - `startup`: `mjxsuite train --env cartpole-mjx --steps 2000` in fresh processes sharing
-  a fresh persistent compilation cache, once cold and three times warm: compile_s of each.
+  a fresh persistent compilation cache, once cold and three times warm: compile_s of each;
+- `gym-mujoco` (only when named): env-steps/s of Gymnasium's MuJoCo tasks with impl "jax" (and
+  "warp" where it runs) beside Brax's look-alikes and Gymnasium's own vector env
+  (`benchmarks.gym_mujoco`; `--batch` sets its sizes, default 4,096 and 32,768).
 
 Records are a JSON list; every record has `kind`, `lib`, `device`; env-throughput records
 also `env`, `num_envs`, `steps_per_s`, `compile_s`. A peer or section that cannot run
@@ -17,7 +20,7 @@ is recorded with `skipped` and the reason. The first record (`kind: meta`) says 
 ran where. The bench itself does not use the persistent cache: its compile times are
 cold compiles.
 
-    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup]
+    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup gym-mujoco]
     mjxsuite bench --plot FILE.json [--out docs/throughput.png]   # the plot, from saved records
     mjxsuite bench --table FILE.json                               # markdown tables, from saved records
 """
@@ -34,7 +37,8 @@ import tempfile
 import time
 from pathlib import Path
 
-SECTIONS = ("env", "dqn", "logging", "startup")
+SECTIONS = ("env", "dqn", "logging", "startup", "gym-mujoco")
+DEFAULT_SECTIONS = ("env", "dqn", "logging", "startup")  # gym-mujoco takes long: run it by name
 
 
 def _cpu_model() -> str | None:
@@ -73,6 +77,15 @@ def env_section(quick: bool, batch=None, ours=("cartpole", "cartpole-mjx"), peer
     for r in ratios:
         print(f"   {r['env']} / {r['peer']} {r['peer_env']} at {r['num_envs']:,} envs: {r['ratio']:.2f}x")
     return records + ratios
+
+
+def gym_mujoco_section(quick: bool, batch=None, repeats=None) -> list[dict]:
+    from benchmarks import gym_mujoco
+
+    print("== Gymnasium's MuJoCo tasks: env-steps/s beside Brax's envs and Gymnasium's vector env ==")
+    impls = ["jax", "warp"] if gym_mujoco.warp_available() else ["jax"]
+    return gym_mujoco.run_benchmark(gym_mujoco.gymnasium_tasks(), batch or ([4096] if quick else [4096, 32768]),
+                                    impls, repeats=repeats or 3)
 
 
 def dqn_section(quick: bool, peer_dqn: str | None = None) -> list[dict]:
@@ -133,7 +146,7 @@ def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int
     return records
 
 
-def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
+def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
               peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
     from agents import compile_cache
@@ -148,6 +161,7 @@ def run_bench(quick: bool = False, sections=SECTIONS, batch=None, ours=("cartpol
         "dqn": lambda: dqn_section(quick, peer_dqn),
         "logging": lambda: logging_section(quick),
         "startup": startup_section,
+        "gym-mujoco": lambda: gym_mujoco_section(quick, batch, repeats),
     }
     for section in sections:
         start = time.perf_counter()

@@ -25,6 +25,8 @@ from envs.tasks.inverted_pendulums import (
 )
 from envs.tasks.reacher import Reacher, ReacherParams
 from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
+from envs.tasks.swimmer import Swimmer, SwimmerParams
+from envs.tasks.walkers import Hopper, HopperParams, Walker2d, Walker2dParams
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 
@@ -45,6 +47,9 @@ register("pendulum-mjx", PendulumMjx, episode_length=200)
 register("pendulum-mjx-discrete", functools.partial(PendulumMjx, action_bins=DISCRETE_TORQUE_BINS), episode_length=200)
 # Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
 register("half-cheetah", HalfCheetah, episode_length=1000)
+register("hopper", Hopper, episode_length=1000)
+register("walker2d", Walker2d, episode_length=1000)
+register("swimmer", Swimmer, episode_length=1000)
 register("inverted-pendulum", InvertedPendulum, episode_length=1000)
 register("inverted-double-pendulum", InvertedDoublePendulum, episode_length=1000)
 register("reacher", Reacher, episode_length=50)
@@ -57,7 +62,8 @@ __all__ = [
     "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
     "PendulumMjx", "PendulumParams",
     "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
-    "HalfCheetah", "HalfCheetahParams",
+    "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
+    "Swimmer", "SwimmerParams",
     "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
     "Reacher", "ReacherParams", "Ant", "AntParams",
 ]

@@ -220,3 +220,12 @@ def assert_same_options(name: str, gymnasium_id: str) -> None:
     ours = {field.name: getattr(params, field.name) for field in dataclasses.fields(params)}
     assert ours == theirs
     assert options["episode_length"] == spec.max_episode_steps
+
+
+def assert_passes_check_env(name: str, gymnasium_id: str) -> None:
+    """`envs.to_gymnasium(name)` passes Gymnasium's env checker with Gymnasium's action space."""
+    from test_gym_interop import check_env_warnings  # its filter of the unbounded-observation warnings
+
+    env = envs.to_gymnasium(name)
+    assert env.action_space == gymnasium.make(gymnasium_id).action_space
+    assert check_env_warnings(env, skip_render_check=True) == []

@@ -100,3 +100,42 @@ def test_bench_refuses_an_unwritable_json_path_before_running_and_creates_nothin
         with pytest.raises(SystemExit, match="cannot write"):
             cli_main(["bench", "--json", str(target)])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a-file"]
+
+
+# ---- benchmarks.gym_mujoco ---------------------------------------------------------------
+def test_gym_mujoco_finds_every_gymnasium_task():
+    from benchmarks import gym_mujoco
+
+    tasks = gym_mujoco.gymnasium_tasks()
+    assert {"half-cheetah", "hopper", "walker2d", "swimmer"} <= set(tasks) and "cartpole-mjx" not in tasks
+
+
+def test_gym_mujoco_compares_with_brax_only_at_equal_solver_options():
+    from benchmarks import gym_mujoco
+
+    gymnasium_solver = {"solver": 2, "iterations": 100, "ls_iterations": 50, "tolerance": 1e-8, "integrator": 0}
+    brax_solver = {**gymnasium_solver, "iterations": 4}
+    record = lambda lib, speed, num_envs=4096, **extra: {"lib": lib, "env": "half-cheetah", "num_envs": num_envs,
+                                                         "steps_per_s": speed, "device": "d", **extra}
+    records = [record("mjxsuite", 1e6, impl="jax", solver=gymnasium_solver),
+               record("brax", 4e6, solver=brax_solver), record("brax", 5e5, solver=gymnasium_solver),
+               record("brax", 9e5, num_envs=32768, solver=gymnasium_solver), record("gymnasium", 1e4, num_envs=16)]
+    ratios = {(r["peer"], r["peer_num_envs"]): r["ratio"] for r in gym_mujoco.ratio_records(records)}
+    assert ratios == {("brax", 4096): pytest.approx(2.0), ("gymnasium", 16): pytest.approx(100.0)}
+
+
+@pytest.mark.slow
+def test_gym_mujoco_runs_on_the_cpu_with_tiny_sizes(tmp_path):
+    from benchmarks import gym_mujoco
+
+    out = tmp_path / "gym.json"
+    gym_mujoco.main(["--tasks", "half-cheetah", "--sizes", "2", "--steps", "3", "--gymnasium-steps", "5",
+                     "--repeats", "1", "--json", str(out)])
+    meta, *records = json.loads(out.read_text())
+    assert meta["kind"] == "meta"
+    speeds = {(r["lib"], r.get("impl") or r.get("solver_from")): r for r in records if r["kind"] == "gym-mujoco"}
+    assert set(speeds) == {("gymnasium", None), ("mjxsuite", "jax"), ("brax", "own"), ("brax", "gymnasium")}
+    assert all(r["steps_per_s"] > 0 for r in speeds.values())
+    assert speeds["brax", "gymnasium"]["solver"] == speeds["mjxsuite", "jax"]["solver"] == speeds["gymnasium", None]["solver"]
+    assert speeds["brax", "own"]["solver"]["iterations"] == 4
+    assert {r["peer"] for r in records if r["kind"] == "gym-mujoco-ratio"} == {"brax", "gymnasium"}

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_resets_match, assert_same_options, assert_steps_match, exact_noise_bounds,
-                                    gymnasium_kwargs, gymnasium_reset_samples, gymnasium_steps, reset_samples,
-                                    transitions)
+from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options,
+                              assert_steps_match, exact_noise_bounds, gymnasium_kwargs,
+                              gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
 
 NAME, GYMNASIUM_ID = "half-cheetah", "HalfCheetah-v5"
 # float32 (ours) against float64 (Gymnasium), one env step of 5 MuJoCo steps with contacts: positions
@@ -59,3 +59,8 @@ def test_reset_distribution_matches_gymnasium():
     np.testing.assert_array_equal(obs, np.concatenate([qpos[:, 1:], qvel], axis=1))
     exact_noise_bounds(qpos, 0.0, 0.1, "qpos")  # U(-0.1, 0.1) around qpos0 = 0
     assert np.abs(qvel).max() > 0.3, "velocities are 0.1 * N(0, 1), not uniform"
+
+
+@pytest.mark.slow  # a compile of its own; test_gym_interop's slow check_env test covers every env too
+def test_to_gymnasium_passes_check_env():
+    assert_passes_check_env(NAME, GYMNASIUM_ID)
