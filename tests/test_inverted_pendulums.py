@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_resets_match, assert_same_options, assert_steps_match, exact_noise_bounds,
-                              gymnasium_reset_samples, gymnasium_steps, lockstep, reset_samples, select,
-                              transitions)
+from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options, assert_steps_match,
+                              exact_noise_bounds, gymnasium_reset_samples, gymnasium_steps, lockstep, reset_samples,
+                              select, transitions)
 
 # float32 (ours) against float64 (Gymnasium), no contacts: observations agree to ~5e-7
 # (InvertedPendulum) and ~2e-6 (InvertedDoublePendulum), rewards to ~1e-6 (measured).
@@ -81,3 +81,9 @@ def test_inverted_double_pendulum_reset_distribution_matches_gymnasium():
     assert_resets_match(obs, their_obs, "observation")  # tip and constraint force from mj_forward at reset
     exact_noise_bounds(qpos, 0.0, 0.1, "qpos")
     assert np.abs(qvel).max() > 0.25, "velocities are 0.1 * N(0, 1), not uniform"
+
+
+@pytest.mark.parametrize("name, gymnasium_id", [("inverted-pendulum", "InvertedPendulum-v5"),
+                                                ("inverted-double-pendulum", "InvertedDoublePendulum-v5")])
+def test_to_gymnasium_passes_check_env(name, gymnasium_id):
+    assert_passes_check_env(name, gymnasium_id)

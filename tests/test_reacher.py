@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_resets_match, assert_same_options, assert_steps_match, exact_noise_bounds,
-                              gymnasium_reset_samples, gymnasium_steps, lockstep, reset_samples, select,
-                              transitions)
+from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options, assert_steps_match,
+                              exact_noise_bounds, gymnasium_reset_samples, gymnasium_steps, lockstep, reset_samples,
+                              select, transitions)
 
 NAME, GYMNASIUM_ID = "reacher", "Reacher-v5"
 # float32 (ours) against float64 (Gymnasium), no contacts (measured: obs ~1e-5 where joint
@@ -58,3 +58,7 @@ def test_reset_distribution_matches_gymnasium():
     radius = np.linalg.norm(qpos[:, 2:], axis=1)  # the target: uniform in the disc of radius 0.2
     assert radius.max() < 0.2 and radius.max() > 0.199
     assert abs(np.mean(radius**2 < 0.1**2) - 0.25) < 0.03  # a quarter of the area inside half the radius
+
+
+def test_to_gymnasium_passes_check_env():
+    assert_passes_check_env(NAME, GYMNASIUM_ID)
