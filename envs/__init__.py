@@ -18,7 +18,12 @@ from envs.tasks.acrobot_mjx import AcrobotMjx
 from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.tasks.cartpole_mjx import CartPoleMjx
 from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
+from envs.tasks.ant import Ant, AntParams
 from envs.tasks.half_cheetah import HalfCheetah, HalfCheetahParams
+from envs.tasks.inverted_pendulums import (
+    InvertedDoublePendulum, InvertedDoublePendulumParams, InvertedPendulum, InvertedPendulumParams,
+)
+from envs.tasks.reacher import Reacher, ReacherParams
 from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
 from envs.tasks.swimmer import Swimmer, SwimmerParams
 from envs.tasks.walkers import Hopper, HopperParams, Walker2d, Walker2dParams
@@ -46,6 +51,10 @@ register("half-cheetah", HalfCheetah, episode_length=1000)
 register("hopper", Hopper, episode_length=1000)
 register("walker2d", Walker2d, episode_length=1000)
 register("swimmer", Swimmer, episode_length=1000)
+register("inverted-pendulum", InvertedPendulum, episode_length=1000)
+register("inverted-double-pendulum", InvertedDoublePendulum, episode_length=1000)
+register("reacher", Reacher, episode_length=50)
+register("ant", Ant, episode_length=1000)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
@@ -56,4 +65,6 @@ __all__ = [
     "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
     "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
     "Swimmer", "SwimmerParams",
+    "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
+    "Reacher", "ReacherParams", "Ant", "AntParams",
 ]

@@ -221,7 +221,9 @@ class MjxEnv(Env):
             qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
         if self.forward_on_reset:
-            data = mjx.forward(model, data)
+            # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
+            # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
+            data = mjx.forward(model, data).replace(qpos=data.qpos)
         data = self._without_shared(data)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):

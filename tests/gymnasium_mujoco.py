@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 import envs
+from envs.mjx_env import mjx
 
 
 def gymnasium_env(gymnasium_id: str, **kwargs: Any) -> gymnasium.Env:
@@ -59,10 +60,15 @@ class Transitions:
 
 
 def transitions(name: str, num_envs: int = 32, num_steps: int = 40, keep: int = 320, seed: int = 0,
-                **overrides: Any) -> Transitions:
+                forward_first: bool = False, **overrides: Any) -> Transitions:
     """`keep` steps of `num_envs` episodes of `num_steps` random actions each (uniform in [-1, 1],
     one jitted scan over a vmapped env; no time limit, no auto-reset), spread evenly over the
-    episodes' steps so that early (near the reset) and late states are both in the sample."""
+    episodes' steps so that early (near the reset) and late states are both in the sample.
+
+    `forward_first`: each step starts from its state after `mjx.forward`, so the positions MuJoCo
+    derives (xpos, ...) are those of its qpos, as Gymnasium's `set_state` leaves them; for a task
+    whose reward reads the previous step's derived positions (Ant's x_velocity), which after an
+    RK4 step are those of RK4's last stage, not of the new qpos (see `lockstep` for rollouts)."""
     env = envs.make(name, **overrides).unwrapped
 
     def episode(key):
@@ -70,6 +76,8 @@ def transitions(name: str, num_envs: int = 32, num_steps: int = 40, keep: int = 
         actions = jax.random.uniform(action_key, (num_steps, env.action_size), minval=-1.0, maxval=1.0)
 
         def step(state, action):
+            if forward_first:
+                state = state.replace(pipeline_state=mjx.forward(env.mjx_model, state.pipeline_state))
             before = state.pipeline_state
             state = env.step(state, action)
             return state, (before.qpos, before.qvel, before.qacc_warmstart, state.obs, state.reward,
@@ -117,6 +125,49 @@ def assert_steps_match(ours: Steps, theirs: Steps, atol: dict[str, float], rtol:
         np.testing.assert_allclose(value, theirs.info[name], atol=atol.get(name, atol["reward"]), rtol=rtol,
                                    err_msg=f"info[{name!r}]")
     np.testing.assert_array_equal(ours.terminated, theirs.terminated, err_msg="terminated")
+
+
+def lockstep(name: str, gymnasium_id: str, num_episodes: int = 16, num_steps: int = 20, seed: int = 0,
+             **overrides: Any) -> tuple[Steps, Steps, np.ndarray]:
+    """Whole short episodes, ours and Gymnasium's side by side: Gymnasium's env is reset, set to our
+    reset state, then both take the same random actions for `num_steps` steps (Gymnasium's env
+    carries its own state from step to step, as in its own rollouts). Returns our steps, theirs
+    (both flattened over episodes and steps) and a mask of the steps up to each episode's first
+    termination (later ones are outside both envs' episodes)."""
+    env = envs.make(name, **overrides).unwrapped
+
+    def episode(key):
+        reset_key, action_key = jax.random.split(key)
+        actions = jax.random.uniform(action_key, (num_steps, env.action_size), minval=-1.0, maxval=1.0)
+
+        def step(state, action):
+            state = env.step(state, action)
+            return state, (state.obs, state.reward, state.done, state.metrics)
+
+        start = env.reset(reset_key)
+        _, record = jax.lax.scan(step, start, actions)
+        return start.pipeline_state.qpos, start.pipeline_state.qvel, actions, record
+
+    keys = jax.random.split(jax.random.PRNGKey(seed), num_episodes)
+    qpos, qvel, actions, (obs, reward, done, metrics) = jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(keys))
+    theirs = gymnasium_env(gymnasium_id, **gymnasium_kwargs(env.params))
+    their_steps = []
+    for start_qpos, start_qvel, episode_actions in zip(qpos, qvel, actions):
+        theirs.reset()  # clears what the last episode left in MuJoCo's data (cfrc_ext, warm start)
+        theirs.set_state(start_qpos.astype(np.float64), start_qvel.astype(np.float64))
+        their_steps += [theirs.step(env.to_env_action(a.astype(np.float64))) for a in episode_actions]
+    flat = lambda x: x.reshape(num_episodes * num_steps, *x.shape[2:])
+    ours = Steps(flat(obs), flat(reward), flat(done).astype(bool), {k: flat(v) for k, v in metrics.items()})
+    theirs = Steps(np.array([o for o, *_ in their_steps]), np.array([r for _, r, *_ in their_steps]),
+                   np.array([t for _, _, t, *_ in their_steps]),
+                   {k: np.array([i[k] for *_, i in their_steps]) for k in their_steps[0][4]})
+    ended_before = np.cumsum(done, axis=1) - done > 0  # a termination earlier in the episode
+    return ours, theirs, ~flat(ended_before)
+
+
+def select(steps: Steps, mask: np.ndarray) -> Steps:
+    """The steps where `mask` is True."""
+    return Steps(steps.obs[mask], steps.reward[mask], steps.terminated[mask], {k: v[mask] for k, v in steps.info.items()})
 
 
 def reset_samples(name: str, count: int, **overrides: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -173,8 +224,12 @@ def assert_same_options(name: str, gymnasium_id: str) -> None:
 
 def assert_passes_check_env(name: str, gymnasium_id: str) -> None:
     """`envs.to_gymnasium(name)` passes Gymnasium's env checker with Gymnasium's action space."""
-    from test_gym_interop import check_env_warnings  # its filter of the unbounded-observation warnings
+    from test_gym_interop import NORMALIZED_ACTION_WARNING, check_env_warnings  # minus unbounded-obs warnings
 
     env = envs.to_gymnasium(name)
-    assert env.action_space == gymnasium.make(gymnasium_id).action_space
-    assert check_env_warnings(env, skip_render_check=True) == []
+    their_space = gymnasium.make(gymnasium_id).action_space
+    assert env.action_space == their_space
+    # check_env recommends a [-1, 1] Box for any other; Gymnasium's own InvertedPendulum-v5 ([-3, 3]) gets it too.
+    normalized = bool(np.all(their_space.low == -1) and np.all(their_space.high == 1))
+    found = check_env_warnings(env, skip_render_check=True)
+    assert [NORMALIZED_ACTION_WARNING in w for w in found] == ([] if normalized else [True]), found

@@ -21,6 +21,8 @@ from envs.registry import _REGISTRY
 # check_env warns about any infinite Box bound. Our observation spaces are unbounded
 # on purpose (no env declares bounds), as are the velocities of Gymnasium's CartPole-v1.
 UNBOUNDED_OBS_WARNINGS = ("observation space minimum value is -infinity", "observation space maximum value is infinity")
+# ... and recommends a symmetric, normalized action Box; Gymnasium's own tasks with another ctrlrange get it too.
+NORMALIZED_ACTION_WARNING = "we recommend using a symmetric and normalized space"
 
 # A tiny continuous task: a block pushed by two motors with different ctrlranges.
 SLIDER_XML = """
@@ -43,7 +45,7 @@ SLIDER = "gym-interop-slider"
 
 
 class Slider(envs.MjxEnv):
-    """Continuous actions of size 2; ends past x = 1; a nudge above 0.45 makes the physics NaN."""
+    """Continuous actions of size 2; ends past x = 1; a nudge above 0.45 (ctrl) makes the physics NaN."""
 
     observation_size = 2
 
@@ -94,8 +96,20 @@ def test_check_env_passes_for_discrete_envs(name):
 
 def test_check_env_passes_for_a_continuous_env(slider):
     env = envs.to_gymnasium(slider)
-    assert env.action_space == gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
-    assert check_env_warnings(env, skip_render_check=True) == []
+    # Gymnasium's action space: the actuators' ctrlrange, not the env's own [-1, 1].
+    low, high = np.array([-1.0, -0.5], np.float32), np.array([2.0, 0.5], np.float32)
+    assert env.action_space == gymnasium.spaces.Box(low, high, (2,), np.float32)
+    # check_env recommends [-1, 1] for any other Box (Gymnasium's InvertedPendulum-v5, [-3, 3], gets it too).
+    assert [NORMALIZED_ACTION_WARNING in w for w in check_env_warnings(env, skip_render_check=True)] == [True]
+
+
+def test_continuous_actions_are_the_ctrl_gymnasium_sets(slider):
+    """An action in Gymnasium's space reaches MuJoCo as that very ctrl, edges included."""
+    env = envs.to_gymnasium(slider)
+    env.reset(seed=0)
+    for action in ([2.0, -0.5], [-1.0, 0.25], [0.5, 0.0], [1.25, 0.125]):
+        env.step(np.array(action))
+        np.testing.assert_allclose(np.asarray(env.state.pipeline_state.ctrl), action, rtol=0, atol=1e-7)
 
 
 @pytest.mark.slow
@@ -103,7 +117,11 @@ def test_check_env_passes_for_a_continuous_env(slider):
 def test_check_env_passes_for_every_registered_env(name):
     """Every registered env (MJX compiles take tens of seconds each on a small CPU)."""
     env = envs.to_gymnasium(name)
-    assert check_env_warnings(env, skip_render_check=True) == []
+    space = env.action_space
+    # A continuous env's space is its ctrlrange; check_env recommends [-1, 1] for any other Box.
+    normalized = not isinstance(space, gymnasium.spaces.Box) or bool(np.all(space.low == -1) and np.all(space.high == 1))
+    found = check_env_warnings(env, skip_render_check=True)
+    assert [NORMALIZED_ACTION_WARNING in w for w in found] == ([] if normalized else [True]), found
     vector = envs.to_gymnasium(name, num_envs=3)
     obs, _ = vector.reset(seed=0)
     assert obs.shape == (3, env.observation_space.shape[0]) and obs.dtype == np.float32
@@ -231,9 +249,10 @@ def test_vector_env_matches_gymnasiums_same_step_autoreset():
 
 def test_vector_env_continuous_and_nan_final_info(slider):
     vector = envs.to_gymnasium(slider, num_envs=3)
-    assert vector.action_space == gymnasium.spaces.Box(-1.0, 1.0, (3, 2), np.float32)
+    low, high = np.array([-1.0, -0.5], np.float32), np.array([2.0, 0.5], np.float32)
+    assert vector.action_space == gymnasium.spaces.Box(np.tile(low, (3, 1)), np.tile(high, (3, 1)), (3, 2), np.float32)
     vector.reset(seed=0)
-    actions = np.array([[0.5, 0.0], [0.5, 1.0], [0.0, 0.0]])  # env 1's nudge blows up the physics
+    actions = np.array([[0.5, 0.0], [0.5, 0.5], [0.0, 0.0]])  # env 1's nudge blows up the physics
     obs, rewards, terminated, _, info = vector.step(actions)
     assert terminated.tolist() == [False, True, False] and rewards[1] == 0.0
     assert info["_final_obs"].tolist() == [False, True, False]
@@ -245,7 +264,7 @@ def test_single_env_reports_nan_in_info(slider):
     env = envs.to_gymnasium(slider)
     env.reset(seed=0)
     assert env.step(np.array([0.1, 0.0]))[4] == {}
-    _, reward, terminated, truncated, info = env.step([0.1, 1.0])
+    _, reward, terminated, truncated, info = env.step([0.1, 0.5])
     assert info == {"nan": True} and terminated and not truncated and reward == 0.0
 
 
@@ -284,7 +303,7 @@ def test_bad_discrete_action_names_the_env(action):
         env.step(action)
 
 
-@pytest.mark.parametrize("action", [[1.5, 0.0], [0.0], [np.nan, 0.0], 0.5, [[0.1, 0.1]]])
+@pytest.mark.parametrize("action", [[2.5, 0.0], [0.0, -0.6], [-1.5, 0.0], [0.0], [np.nan, 0.0], 0.5, [[0.1, 0.1]]])
 def test_bad_continuous_action_names_the_env(slider, action):
     env = envs.to_gymnasium(slider)
     env.reset(seed=0)

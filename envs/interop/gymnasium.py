@@ -11,7 +11,9 @@ Gymnasium semantics, checked against Gymnasium's CartPole-v1 in the tests:
   Gymnasium's `TimeLimit` does; the suite's own `info["truncation"]` stays 0 there).
 - Observations are float32 numpy arrays; `observation_space` is an unbounded Box,
   as no env declares bounds; discrete envs take `Discrete(num_actions)` actions,
-  continuous ones `Box(-1, 1, (action_size,))` actions.
+  continuous ones Gymnasium's own action space `Box(env.action_low, env.action_high)`
+  (an MJX task's: its actuators' ctrlrange, as `gymnasium.make("HalfCheetah-v5")` has
+  it), mapped to the env's [-1, 1] actions with `env.from_env_action` before the step.
 - `reset(seed=s)` seeds the env's numpy generator, which draws every episode's JAX
   key: the same seed gives the same episodes.
 - An action outside the action space raises a ValueError naming the env; `step`
@@ -103,13 +105,14 @@ def _single_spaces(env: Env) -> tuple[spaces.Box, spaces.Space]:
     if env.num_actions is not None:
         action_space = spaces.Discrete(env.num_actions)
     else:
-        action_space = spaces.Box(-1.0, 1.0, (env.action_size,), np.float32)
+        action_space = spaces.Box(env.action_low, env.action_high, (env.action_size,), np.float32)
     return observation_space, action_space
 
 
 def _checked_action(name: str, env: Env, space: spaces.Space, action: Any, batch: tuple[int, ...]) -> np.ndarray:
-    """`action` as the array the jitted step takes (int32 indices or float32 vectors),
-    after checking it lies in `space`; `batch` is () for one env, (num_envs,) for a vector env."""
+    """`action` as the array the jitted step takes (int32 indices, or float32 vectors in the env's
+    [-1, 1] mapped from Gymnasium's action space), after checking it lies in `space`; `batch` is
+    () for one env, (num_envs,) for a vector env."""
     values = np.asarray(action)
     if env.num_actions is not None:
         ok = (
@@ -123,7 +126,8 @@ def _checked_action(name: str, env: Env, space: spaces.Space, action: Any, batch
         ok = values.shape == shape and (np.issubdtype(values.dtype, np.floating) or np.issubdtype(values.dtype, np.integer))
         converted = values.astype(np.float32) if ok else None
         # Checked after the cast, so a float64 1.0000000001 that rounds to 1.0 passes.
-        ok = ok and bool(np.all(np.isfinite(converted) & (converted >= -1.0) & (converted <= 1.0)))
+        ok = ok and bool(np.all(np.isfinite(converted) & (converted >= space.low) & (converted <= space.high)))
+        converted = env.from_env_action(converted).astype(np.float32) if ok else None
     if not ok:
         what = "integer" if env.num_actions is not None else "float"
         raise ValueError(
