@@ -328,8 +328,9 @@ class MjxEnv(Env):
         @step_worlds.def_vmap
         def step_worlds_batched(axis_size, in_batched, data):
             data = _broadcast(data, in_batched[0], axis_size)  # (axis, worlds, ...)
-            out = step_worlds(jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), data))
-            return jax.tree.map(lambda x: x.reshape((axis_size, -1) + x.shape[1:]), out), _all_batched(out)
+            worlds = data.qpos.shape[1]
+            out = step_worlds(jax.tree.map(lambda x: x.reshape((axis_size * worlds,) + x.shape[2:]), data))
+            return jax.tree.map(lambda x: x.reshape((axis_size, worlds) + x.shape[1:]), out), _all_batched(out)
 
         @jax.custom_batching.custom_vmap
         def step_one(data):
