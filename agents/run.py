@@ -21,6 +21,7 @@ import envs
 from agents import checkpoint, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
+from envs.mjx_env import overflow_report
 from envs.ranges import COUNT, NON_NEGATIVE
 
 # Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once CHECKPOINT_SECONDS have
@@ -204,6 +205,7 @@ def train_run(
     saved_at = time.perf_counter()
     save_s = 0.0  # how long the last periodic save took
     solved_early = False
+    overflow_told = False
     try:
         for index in range(chunks_done, config.num_chunks):
             if stop_after_chunks is not None and index >= stop_after_chunks:
@@ -217,6 +219,7 @@ def train_run(
             elapsed = time.perf_counter() - tick
             record["chunk"] = index
             record["steps_per_s"] = config.eval_every * agents / elapsed
+            overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
             result.history.append(record)
             last = index + 1
             now = time.perf_counter() - start
@@ -273,6 +276,27 @@ def train_run(
                    "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count}
         (out / "eval.json").write_text(json.dumps(summary, indent=2))
     return result
+
+
+# A run whose env-steps overflow MuJoCo Warp's buffers more often than this stops: its agents
+# would learn from the few steps that fit, in a state distribution the overflows cut short.
+MOST_STEPS_OVERFLOWING = 0.5
+
+
+def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
+    """Say once in a run which Warp buffer overflowed (and how to raise it); stop the run with that
+    message when most of a chunk's steps of some agent overflowed. Returns whether it was said."""
+    contacts = int(np.max(record.get("overflow_contacts", 0)))
+    constraints = int(np.max(record.get("overflow_constraints", 0)))
+    if not contacts and not constraints:
+        return told
+    report = overflow_report(env, contacts, constraints, chunk_steps)
+    if max(contacts, constraints) > MOST_STEPS_OVERFLOWING * chunk_steps:
+        raise RuntimeError(f"{report} Most steps of chunk {record['chunk']} overflowed: the run stops rather than "
+                           "train on them.")
+    if not told:
+        bar.write(f"chunk {record['chunk']}: {report}")
+    return True
 
 
 def per_agent(configs: list[DQNConfig], seeds: int) -> Hyperparams:
