@@ -61,6 +61,14 @@ def from_args(env_name: str, args: argparse.Namespace) -> dict:
     return overrides
 
 
+def merged(saved: dict, given: dict) -> dict:
+    """A saved run's env options with those given now on top; `opt` mappings merge field by field."""
+    options = {**saved, **given}
+    if isinstance(saved.get("opt"), dict) and isinstance(given.get("opt"), dict):
+        options["opt"] = {**saved["opt"], **given["opt"]}
+    return options
+
+
 def parse_randomize(entry: str) -> tuple[str, list | float]:
     """`FIELD:ELEMENT=LOW:HIGH`, `=xLOW:HIGH` or `=VALUE` as a (name, range) pair."""
     name, sep, text = entry.partition("=")
