@@ -95,8 +95,11 @@ def _makes_mjx_env(factory: Callable[..., Env]) -> bool:
 
 def parse_option(name: str, option: str, text: str) -> Any:
     """An override of env `name` from text (the command line's `--env-opt option=text`), read
-    as its default's type: true/false for a bool, a number for an int or float, text for a str."""
+    as its default's type: true/false for a bool, a number for an int or float, text for a str.
+    `opt.FIELD` is one field of an MJX task's `opt` (`envs.mjx_options.parse_opt_field`)."""
     valid = options(name)
+    if option.startswith("opt.") and "opt" in valid:
+        return parse_opt_field(option.removeprefix("opt."), text, f"env {name!r}")
     if option not in valid:
         raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
     default = valid[option]
