@@ -115,3 +115,21 @@ def test_an_undersized_warp_buffer_flags_the_step_never_a_silent_wrong_one(capfd
     overflow = contact_rollout(steps=4, impl="warp", njmax=4)[1]
     assert 2.0 in overflow and 1.0 not in overflow
     assert "overflow" not in capfd.readouterr().out
+
+
+def test_brax_training_wrappers_end_an_overflowing_episode():
+    """Brax's own training stack (episode limit, vmap, auto-reset) over `envs.to_brax`: a step
+    Warp could not hold arrives as the end of its episode, flagged, with reward 0."""
+    from brax.envs.wrappers.training import wrap
+
+    from benchmarks.contact_task import contact_task_name
+
+    env = envs.to_brax(contact_task_name(), impl="warp", naconmax=1)
+    batch = wrap(env, episode_length=env.episode_length)
+    state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    step = jax.jit(batch.step)
+    for _ in range(3):
+        state = step(state, jnp.zeros((4, env.action_size)))
+        flagged = np.asarray(state.info["overflow"]) > 0
+        assert flagged.any()
+        assert (np.asarray(state.done)[flagged] == 1).all() and (np.asarray(state.reward)[flagged] == 0).all()
