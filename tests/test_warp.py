@@ -133,3 +133,10 @@ def test_brax_training_wrappers_end_an_overflowing_episode():
         flagged = np.asarray(state.info["overflow"]) > 0
         assert flagged.any()
         assert (np.asarray(state.done)[flagged] == 1).all() and (np.asarray(state.reward)[flagged] == 0).all()
+
+
+def test_the_overflow_bits_are_mujoco_warps():
+    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+
+    assert mjx_env.CONTACT_OVERFLOW == OverflowType.BROADPHASE | OverflowType.NARROWPHASE | OverflowType.CCD
+    assert mjx_env.CONSTRAINT_OVERFLOW == OverflowType.NEFC | OverflowType.NJMAX_NNZ
