@@ -16,7 +16,7 @@ The contact task is Gymnasium's half_cheetah.xml (`benchmarks.contact_task`; the
 (d) Brax PPO (`brax.training.agents.ppo.train` on `envs.to_brax`) on the contact task with each
     implementation: final eval return and wall time.
 
-    python -m benchmarks.warp_contact [--sizes 4096 32768 131072] [--ppo-steps 5000000] [--json FILE]
+    python -m benchmarks.warp_contact [--parts abcd] [--sizes 4096 32768 131072] [--ppo-steps 3000000] [--json FILE]
 
 On the CPU it runs at tiny sizes as a smoke test (`--envs 4 --steps 3 --sizes 4 --ppo-steps 0`);
 without a CUDA GPU (or warp-lang) the Warp rows say why they were skipped.
@@ -146,7 +146,7 @@ def throughput(sizes: list[int], steps: int | None, repeats: int, missing: str |
     """(c)."""
     found = []
     for num_envs in sizes:
-        n_steps = steps or max(20, min(1000, 2**24 // num_envs))
+        n_steps = steps or max(10, min(1000, 2**20 // num_envs))  # ~1M env-steps a run: seconds for JAX's contacts
         for env_name in ("cartpole-mjx", contact_task_name()):
             for impl in IMPLS:
                 record = {"kind": "warp-contact-throughput", "env": env_name, "impl": impl, "num_envs": num_envs,
@@ -225,15 +225,16 @@ def main(argv=None) -> None:
     parser.add_argument("--steps", type=int, default=100, help="env steps of (a) and (b)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[4096, 32768, 131072], help="batch sizes of (c)")
     parser.add_argument("--scan-steps", type=int, help="scan length per timed run of (c) (default: by batch size)")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--ppo-steps", type=int, default=5_000_000, help="env steps of each PPO run in (d); 0: skip")
+    parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--parts", default="abcd", help="which of (a)+(b) 'ab', (c) 'c', (d) 'd' to run, e.g. --parts abc")
+    parser.add_argument("--ppo-steps", type=int, default=3_000_000, help="env steps of each PPO run in (d); 0: skip")
     parser.add_argument("--ppo-envs", type=int, default=2048)
     parser.add_argument("--json", metavar="FILE", help="write the records as JSON")
     args = parser.parse_args(argv)
     missing = warp_missing()
-    found = follows(args.envs, args.steps, missing)
-    found += throughput(args.sizes, args.scan_steps, args.repeats, missing)
-    found += ppo(args.ppo_steps, args.ppo_envs, missing)
+    found = follows(args.envs, args.steps, missing) if "a" in args.parts or "b" in args.parts else []
+    found += throughput(args.sizes, args.scan_steps, args.repeats, missing) if "c" in args.parts else []
+    found += ppo(args.ppo_steps, args.ppo_envs, missing) if "d" in args.parts else []
     print(f"device: {device_name()}\n" + table(found))
     if args.json:
         with open(args.json, "w") as f:
