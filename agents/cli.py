@@ -401,7 +401,7 @@ def cmd_eval(args, extra: list[str]) -> int:
     env_name, _, dqn, params = load_agent(args.checkpoint)
     options = checkpoint.load_config(args.checkpoint).env_options
     if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
-        options = {**options, **env_options.from_args(env_name, args)}
+        options = env_options.merged(options, env_options.from_args(env_name, args))
         dqn = type(dqn)(dqn.config, envs.make(env_name, **options))
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
@@ -469,7 +469,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
                                  f"whose observations/actions do not match {args.env}'s")
             env, env_name, options = other, args.env, env_options.from_args(args.env, args)
         elif env_options.given(args):  # the saved env with other options (e.g. --randomize ranges)
-            options = {**options, **env_options.from_args(env_name, args)}
+            options = env_options.merged(options, env_options.from_args(env_name, args))
             env = envs.make(env_name, **options)
     elif args.env is None:
         raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")

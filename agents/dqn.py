@@ -313,12 +313,16 @@ class DQN:
         info = env_state.info
         terminated = env_state.done * (1.0 - info["truncation"])
         rows = pack(Transition(obs, action, env_state.reward, info["final_obs"], terminated))
-        buffer = self.buffer.add(ts.buffer, rows, mask=info["nan"] == 0)
+        # MuJoCo Warp's overflow code (envs.mjx_env): 1 contact pool, 2 constraint rows, 3 both.
+        overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
+        buffer = self.buffer.add(ts.buffer, rows, mask=(info["nan"] == 0) & (overflow == 0))
         ts = ts.replace(buffer=buffer, env_state=env_state, key=key, env_steps=ts.env_steps + self.config.num_envs)
         stats = {
             "episodes": info["episode_done"].sum(),
             "return_sum": (info["last_return"] * info["episode_done"]).sum(),
             "nan_episodes": info["nan"].sum(),
+            "overflow_contacts": (overflow % 2 == 1).sum(),
+            "overflow_constraints": (overflow >= 2).sum(),
         }
         return ts, stats
 
@@ -516,6 +520,9 @@ class DQN:
             "episodes": episodes,
             "train_return": collected["return_sum"].sum() / jnp.maximum(episodes, 1),
             "nan_episodes": collected["nan_episodes"].sum(),
+            # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
+            "overflow_contacts": collected["overflow_contacts"].sum(),
+            "overflow_constraints": collected["overflow_constraints"].sum(),
             "eval_episode": eval_episode,  # for loggers; not a scalar metric
         }
         return ts, metrics

@@ -1,6 +1,7 @@
 """The command line's env overrides: `--env-opt KEY=VALUE`, `--impl`, `--randomize`, `--randomize-per`.
 
-They become the `envs.make` overrides a run saves in config.json (`env_options`), so
+They become the `envs.make` overrides a run saves in config.json (`env_options`; the
+`--env-opt opt.FIELD=VALUE` pairs as one `opt` mapping), so
 `eval`, `rollout` and `--resume` rebuild the same env. `--randomize FIELD:ELEMENT=RANGE`
 takes `LOW:HIGH` (a uniform range), `xLOW:HIGH` (a scale of the compiled value) or
 `VALUE` (a fixed value); see `envs.randomize`.
@@ -18,7 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The env-override options, on a train, eval or rollout parser."""
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make override, e.g. integrator=semi_implicit or episode_length=200 "
-                             "(envs.options(NAME) lists them); repeatable")
+                             "(envs.options(NAME) lists them); an MJX task's MuJoCo solver option as "
+                             "opt.FIELD=VALUE (opt.iterations=4, opt.solver=CG), MuJoCo Warp's buffers as "
+                             "nconmax=N, naconmax=N, njmax=N; repeatable")
     parser.add_argument("--impl", choices=["jax", "warp"],
                         help="MJX implementation of an MJX task: jax (default) or warp (MuJoCo Warp, NVIDIA GPU, "
                              "pip install 'mjxsuite[warp]')")
@@ -41,7 +44,11 @@ def from_args(env_name: str, args: argparse.Namespace) -> dict:
         key, sep, text = pair.partition("=")
         if not sep or not key:
             raise ValueError(f"--env-opt {pair!r}: expected KEY=VALUE, e.g. --env-opt episode_length=200")
-        overrides[key] = parse_option(env_name, key, text)
+        value = parse_option(env_name, key, text)
+        if key.startswith("opt."):  # opt.FIELD=VALUE pairs make one `opt` mapping
+            overrides.setdefault("opt", {})[key.removeprefix("opt.")] = value
+        else:
+            overrides[key] = value
     if args.impl:
         overrides["impl"] = parse_option(env_name, "impl", args.impl)
     if (args.randomize or args.randomize_per) and "randomize" not in options(env_name):
@@ -52,6 +59,14 @@ def from_args(env_name: str, args: argparse.Namespace) -> dict:
     if args.randomize_per:
         overrides["randomize_per"] = args.randomize_per
     return overrides
+
+
+def merged(saved: dict, given: dict) -> dict:
+    """A saved run's env options with those given now on top; `opt` mappings merge field by field."""
+    options = {**saved, **given}
+    if isinstance(saved.get("opt"), dict) and isinstance(given.get("opt"), dict):
+        options["opt"] = {**saved["opt"], **given["opt"]}
+    return options
 
 
 def parse_randomize(entry: str) -> tuple[str, list | float]:

@@ -5,8 +5,9 @@ A task is an MJCF file plus a short subclass: it names the XML, sets
 termination) and either lists its discrete actions as named `action_bins` or
 leaves actions continuous. This class does the MuJoCo plumbing: loading the file,
 `put_model`, the initial `mjx.Data`, substeps, the action -> `ctrl` mapping,
-ending an episode cleanly when the physics produces NaNs, and checking that the
-hooks return what the env API promises (errors name the task).
+ending an episode cleanly when the physics produces NaNs (or MuJoCo Warp runs out of a
+buffer), MuJoCo's solver options (`opt`) and checking that the hooks return what the env API
+promises (errors name the task).
 """
 
 from __future__ import annotations
@@ -30,9 +31,18 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 from envs.assets import load_model
 from envs.core import Env, State
+from envs.mjx_options import BUFFER_OPTIONS, WarpBuffers, apply_opt, check_buffer_sizes, check_opt
 
 ActionBins = Mapping[str, Sequence[float]]
 IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
+
+# MuJoCo Warp's per-world overflow bits (`OverflowType` in mujoco_warp's types.py), by the buffer whose
+# override fixes them. Its other bits (solver iteration limits, the EPA horizon) say a result is less
+# precise, not that contacts or constraints were dropped, and do not end an episode.
+CONTACT_OVERFLOW = 4 | 8 | 16  # BROADPHASE, NARROWPHASE, CCD: the contact pool (nconmax / naconmax)
+CONSTRAINT_OVERFLOW = 1 | 2  # NEFC, NJMAX_NNZ: the constraint rows of one world (njmax)
+# info["overflow"] codes: which buffer ran out on a step (both: their sum).
+OVERFLOW_CONTACTS, OVERFLOW_CONSTRAINTS = 1.0, 2.0
 
 
 def require_warp() -> None:
@@ -77,7 +87,10 @@ class MjxEnv(Env):
 
     `info["nan"]` is 1.0 on the step where the physics became non-finite: that step
     terminates the episode, its reward is 0 and its observation is the previous
-    one, so no NaN reaches a learner.
+    one, so no NaN reaches a learner. Under impl="warp", `info["overflow"]` is nonzero
+    on a step where MuJoCo Warp ran out of its contact pool (1.0: `nconmax`/`naconmax`),
+    its constraint rows (2.0: `njmax`) or both (3.0): Warp dropped contacts or constraints,
+    so that step is not physics and ends the episode the same way.
     """
 
     xml: str | os.PathLike  # a file in the suite's assets/ or a path
@@ -102,6 +115,9 @@ class MjxEnv(Env):
             raise type(err)(f"task {self.name}: {err}") from err
         if not isinstance(getattr(self, "observation_size", None), int):
             raise TypeError(f"task {self.name}: set the class attribute `observation_size` (an int)")
+        self.opt: dict = {}  # MjOption fields set over the MJCF's (see `configured`)
+        self._buffer_sizes: dict = dict.fromkeys(BUFFER_OPTIONS)  # Warp buffer overrides (None: from the model)
+        self.warp_buffers: WarpBuffers | None = None  # under impl="warp": the sizes in use
         self._put_on_device("jax")
 
         if action_bins is not None:
@@ -117,32 +133,66 @@ class MjxEnv(Env):
     def _put_on_device(self, impl: str) -> None:
         """The MJX model and the initial `mjx.Data` for MJX's implementation `impl`."""
         try:
-            self.mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl=impl)
+            mjx_model: mjx.Model = mjx.put_model(self.mj_model, impl=impl)
         except NotImplementedError as err:
             raise NotImplementedError(
-                f"task {self.name}: MJX cannot run this model: {err} (geoms that never touch should have "
-                'contype="0" conaffinity="0"; MJX checks collision pairs even with contacts disabled)'
+                f"task {self.name}: MJX (impl={impl!r}) cannot run this model{self._opt_note()}: {err} (geoms "
+                'that never touch should have contype="0" conaffinity="0"; MJX checks collision pairs even with '
+                "contacts disabled)"
             ) from err
         self.impl = impl
-        # MJX builds Warp data from the MuJoCo model itself (it refuses an mjx.Model there).
-        data = mjx.make_data(self.mj_model if impl == "warp" else self.mjx_model, impl=impl)
+        if impl == "warp":
+            self.warp_buffers = WarpBuffers.for_model(self.mj_model, **self._buffer_sizes)
+            # Warp prints a line per overflowing kernel launch (thousands a second); the env flags the
+            # step instead (info["overflow"]) and the training driver says once which buffer to raise.
+            mjx_model = mjx_model.replace(opt=mjx_model.opt.replace(_impl=mjx_model.opt._impl.replace(warn_overflow=0)))
+            # MJX builds Warp data from the MuJoCo model itself (it refuses an mjx.Model there).
+            data = mjx.make_data(self.mj_model, impl=impl, naconmax=self.warp_buffers.pool(1),
+                                 njmax=self.warp_buffers.njmax)
+        else:
+            self.warp_buffers = None
+            data = mjx.make_data(mjx_model, impl=impl)
+        self.mjx_model = mjx_model
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
         # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
         self._warp_shared = warp_shared_buffers(data) if impl == "warp" else {}
 
-    def with_impl(self, impl: str) -> MjxEnv:
-        """This task stepped by MJX's implementation `impl`: "jax" (pure JAX, any device; the
-        default) or "warp" (MuJoCo Warp, NVIDIA GPUs only, `pip install 'mjxsuite[warp]'`)."""
+    def _opt_note(self) -> str:
+        return f" with opt={self.opt}" if self.opt else ""
+
+    def configured(self, impl: str | None = None, opt: Mapping | None = None, nconmax: int | None = None,
+                   naconmax: int | None = None, njmax: int | None = None) -> MjxEnv:
+        """This task with MuJoCo's solver options `opt` (`mujoco.MjOption` fields, set over the
+        MJCF's), stepped by MJX's implementation `impl` ("jax" or "warp"; default: as now), with
+        MuJoCo Warp's buffers `nconmax` (contacts per env), `naconmax` (contacts of a whole batch)
+        and `njmax` (constraint rows per env) in place of the model's defaults (`WarpBuffers`).
+        The options go into a copy of the MjModel: the task and the envs sharing it are unchanged."""
+        impl = self.impl if impl is None else impl
         if impl not in IMPLS:
             raise ValueError(f"task {self.name}: unknown impl {impl!r}; choose one of {IMPLS}")
-        if impl == self.impl:
+        opt = check_opt(opt, f"task {self.name}")
+        sizes = check_buffer_sizes({"nconmax": nconmax, "naconmax": naconmax, "njmax": njmax}, f"task {self.name}")
+        given = {name: value for name, value in sizes.items() if value is not None}
+        if given and impl != "warp":
+            raise ValueError(f"task {self.name}: {sorted(given)} size MuJoCo Warp's buffers; they need impl='warp' "
+                             f"(this env steps with impl={impl!r})")
+        if not opt and not given and impl == self.impl:
             return self
         if impl == "warp":
             require_warp()
         task = copy.copy(self)
+        if opt:
+            task.mj_model = apply_opt(self.mj_model, opt)
+            task.opt = {**self.opt, **opt}
+        task._buffer_sizes = {**self._buffer_sizes, **given}
         task._put_on_device(impl)
         return task
+
+    def with_impl(self, impl: str) -> MjxEnv:
+        """This task stepped by MJX's implementation `impl`: "jax" (pure JAX, any device; the
+        default) or "warp" (MuJoCo Warp, NVIDIA GPUs only, `pip install 'mjxsuite[warp]'`)."""
+        return self.configured(impl=impl)
 
     @property
     def name(self) -> str:
@@ -220,11 +270,12 @@ class MjxEnv(Env):
             qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
             qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
+        data = self._without_shared(data)
         if self.forward_on_reset:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
-            data = mjx.forward(model, data).replace(qpos=data.qpos)
-        data = self._without_shared(data)
+            forwarded = self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared else mjx.forward(model, data)
+            data = forwarded.replace(qpos=data.qpos)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
             raise ValueError(
@@ -236,30 +287,28 @@ class MjxEnv(Env):
         no_action = jnp.zeros((self.action_size,), obs.dtype) if self.action_size else jnp.zeros((), jnp.int32)
         _, terms = jax.eval_shape(lambda: self._reward_and_terms(data, no_action, data))
         metrics = {name: jnp.zeros(term.shape, obs.dtype) for name, term in terms.items()}
-        return State(data, obs, zero, zero, metrics=metrics, info={"truncation": zero, "nan": zero})
+        return State(data, obs, zero, zero, metrics=metrics, info={"truncation": zero, "nan": zero, "overflow": zero})
 
     def step_with_model(self, state: State, action: jax.Array, model: mjx.Model) -> State:
         """`step`, with `model` in place of the task's own `mjx_model`."""
         action = self.check_action(action)
         prev = state.pipeline_state
         # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
-        data = self._with_shared(prev).replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
-        if self.n_substeps == 1:
-            data = mjx.step(model, data)
-        else:
-            data = jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(model, d), data)
+        data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
+        data = self._on_warp_worlds(self._physics, model, data) if self._warp_shared else self._physics(model, data)
         data = self.post_step(prev, data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
+        overflow = self._overflow(data)
+        valid = finite & (overflow == 0)
         obs, terminated = self.observation(data), self.terminated(data)
         reward, terms = self._reward_and_terms(data, action, prev)
         self._check_step_shapes(state.obs, obs, reward, terminated)
-        obs = jnp.where(finite, obs, state.obs)
-        reward = jnp.where(finite, reward, 0.0).astype(obs.dtype)
-        metrics = {**state.metrics, **{name: jnp.where(finite, term, 0.0).astype(obs.dtype) for name, term in terms.items()}}
-        done = (terminated | ~finite).astype(obs.dtype)
-        info = {**state.info, "nan": (~finite).astype(obs.dtype)}
-        return state.replace(pipeline_state=self._without_shared(data), obs=obs, reward=reward, done=done,
-                             metrics=metrics, info=info)
+        obs = jnp.where(valid, obs, state.obs)
+        reward = jnp.where(valid, reward, 0.0).astype(obs.dtype)
+        metrics = {**state.metrics, **{name: jnp.where(valid, term, 0.0).astype(obs.dtype) for name, term in terms.items()}}
+        done = (terminated | ~valid).astype(obs.dtype)
+        info = {**state.info, "nan": (~finite).astype(obs.dtype), "overflow": overflow.astype(obs.dtype)}
+        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done, metrics=metrics, info=info)
 
     def _reward_and_terms(self, data: mjx.Data, action: jax.Array, prev: mjx.Data) -> tuple[jax.Array, dict]:
         """`reward()` as (reward, terms): a task may return its reward's terms beside it (a dict of
@@ -267,22 +316,79 @@ class MjxEnv(Env):
         result = self.reward(data, action, prev)
         return result if isinstance(result, tuple) else (result, {})
 
+    def _physics(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        if self.n_substeps == 1:
+            return mjx.step(model, data)
+        return jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(model, d), data)
+
+    def _overflow(self, data: mjx.Data) -> jax.Array:
+        """info["overflow"]'s code for the step that gave `data` (0 under impl="jax")."""
+        if not self._warp_shared:
+            return jnp.zeros((), jnp.float32)
+        bits = data._impl.overflow
+        return (OVERFLOW_CONTACTS * ((bits & CONTACT_OVERFLOW) != 0)
+                + OVERFLOW_CONSTRAINTS * ((bits & CONSTRAINT_OVERFLOW) != 0)).astype(jnp.float32)
+
     # Under impl="warp" MuJoCo Warp keeps some buffers once for all worlds of a batch: the
     # contact pool (leading dim `naconmax`), `nacon`, `ncollision` and constant index tables
     # (MJX's `DATA_NON_VMAP`; `vmap` passes them through without a batch axis). They carry
     # nothing from one step to the next (collision detection refills them), so an env's
-    # state leaves them out and `step` hands MJX the fresh ones of `make_data`. Every leaf of
-    # a state then has the batch axis, and auto-reset, a vmapped seed axis, a while loop
-    # with a batched condition, sharding and checkpoints treat it like any other state.
+    # state leaves them out and `step` hands MJX fresh ones. Every leaf of a state then has
+    # the batch axis, and auto-reset, a vmapped seed axis, a while loop with a batched
+    # condition, sharding and checkpoints treat it like any other state.
+    #
+    # The pool must hold the contacts of every world the step runs on, and that number is only
+    # known where `vmap` batches the step (once per env, again per seed, ...). So the physics is a
+    # `custom_vmap` function: each vmap over it folds its axis into one world axis, and the step
+    # at the bottom runs MJX once on all worlds (MJX's Warp step takes a leading world axis)
+    # with a pool of `nconmax` contacts per world.
+    def _on_warp_worlds(self, physics, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """`physics(model, data)` (the substeps, or mjx.forward) on one env's state under impl="warp"."""
+        if model is not self.mjx_model:
+            raise ValueError(f"task {self.name}: impl='warp' steps the task's own model; per-env model values "
+                             "(envs.randomize) run with impl='jax'")
+
+        @jax.custom_batching.custom_vmap
+        def step_worlds(data):  # every leaf has a leading world axis
+            return self._step_worlds(physics, data)
+
+        @step_worlds.def_vmap
+        def step_worlds_batched(axis_size, in_batched, data):
+            data = _broadcast(data, in_batched[0], axis_size)  # (axis, worlds, ...)
+            worlds = data.qpos.shape[1]
+            out = step_worlds(jax.tree.map(lambda x: x.reshape((axis_size * worlds,) + x.shape[2:]), data))
+            return jax.tree.map(lambda x: x.reshape((axis_size, worlds) + x.shape[1:]), out), _all_batched(out)
+
+        @jax.custom_batching.custom_vmap
+        def step_one(data):
+            return jax.tree.map(lambda x: x[0], step_worlds(jax.tree.map(lambda x: x[None], data)))
+
+        @step_one.def_vmap
+        def step_one_batched(axis_size, in_batched, data):
+            out = step_worlds(_broadcast(data, in_batched[0], axis_size))
+            return out, _all_batched(out)
+
+        return step_one(data)
+
+    def _step_worlds(self, physics, data: mjx.Data) -> mjx.Data:
+        """`physics` (Warp steps or forward) on the worlds along `data`'s leading axis, with a contact pool
+        for all of them; the result in the state's form (no shared buffers, the state's sizes)."""
+        worlds = data.qpos.shape[0]
+        pool = self.warp_buffers.pool(worlds)
+        template_pool = self.warp_buffers.pool(1)
+        shared = {name: jnp.broadcast_to(buffer[:1], (pool,) + buffer.shape[1:])  # every slot starts alike
+                  if name.startswith("contact__") and buffer.shape[:1] == (template_pool,) else buffer
+                  for name, buffer in self._warp_shared.items()}
+        impl = data._impl.replace(**shared, naconmax=pool, naccdmax=pool,
+                                  overflow=jnp.zeros_like(data._impl.overflow))  # Warp's flags stick until cleared
+        out = physics(self.mjx_model, data.replace(_impl=impl))
+        return out.replace(_impl=out._impl.replace(**dict.fromkeys(shared), naconmax=data._impl.naconmax,
+                                                   naccdmax=data._impl.naccdmax))
+
     def _without_shared(self, data: mjx.Data) -> mjx.Data:
         if not self._warp_shared:
             return data
         return data.replace(_impl=data._impl.replace(**dict.fromkeys(self._warp_shared)))
-
-    def _with_shared(self, data: mjx.Data) -> mjx.Data:
-        if not self._warp_shared:
-            return data
-        return data.replace(_impl=data._impl.replace(**self._warp_shared))
 
     # ---- checks (run once, while tracing) ------------------------------------
     def _check_step_shapes(self, reset_obs, obs, reward, terminated) -> None:
@@ -318,6 +424,36 @@ class MjxEnv(Env):
                     )
             table.append(ctrl)
         return jnp.asarray(np.stack(table), jnp.float32)
+
+
+def overflow_report(env: Env, contact_steps: int, constraint_steps: int, steps: int) -> str:
+    """One line for a training log: which of MuJoCo Warp's buffers ran out on how many of `steps`
+    env-steps (counted from info["overflow"]) and the override that fixes it."""
+    task = env
+    while not isinstance(task, MjxEnv) and hasattr(task, "env"):
+        task = task.env
+    buffers = getattr(task, "warp_buffers", None) or WarpBuffers(nconmax=0, njmax=0)
+    parts = []
+    if contact_steps:
+        now = f"naconmax={buffers.naconmax} for the batch" if buffers.naconmax else f"nconmax={buffers.nconmax} per env"
+        bigger = f"naconmax={2 * buffers.naconmax}" if buffers.naconmax else f"nconmax={2 * buffers.nconmax}"
+        parts.append(f"its contact pool ({now}) on {contact_steps:,} of {steps:,} env-steps: raise it with "
+                     f"--env-opt {bigger} (envs.make(..., {bigger}))")
+    if constraint_steps:
+        parts.append(f"its constraint rows (njmax={buffers.njmax} per env) on {constraint_steps:,} of {steps:,} "
+                     f"env-steps: raise them with --env-opt njmax={2 * buffers.njmax} "
+                     f"(envs.make(..., njmax={2 * buffers.njmax}))")
+    return ("MuJoCo Warp ran out of " + "; and of ".join(parts)
+            + ". Those steps are not physics: they ended their episodes and stayed out of the replay.")
+
+
+def _broadcast(tree, batched, axis_size: int):
+    """Every leaf of `tree` with the leading `axis_size` axis (unbatched leaves repeated)."""
+    return jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), tree, batched)
+
+
+def _all_batched(tree):
+    return jax.tree.map(lambda _: True, tree)
 
 
 def uniform_bins(model: mujoco.MjModel, count: int, task: str = "task") -> dict[str, tuple[float]]:

@@ -8,12 +8,15 @@ from typing import Any, Callable
 
 from envs.core import Env
 from envs.mjx_env import MjxEnv
+from envs.mjx_options import check_buffer_sizes, check_opt, parse_opt_field
 from envs.randomize import PER, Randomize
 from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
 
-# Overrides every MJX task takes besides its own (see `make`).
-MJX_OPTIONS = {"impl": "jax", "randomize": None, "randomize_per": PER[0]}
+# Overrides every MJX task takes besides its own (see `make`): `opt` (MuJoCo's solver options,
+# `envs.mjx_options`) and MuJoCo Warp's buffer sizes (None: derived from the model).
+MJX_OPTIONS = {"impl": "jax", "opt": None, "nconmax": None, "naconmax": None, "njmax": None,
+               "randomize": None, "randomize_per": PER[0]}
 
 _REGISTRY: dict[str, tuple[Callable[..., Env], int]] = {}
 
@@ -50,7 +53,9 @@ def options(name: str) -> dict[str, Any]:
 def make(name: str, **overrides: Any) -> Env:
     """Build a registered env, its episodes limited to `episode_length` steps (truncation).
 
-    An MJX task also takes `impl` ("jax", or "warp" for MuJoCo Warp on an NVIDIA GPU) and
+    An MJX task also takes `impl` ("jax", or "warp" for MuJoCo Warp on an NVIDIA GPU), `opt`
+    (`mujoco.MjOption` fields, e.g. `opt={"iterations": 4, "solver": "CG"}`), `nconmax`,
+    `naconmax` and `njmax` (MuJoCo Warp's buffers, see `envs.mjx_options.WarpBuffers`) and
     `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`."""
     factory, _ = _lookup(name)
     valid = options(name)
@@ -70,9 +75,13 @@ def make(name: str, **overrides: Any) -> Env:
                 kwargs[param.name] = dataclasses.replace(param.default, **changes)
     for value in kwargs.values():  # out-of-range physics or rules are refused here, before anything compiles
         check_fields(value, getattr(value, "RANGES", {}))
+    if mjx_options:
+        check_opt(mjx_options["opt"], f"env {name!r}")
+        check_buffer_sizes(mjx_options, f"env {name!r}")
     env = factory(**kwargs)
     if mjx_options:
-        env = env.with_impl(mjx_options["impl"])
+        env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],
+                             naconmax=mjx_options["naconmax"], njmax=mjx_options["njmax"])
         if mjx_options["randomize"]:
             env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
     return TimeLimit(env, episode_length)
@@ -86,13 +95,17 @@ def _makes_mjx_env(factory: Callable[..., Env]) -> bool:
 
 def parse_option(name: str, option: str, text: str) -> Any:
     """An override of env `name` from text (the command line's `--env-opt option=text`), read
-    as its default's type: true/false for a bool, a number for an int or float, text for a str."""
+    as its default's type: true/false for a bool, a number for an int or float, text for a str.
+    `opt.FIELD` is one field of an MJX task's `opt` (`envs.mjx_options.parse_opt_field`)."""
     valid = options(name)
+    if option.startswith("opt.") and "opt" in valid:
+        return parse_opt_field(option.removeprefix("opt."), text, f"env {name!r}")
     if option not in valid:
         raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
     default = valid[option]
-    if option == "randomize" or dataclasses.is_dataclass(default):
-        fix = "use --randomize FIELD:ELEMENT=LOW:HIGH" if option == "randomize" else "set its fields one by one"
+    if option in ("randomize", "opt") or dataclasses.is_dataclass(default):
+        fix = {"randomize": "use --randomize FIELD:ELEMENT=LOW:HIGH",
+               "opt": "set its fields one by one: --env-opt opt.iterations=4"}.get(option, "set its fields one by one")
         raise ValueError(f"option {option!r} of env {name!r} cannot be given as text; {fix}")
     try:
         if isinstance(default, bool):

@@ -16,7 +16,7 @@ from envs.episode_keys import episode_keys, next_episode_key
 
 # Info entries that describe the transition just taken; an auto-reset keeps
 # them instead of taking the fresh episode's values.
-TRANSITION_INFO = ("truncation", "nan")
+TRANSITION_INFO = ("truncation", "nan", "overflow")
 
 
 class TimeLimit(Wrapper):

@@ -64,3 +64,79 @@ def test_dqn_trains_with_warp_as_with_jax(seeds, seed_axis):
     for ours, reference in zip(jax.tree.leaves(runs["warp"].params), jax.tree.leaves(runs["jax"].params)):
         np.testing.assert_allclose(np.asarray(ours), np.asarray(reference), atol=1e-5)
     assert runs["warp"].mean_return == runs["jax"].mean_return
+
+
+def contact_rollout(steps: int = 10, num_envs: int = 4, **overrides):
+    """Gymnasium's half_cheetah.xml (ground contacts), `num_envs` envs under random actions:
+    qpos and qvel, info["overflow"], done, reward and obs after each step."""
+    from benchmarks.contact_task import contact_task_name
+
+    env = VmapWrapper(envs.make(contact_task_name(), **overrides), num_envs)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size), minval=-1, maxval=1)
+
+    def run(key):
+        def body(state, action):
+            new = env.step(state, action)
+            physics = jnp.concatenate([new.pipeline_state.qpos, new.pipeline_state.qvel], -1)
+            return new, (physics, new.info["overflow"], new.done, new.reward, new.obs, state.obs)
+
+        return jax.lax.scan(body, env.reset(key), actions)[1]
+
+    return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
+
+
+def test_warp_follows_jax_on_a_contact_model_at_the_default_sizes(capfd):
+    """The default buffers (MJX's JAX implementation's bounds: 16 contacts and 70 rows per env
+    for half_cheetah.xml) hold every step, and Warp follows JAX over 10 steps (50 physics steps) to
+    1e-4 in positions and 1e-3 (3e-4 relative) in velocities: float32 rounding that contact
+    dynamics under random actions grow (to 1e-2 by step 40, each implementation as near C MuJoCo
+    as the other)."""
+    from benchmarks.contact_task import contact_task_name
+
+    task = envs.make(contact_task_name(), impl="warp").unwrapped
+    assert (task.warp_buffers.nconmax, task.warp_buffers.njmax) == (16, 70)
+    warp, jax_ = contact_rollout(impl="warp"), contact_rollout()
+    assert warp[1].sum() == 0 and warp[2].sum() == 0
+    nq = task.mj_model.nq
+    np.testing.assert_allclose(warp[0][..., :nq], jax_[0][..., :nq], atol=1e-4)  # positions
+    np.testing.assert_allclose(warp[0][..., nq:], jax_[0][..., nq:], atol=1e-3, rtol=1e-3)  # velocities, up to ~5
+    assert "overflow" not in capfd.readouterr().out
+
+
+def test_an_undersized_warp_buffer_flags_the_step_never_a_silent_wrong_one(capfd):
+    """One contact for 4 envs' ground contacts, or 4 constraint rows for 8+: every such step is
+    flagged (1.0 contacts, 2.0 rows), ends its episode with reward 0 and the previous observation,
+    and MuJoCo Warp's own print flood is off (the training run prints one line instead)."""
+    physics, overflow, done, reward, obs, previous_obs = contact_rollout(steps=4, impl="warp", naconmax=1)
+    flagged = overflow > 0
+    assert set(np.unique(overflow)) <= {0.0, 1.0} and flagged.mean() > 0.5
+    assert (done[flagged] == 1).all() and (reward[flagged] == 0).all()
+    np.testing.assert_array_equal(obs[flagged], previous_obs[flagged])
+    overflow = contact_rollout(steps=4, impl="warp", njmax=4)[1]
+    assert 2.0 in overflow and 1.0 not in overflow
+    assert "overflow" not in capfd.readouterr().out
+
+
+def test_brax_training_wrappers_end_an_overflowing_episode():
+    """Brax's own training stack (episode limit, vmap, auto-reset) over `envs.to_brax`: a step
+    Warp could not hold arrives as the end of its episode, flagged, with reward 0."""
+    from brax.envs.wrappers.training import wrap
+
+    from benchmarks.contact_task import contact_task_name
+
+    env = envs.to_brax(contact_task_name(), impl="warp", naconmax=1)
+    batch = wrap(env, episode_length=env.episode_length)
+    state = jax.jit(batch.reset)(jax.random.split(jax.random.PRNGKey(0), 4))
+    step = jax.jit(batch.step)
+    for _ in range(3):
+        state = step(state, jnp.zeros((4, env.action_size)))
+        flagged = np.asarray(state.info["overflow"]) > 0
+        assert flagged.any()
+        assert (np.asarray(state.done)[flagged] == 1).all() and (np.asarray(state.reward)[flagged] == 0).all()
+
+
+def test_the_overflow_bits_are_mujoco_warps():
+    from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
+
+    assert mjx_env.CONTACT_OVERFLOW == OverflowType.BROADPHASE | OverflowType.NARROWPHASE | OverflowType.CCD
+    assert mjx_env.CONSTRAINT_OVERFLOW == OverflowType.NEFC | OverflowType.NJMAX_NNZ
