@@ -232,13 +232,19 @@ def main(argv=None) -> None:
     parser.add_argument("--json", metavar="FILE", help="write the records as JSON")
     args = parser.parse_args(argv)
     missing = warp_missing()
-    found = follows(args.envs, args.steps, missing) if "a" in args.parts or "b" in args.parts else []
-    found += throughput(args.sizes, args.scan_steps, args.repeats, missing) if "c" in args.parts else []
-    found += ppo(args.ppo_steps, args.ppo_envs, missing) if "d" in args.parts else []
-    print(f"device: {device_name()}\n" + table(found))
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(found, f, indent=2)
+    parts = [(lambda: follows(args.envs, args.steps, missing)) if "a" in args.parts or "b" in args.parts else None,
+             (lambda: throughput(args.sizes, args.scan_steps, args.repeats, missing)) if "c" in args.parts else None,
+             (lambda: ppo(args.ppo_steps, args.ppo_envs, missing)) if "d" in args.parts else None]
+    print(f"device: {device_name()}", flush=True)
+    found = []
+    # Printed and written part by part: a run cut short (a device call's time limit) keeps what it measured.
+    for part in filter(None, parts):
+        records = part()
+        found += records
+        print(table(records), flush=True)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(found, f, indent=2)
 
 
 if __name__ == "__main__":
