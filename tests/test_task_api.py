@@ -102,7 +102,7 @@ def test_colliding_geoms_mjx_cannot_handle_get_a_hint(tmp_path):
     xml.write_text(SLIDER_XML.replace('<default><geom contype="0" conaffinity="0"/></default>', "").replace(
         '<worldbody>', '<worldbody><geom type="box" size="1 1 0.1"/>'
     ).replace('type="box" size="0.1 0.1 0.1"', 'type="cylinder" size="0.1 0.1"'))
-    with pytest.raises(NotImplementedError, match=r"task Slider: MJX cannot run this model.*contype"):
+    with pytest.raises(NotImplementedError, match=r"task Slider: MJX .*cannot run this model.*contype"):
         Slider(xml)
 
 
