@@ -36,6 +36,7 @@ def test_inverted_double_pendulum_steps_match_gymnasium():
     assert set(ours.steps.info) == {"reward_survive", "distance_penalty", "velocity_penalty"}
 
 
+@pytest.mark.slow  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
 def test_inverted_double_pendulum_episodes_match_gymnasium():
     """Whole episodes side by side: the reset's observation (tip site, constraint force) and
     the steps that read what MuJoCo's RK4 leaves behind."""

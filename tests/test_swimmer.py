@@ -21,6 +21,7 @@ def steps():
     return ours, gymnasium_steps(GYMNASIUM_ID, ours)
 
 
+@pytest.mark.slow  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
 def test_steps_match_gymnasium(steps):
     ours, theirs = steps
     assert (np.abs(theirs.obs[:, 1:3]) > HINGE_LIMIT).any(), "some states must push a hinge past its limit"
