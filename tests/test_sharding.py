@@ -48,7 +48,7 @@ SINGLE_HOST = textwrap.dedent("""
 
     def kept(run):  # eval.json without its timings
         record = json.loads((out / run / "eval.json").read_text())
-        return {k: v for k, v in record.items() if k not in ("wall_s", "compile_s", "solve_wall_s", "devices")}
+        return {k: v for k, v in record.items() if k not in ("wall_s", "compile_s", "solve_wall_s", "devices", "wall_parts_s")}
 
     found = {}
     one = train_run("cartpole", config, seeds=seeds, devices=1, out_dir=out / "one", progress=False)
