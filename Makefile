@@ -19,7 +19,7 @@ test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 	$(BIN)/python -m pytest -q
 
 test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
-	$(BIN)/python -m pytest -q -m slow
+	$(BIN)/python -m pytest -q -m slow -n 2  # two workers: the slow tests are independent runs (25.5 min on 2 cores, 2026-11-25)
 
 # `make bench BENCH_TAG=gpu` on a GPU machine
 BENCH_TAG ?= cpu
