@@ -37,6 +37,7 @@ import numpy as np
 import envs
 from benchmarks.contact_task import contact_task_name
 from benchmarks.env_throughput import device_name, time_side_by_side
+from envs.registry import parse_option
 
 IMPLS = ("jax", "warp")
 C_CHECKED = 16  # envs compared with C MuJoCo in (a)
@@ -128,16 +129,18 @@ def rollout(env_name: str, num_envs: int, steps: int, impl: str):
         return jax.random.uniform(key, (num_envs, env.action_size), minval=-1, maxval=1)
 
     def body(carry, _):
-        state, key, total = carry
+        state, key, total, overflows = carry
         key, action_key = jax.random.split(key)
         state = env.step(state, random_action(action_key))
-        return (state, key, total + state.reward.sum()), None
+        overflowed = (state.info.get("overflow", jnp.zeros_like(state.reward)) > 0).sum()
+        return (state, key, total + state.reward.sum(), overflows + overflowed), None
 
     @jax.jit
     def run(key):
         key, reset_key = jax.random.split(key)
-        (state, _, total), _ = jax.lax.scan(body, (env.reset(reset_key), key, jnp.zeros(())), None, steps)
-        return total, state.pipeline_state.qpos  # keeps the physics from being dropped
+        start = (env.reset(reset_key), key, jnp.zeros(()), jnp.zeros((), jnp.int32))
+        (state, _, total, overflows), _ = jax.lax.scan(body, start, None, steps)
+        return total, overflows, state.pipeline_state.qpos  # the qpos keeps the physics from being dropped
 
     return run, base.unwrapped.n_substeps
 
@@ -159,40 +162,46 @@ def throughput(sizes: list[int], steps: int | None, repeats: int, missing: str |
                 start = time.perf_counter()
                 compiled = run.lower(key).compile()
                 compile_s = time.perf_counter() - start
-                jax.block_until_ready(compiled(key))  # Warp builds its kernels on the first call
+                _, overflows, _ = jax.block_until_ready(compiled(key))  # Warp builds its kernels on the first call
                 first_call_s = time.perf_counter() - start
                 seconds = statistics.median(time_side_by_side([compiled], repeats)[0])
                 env_steps = num_envs * n_steps / seconds
                 found.append({**record, "substeps": substeps, "compile_s": compile_s, "first_call_s": first_call_s,
-                              "env_steps_per_s": env_steps, "physics_steps_per_s": env_steps * substeps})
+                              "env_steps_per_s": env_steps, "physics_steps_per_s": env_steps * substeps,
+                              "overflow_steps": int(overflows)})  # env-steps of the first call that overflowed
     return found
 
 
-def ppo(num_timesteps: int, num_envs: int, missing: str | None) -> list[dict]:
-    """(d): Brax PPO with Brax's MuJoCo-locomotion settings (as MuJoCo Playground's for cheetah)."""
+def ppo(num_timesteps: int, num_envs: int, impls: list[str], opt: dict, missing: str | None):
+    """(d): Brax PPO with Brax's MuJoCo-locomotion settings (as MuJoCo Playground's for cheetah),
+    one record per implementation, yielded as each run ends (a run cut short keeps the ones before),
+    every evaluation printed as it comes with the wall time since the run began."""
     if num_timesteps <= 0:
-        return []
+        return
     from brax.training.agents.ppo import train as ppo_train
 
-    found = []
-    for impl in IMPLS:
+    for impl in impls:
         record = {"kind": "warp-contact-ppo", "env": contact_task_name(), "impl": impl, "num_timesteps": num_timesteps,
-                  "num_envs": num_envs, "device": device_name()}
+                  "num_envs": num_envs, "opt": opt, "device": device_name()}
         if impl == "warp" and missing:
-            found.append({**record, "skipped": missing})
+            yield {**record, "skipped": missing}
             continue
-        env = envs.to_brax(contact_task_name(), impl=impl)
+        env = envs.to_brax(contact_task_name(), impl=impl, **({"opt": opt} if opt else {}))
         evals = []
         start = time.perf_counter()
+
+        def progress(step, metrics, impl=impl, evals=evals, start=start):
+            evals.append((int(step), float(metrics["eval/episode_reward"]), time.perf_counter() - start))
+            print(f"  ppo {impl}: step {evals[-1][0]:>9,}  eval return {evals[-1][1]:9.1f}  {evals[-1][2]:6.1f} s",
+                  flush=True)
+
         ppo_train.train(environment=env, num_timesteps=num_timesteps, episode_length=env.episode_length,
                         num_envs=num_envs, batch_size=min(512, num_envs), num_minibatches=32 if num_envs >= 512 else 4,
                         unroll_length=20, num_updates_per_batch=8, learning_rate=3e-4, entropy_cost=1e-3,
                         discounting=0.95, reward_scaling=1.0, normalize_observations=True, action_repeat=1,
-                        num_evals=5, num_eval_envs=min(128, num_envs), seed=0,
-                        progress_fn=lambda step, metrics: evals.append((int(step), float(metrics["eval/episode_reward"]))))
-        wall_s = time.perf_counter() - start
-        found.append({**record, "eval_return": evals[-1][1], "evals": evals, "wall_s": wall_s})
-    return found
+                        num_evals=5, num_eval_envs=min(128, num_envs), seed=0, progress_fn=progress)
+        yield {**record, "eval_return": evals[-1][1], "evals": evals, "wall_s": time.perf_counter() - start,
+               "first_eval_s": evals[0][2]}
 
 
 def table(found: list[dict]) -> str:
@@ -212,7 +221,7 @@ def table(found: list[dict]) -> str:
         elif r["kind"] == "warp-contact-throughput":
             lines.append(f"(c) {r['env']:<20} {r['impl']:<5} {r['num_envs']:>8} envs  "
                          f"{r['physics_steps_per_s']:.3g} physics steps/s  compile {r['compile_s']:.1f} s, "
-                         f"first call {r['first_call_s']:.1f} s")
+                         f"first call {r['first_call_s']:.1f} s, overflow steps {r['overflow_steps']}")
         elif r["kind"] == "warp-contact-ppo":
             lines.append(f"(d) PPO {r['impl']:<5} {r['num_timesteps']:,} steps: eval return {r['eval_return']:.1f} "
                          f"in {r['wall_s']:.0f} s")
@@ -229,22 +238,29 @@ def main(argv=None) -> None:
     parser.add_argument("--parts", default="abcd", help="which of (a)+(b) 'ab', (c) 'c', (d) 'd' to run, e.g. --parts abc")
     parser.add_argument("--ppo-steps", type=int, default=3_000_000, help="env steps of each PPO run in (d); 0: skip")
     parser.add_argument("--ppo-envs", type=int, default=2048)
+    parser.add_argument("--ppo-impls", nargs="+", choices=IMPLS, default=list(IMPLS), help="PPO runs of (d), in order")
+    parser.add_argument("--ppo-opt", nargs="*", default=[], metavar="FIELD=VALUE",
+                        help="MuJoCo solver options of the PPO task, e.g. iterations=4 ls_iterations=8")
     parser.add_argument("--json", metavar="FILE", help="write the records as JSON")
     args = parser.parse_args(argv)
     missing = warp_missing()
+    ppo_opt = {field: parse_option(contact_task_name(), f"opt.{field}", text)
+               for field, _, text in (pair.partition("=") for pair in args.ppo_opt)}
     parts = [(lambda: follows(args.envs, args.steps, missing)) if "a" in args.parts or "b" in args.parts else None,
              (lambda: throughput(args.sizes, args.scan_steps, args.repeats, missing)) if "c" in args.parts else None,
-             (lambda: ppo(args.ppo_steps, args.ppo_envs, missing)) if "d" in args.parts else None]
+             (lambda: ppo(args.ppo_steps, args.ppo_envs, args.ppo_impls, ppo_opt, missing)) if "d" in args.parts else None]
     print(f"device: {device_name()}", flush=True)
     found = []
     # Printed and written part by part: a run cut short (a device call's time limit) keeps what it measured.
     for part in filter(None, parts):
-        records = part()
-        found += records
+        records = []
+        for record in part():  # (d) yields its records one run at a time
+            records.append(record)
+            found.append(record)
+            if args.json:
+                with open(args.json, "w") as f:
+                    json.dump(found, f, indent=2)
         print(table(records), flush=True)
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump(found, f, indent=2)
 
 
 if __name__ == "__main__":
