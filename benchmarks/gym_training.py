@@ -1,0 +1,110 @@
+"""Train with `mjxsuite train` and judge the saved policy on Gymnasium's own env: the README's
+training table (task, agent, wall time, return here, return on Gymnasium).
+
+Each `--run` is the argument list of one `mjxsuite train` (its `--out` is added), run as a user
+runs it, in its own process, timed from start to exit. The saved policy (`agents.load_policy`)
+then drives Gymnasium's own env of the task (`gymnasium.make(gymnasium_id)`: C MuJoCo, float64,
+its `max_episode_steps`) for `--episodes` episodes with deterministic actions, reset with seeds
+0, 1, ...; the record holds that mean return beside the run's own final evaluation (eval.json),
+on our env. Records are JSON (`--json FILE`, kind "gym-training"), written run by run.
+
+    python -m benchmarks.gym_training --run "--env inverted-pendulum --agent ppo" \\
+        [--run "--env half-cheetah --agent ppo --impl warp --steps 20000000" ...]
+        [--out runs/gym-training] [--episodes 10] [--timeout SECONDS] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def gymnasium_returns(out_dir: Path, episodes: int) -> list[float] | None:
+    """Returns of the run's saved policy on Gymnasium's own env of its task (None: the task has no
+    Gymnasium twin)."""
+    import gymnasium
+
+    import agents
+    import envs
+    from agents import checkpoint
+
+    env_name = checkpoint.load_config(out_dir).env
+    gymnasium_id = getattr(envs.make(env_name).unwrapped, "gymnasium_id", None)
+    if gymnasium_id is None:
+        return None
+    policy = agents.load_policy(out_dir)
+    env = gymnasium.make(gymnasium_id)
+    returns = []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=episode)
+        total, done = 0.0, False
+        while not done:
+            obs, reward, terminated, truncated, _ = env.step(policy(obs))
+            total += float(reward)
+            done = terminated or truncated
+        returns.append(total)
+    env.close()
+    return returns
+
+
+def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float | None) -> dict:
+    record = {"kind": "gym-training", "command": "mjxsuite train " + shlex.join(train_args)}
+    command = [sys.executable, "-m", "benchmarks.cli", "train", *train_args, "--out", str(out_dir)]
+    start = time.perf_counter()
+    try:
+        finished = subprocess.run(command, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {**record, "skipped": f"did not finish in {timeout:.0f} s"}
+    record["wall_s"] = time.perf_counter() - start
+    if finished.returncode != 0:
+        return {**record, "skipped": f"exit status {finished.returncode}"}
+    summary = json.loads((out_dir / "eval.json").read_text())
+    record.update(env=summary["env"], agent=summary.get("agent", "dqn"), return_here=float(np.mean(summary["mean_return"])),
+                  train_wall_s=summary.get("wall_s"), compile_s=summary.get("compile_s"))
+    config = json.loads((out_dir / "config.json").read_text())
+    record["env_options"] = config.get("env_options", {})
+    returns = gymnasium_returns(out_dir, episodes)
+    if returns is not None:
+        record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)),
+                      gymnasium_over_here=float(np.mean(returns)) / record["return_here"])
+    return record
+
+
+def line(r: dict) -> str:
+    if "skipped" in r:
+        return f"{r['command']}: {r['skipped']}"
+    gym = f"{r['return_on_gymnasium']:.1f}" if "return_on_gymnasium" in r else "-"
+    return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {r['return_here']:9.1f}  "
+            f"on Gymnasium {gym:>9}   ({r['command']})")
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.gym_training", description=__doc__.splitlines()[0])
+    parser.add_argument("--run", dest="runs", action="append", required=True, metavar='"TRAIN ARGS"',
+                        help='the arguments of one `mjxsuite train`, quoted, e.g. "--env hopper --agent sac"; repeatable')
+    parser.add_argument("--out", default="runs/gym-training", help="parent of the runs' directories")
+    parser.add_argument("--episodes", type=int, default=10, help="episodes on Gymnasium's env")
+    parser.add_argument("--timeout", type=float, help="seconds one training may take before it is stopped")
+    parser.add_argument("--json", metavar="FILE", help="write the records as JSON")
+    args = parser.parse_args(argv)
+    found = []
+    for i, text in enumerate(args.runs):
+        train_args = shlex.split(text)
+        if "--out" in train_args:
+            parser.error(f"--run {text!r}: leave --out out, the runs go under --out {args.out}")
+        record = run_one(train_args, Path(args.out) / f"run{i}", args.episodes, args.timeout)
+        found.append(record)
+        print(line(record), flush=True)
+        if args.json:
+            Path(args.json).write_text(json.dumps(found, indent=2))
+
+
+if __name__ == "__main__":
+    main()
