@@ -16,17 +16,16 @@ os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_
 # program itself, so a test that changes what is traced (a monkeypatched step) misses it.
 # Subprocesses the tests start (the CLI, kill -9 and resume, two-process runs) inherit it
 # through MJXSUITE_COMPILE_CACHE, with `agents.export_cache` beside it as a user has it.
-# `make test` runs two pytest-xdist workers: they inherit the directory of the process that
-# started them (its environment, set here before they spawn) and share it, so a program one
-# worker compiled the other loads; JAX then locks the directory (a size limit turns on its
-# file lock) so that neither reads an entry the other is still writing.
+# `make test` runs two pytest-xdist workers: each takes a directory of its own (as a sequential
+# run has), not the one of the process that started them, which their environment inherits;
+# one directory shared by concurrent writers would need JAX's file lock, which a test's own
+# subprocess (the CLI, unlocked) would then trip over.
 _PREFIX = "mjxsuite-test-compile-cache-"
 _CACHE_DIR = tempfile.mkdtemp(prefix=_PREFIX)
 atexit.register(shutil.rmtree, _CACHE_DIR, ignore_errors=True)
-os.environ.setdefault("MJXSUITE_COMPILE_CACHE", _CACHE_DIR)
-if os.environ.get("PYTEST_XDIST_WORKER") and os.path.basename(os.environ["MJXSUITE_COMPILE_CACHE"]).startswith(_PREFIX):
-    shutil.rmtree(_CACHE_DIR, ignore_errors=True)
-    _CACHE_DIR = os.environ["MJXSUITE_COMPILE_CACHE"]  # the starting process's; it deletes it at exit
+_INHERITED = os.environ.get("MJXSUITE_COMPILE_CACHE")
+if _INHERITED is None or (os.environ.get("PYTEST_XDIST_WORKER") and os.path.basename(_INHERITED).startswith(_PREFIX)):
+    os.environ["MJXSUITE_COMPILE_CACHE"] = _CACHE_DIR
 
 import jax  # noqa: E402 (after the environment above)
 import pytest  # noqa: E402
@@ -39,7 +38,6 @@ if os.environ["MJXSUITE_COMPILE_CACHE"] == _CACHE_DIR:
     # JAX's default one-second threshold, and they add up.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    jax.config.update("jax_compilation_cache_max_size", 2**34)  # never reached; it makes JAX lock the directory
 else:
     shutil.rmtree(_CACHE_DIR, ignore_errors=True)
 

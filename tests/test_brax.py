@@ -99,6 +99,7 @@ def small_networks(hidden=(32, 32)):
     )
 
 
+@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); a Brax PPO compile (~20 s); PPO through envs.to_brax stays in tests/test_brax_cli.py's tiny run
 def test_brax_ppo_trains_on_our_env():
     """A few hundred steps of Brax's PPO through our API: it runs, its metrics are sane, and
     its policy acts in our env."""

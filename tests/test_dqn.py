@@ -179,6 +179,7 @@ def _assert_trees_equal(a, b):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); compiles the accelerator's DQN program on the CPU (~25 s)
 def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
     """The replay `agents.backend` picks for accelerators (gathers, scatters, level-by-level
     sum trees), run on the CPU, computes the CPU program's values bit for bit: with the

@@ -280,6 +280,7 @@ def test_training_logger_curves_per_seed_and_eval_episodes_every_n_chunks(tmp_pa
     assert contents.rows["train/env_steps_per_s"] == 3
 
 
+@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); a training run of its own (~17 s); the CLI's train + rollout recordings stay
 def test_recorded_eval_episode_replays_the_greedy_policy():
     """The episode `evaluate(record=True)` returns is the first env's trajectory, step for step."""
     env = envs.make("cartpole-mjx")
