@@ -26,16 +26,14 @@ from pathlib import Path
 import numpy as np
 
 
-def gymnasium_returns(out_dir: Path, episodes: int) -> list[float] | None:
-    """Returns of the run's saved policy on Gymnasium's own env of its task (None: the task has no
-    Gymnasium twin)."""
+def gymnasium_returns(out_dir: Path, env_name: str, episodes: int) -> list[float] | None:
+    """Returns of the run's saved policy on Gymnasium's own env of its task `env_name` (None: the
+    task has no Gymnasium twin)."""
     import gymnasium
 
     import agents
     import envs
-    from agents import checkpoint
 
-    env_name = checkpoint.load_config(out_dir).env
     gymnasium_id = getattr(envs.make(env_name).unwrapped, "gymnasium_id", None)
     if gymnasium_id is None:
         return None
@@ -65,12 +63,14 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     record["wall_s"] = time.perf_counter() - start
     if finished.returncode != 0:
         return {**record, "skipped": f"exit status {finished.returncode}"}
+    from agents import checkpoint
+
+    saved = checkpoint.load_config(out_dir)
     summary = json.loads((out_dir / "eval.json").read_text())
-    record.update(env=summary["env"], agent=summary.get("agent", "dqn"), return_here=float(np.mean(summary["mean_return"])),
-                  train_wall_s=summary.get("wall_s"), compile_s=summary.get("compile_s"))
-    config = json.loads((out_dir / "config.json").read_text())
-    record["env_options"] = config.get("env_options", {})
-    returns = gymnasium_returns(out_dir, episodes)
+    record.update(env=saved.env, agent=saved.agent, env_options=saved.env_options,
+                  return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
+                  compile_s=summary.get("compile_s"))
+    returns = gymnasium_returns(out_dir, saved.env, episodes)
     if returns is not None:
         record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)),
                       gymnasium_over_here=float(np.mean(returns)) / record["return_here"])
