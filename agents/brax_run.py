@@ -143,7 +143,7 @@ def train_brax(
             return  # Brax re-evaluates the restored parameters first: that record exists already
         steps = step_offset + brax_step
         params = _evaluated_params(config, out, evaluated, brax_step)
-        record = _record(metrics, evals_done, steps)
+        record = {**_record(metrics, evals_done, steps), "wall_s": time.perf_counter() - start}
         if params is not None and (state.best_params is None or record["eval_return"] > float(state.best_return[0])):
             state = state._replace(best_params=params, best_return=np.full(1, record["eval_return"], np.float32))
         if params is not None:

@@ -640,6 +640,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
+    from envs.mjx_env import WarpUnavailable
 
     try:
         if args.command in ("train", "sweep", "eval", "rollout"):
@@ -656,6 +657,9 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
         raise
     except (ValueError, FileNotFoundError) as err:  # the envs and agents APIs refuse bad input with these
         print(f"mjxsuite: {err}", file=sys.stderr)
+        return 2
+    except WarpUnavailable as err:
+        print(f"mjxsuite: --impl warp: {err}", file=sys.stderr)
         return 2
     except (CheckpointError, OSError) as err:
         print(f"mjxsuite: {err}", file=sys.stderr)

@@ -6,7 +6,9 @@ runs it, in its own process, timed from start to exit. The saved policy (`agents
 then drives Gymnasium's own env of the task (`gymnasium.make(gymnasium_id)`: C MuJoCo, float64,
 its `max_episode_steps`) for `--episodes` episodes with deterministic actions, reset with seeds
 0, 1, ...; the record holds that mean return beside the run's own final evaluation (eval.json),
-on our env. Records are JSON (`--json FILE`, kind "gym-training"), written run by run.
+on our env, and the run's evaluation curve (env steps, Brax's evaluation return, seconds since
+the start). A run still training after `--timeout` seconds gets Ctrl-C, so it saves its
+checkpoint; its saved policy is judged all the same and the record says "interrupted". Records are JSON (`--json FILE`, kind "gym-training"), written run by run.
 
     python -m benchmarks.gym_training --run "--env inverted-pendulum --agent ppo" \\
         [--run "--env half-cheetah --agent ppo --impl warp --steps 20000000" ...]
@@ -18,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
+import signal
 import subprocess
 import sys
 import time
@@ -53,27 +56,45 @@ def gymnasium_returns(out_dir: Path, env_name: str, episodes: int) -> list[float
 
 
 def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float | None) -> dict:
+    """Train, then judge. A training still running after `timeout` s gets Ctrl-C (it saves its
+    checkpoint and stops); its saved policy is judged all the same, marked "interrupted"."""
     record = {"kind": "gym-training", "command": "mjxsuite train " + shlex.join(train_args)}
     command = [sys.executable, "-m", "benchmarks.cli", "train", *train_args, "--out", str(out_dir)]
     start = time.perf_counter()
+    training = subprocess.Popen(command)
     try:
-        finished = subprocess.run(command, timeout=timeout)
+        training.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
-        return {**record, "skipped": f"did not finish in {timeout:.0f} s"}
+        record["interrupted"] = f"stopped after {timeout:.0f} s"
+        training.send_signal(signal.SIGINT)
+        try:
+            training.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            training.kill()
+            training.wait()
     record["wall_s"] = time.perf_counter() - start
-    if finished.returncode != 0:
-        return {**record, "skipped": f"exit status {finished.returncode}"}
+    if training.returncode != 0 and "interrupted" not in record:
+        return {**record, "skipped": f"exit status {training.returncode}"}
+    if not (out_dir / "config.json").exists():
+        return {**record, "skipped": "no run was saved"}
     from agents import checkpoint
 
     saved = checkpoint.load_config(out_dir)
-    summary = json.loads((out_dir / "eval.json").read_text())
-    record.update(env=saved.env, agent=saved.agent, env_options=saved.env_options,
-                  return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
-                  compile_s=summary.get("compile_s"))
+    record.update(env=saved.env, agent=saved.agent, env_options=saved.env_options)
+    metrics = out_dir / "metrics.jsonl"
+    evaluations = [json.loads(text) for text in metrics.read_text().splitlines()] if metrics.exists() else []
+    record["evaluations"] = [{key: r.get(key) for key in ("env_steps", "eval_return", "wall_s")} for r in evaluations]
+    if (out_dir / "eval.json").exists():
+        summary = json.loads((out_dir / "eval.json").read_text())
+        record.update(return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
+                      compile_s=summary.get("compile_s"))
+    else:  # interrupted: the best of Brax's evaluations stands in for our final one
+        record["return_here"] = max((r["eval_return"] for r in evaluations), default=None)
     returns = gymnasium_returns(out_dir, saved.env, episodes)
     if returns is not None:
-        record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)),
-                      gymnasium_over_here=float(np.mean(returns)) / record["return_here"])
+        record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)))
+        if record["return_here"]:
+            record["gymnasium_over_here"] = float(np.mean(returns)) / record["return_here"]
     return record
 
 
@@ -81,8 +102,10 @@ def line(r: dict) -> str:
     if "skipped" in r:
         return f"{r['command']}: {r['skipped']}"
     gym = f"{r['return_on_gymnasium']:.1f}" if "return_on_gymnasium" in r else "-"
-    return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {r['return_here']:9.1f}  "
-            f"on Gymnasium {gym:>9}   ({r['command']})")
+    here = f"{r['return_here']:.1f}" if r.get("return_here") is not None else "-"
+    stopped = f" [{r['interrupted']}]" if "interrupted" in r else ""
+    return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {here:>9}  "
+            f"on Gymnasium {gym:>9}   ({r['command']}){stopped}")
 
 
 def main(argv=None) -> None:
@@ -91,7 +114,7 @@ def main(argv=None) -> None:
                         help='the arguments of one `mjxsuite train`, quoted, e.g. "--env hopper --agent sac"; repeatable')
     parser.add_argument("--out", default="runs/gym-training", help="parent of the runs' directories")
     parser.add_argument("--episodes", type=int, default=10, help="episodes on Gymnasium's env")
-    parser.add_argument("--timeout", type=float, help="seconds one training may take before it is stopped")
+    parser.add_argument("--timeout", type=float, help="seconds one training may take before it is stopped (Ctrl-C: it saves, then is judged)")
     parser.add_argument("--json", metavar="FILE", help="write the records as JSON")
     args = parser.parse_args(argv)
     found = []

@@ -45,6 +45,10 @@ CONSTRAINT_OVERFLOW = 1 | 2  # NEFC, NJMAX_NNZ: the constraint rows of one world
 OVERFLOW_CONTACTS, OVERFLOW_CONSTRAINTS = 1.0, 2.0
 
 
+class WarpUnavailable(RuntimeError):
+    """impl='warp' was asked for on a machine that cannot run MuJoCo Warp."""
+
+
 def require_warp() -> None:
     """Raise a clear error unless MJX can step with MuJoCo Warp here: it needs warp-lang
     (the `mjxsuite[warp]` extra) and an NVIDIA GPU that JAX uses (CUDA)."""
@@ -57,7 +61,7 @@ def require_warp() -> None:
     if "gpu" not in platforms or not _jax_has_cuda():
         missing.append(f"JAX sees no CUDA GPU (devices: {', '.join(platforms)})")
     if missing:
-        raise RuntimeError("impl='warp' steps MJX with MuJoCo Warp, which needs an NVIDIA GPU and warp-lang: "
+        raise WarpUnavailable("impl='warp' steps MJX with MuJoCo Warp, which needs an NVIDIA GPU and warp-lang: "
                            + "; ".join(missing) + ". Use impl='jax' (the default, any device) here.")
 
 

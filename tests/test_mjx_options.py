@@ -132,3 +132,13 @@ def test_opt_on_the_command_line_is_saved_and_reused(tmp_path, capsys):
     assert cli_main(["train", "--env", "cartpole-mjx", "--env-opt", "opt.iterations=many"]) == 2
     assert cli_main(["train", "--env", "cartpole-mjx", "--env-opt", "opt.solvr=CG"]) == 2
     assert cli_main(["train", "--env", "cartpole-mjx", "--env-opt", "opt=4"]) == 2
+
+
+@pytest.mark.skipif(any(d.platform == "gpu" for d in jax.devices()), reason="a GPU machine may run Warp")
+@pytest.mark.parametrize("agent", ["dqn", "ppo"])
+def test_impl_warp_without_a_gpu_is_a_clear_error_not_a_traceback(agent, tmp_path, capsys):
+    env = "cartpole-mjx" if agent == "dqn" else "pendulum-mjx"
+    assert cli_main(["train", "--env", env, "--agent", agent, "--impl", "warp", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "mjxsuite: --impl warp: impl='warp' steps MJX with MuJoCo Warp" in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()
