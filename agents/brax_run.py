@@ -283,9 +283,9 @@ def greedy_episode(env: envs.Env, policy: Callable, params: Any, key: jax.Array 
 
 def evaluate(env: envs.Env, policy: Callable, params: Any, key: jax.Array, episodes: int) -> np.ndarray:
     """The returns of `episodes` episodes of the deterministic policy in `env` (time limit included)."""
-    from envs import recording
+    from envs.rollouts import collect_rollout
 
-    rollout = recording.collect_rollout(env, policy, key, num_envs=episodes, steps=env.episode_length,
+    rollout = collect_rollout(env, policy, key, num_envs=episodes, steps=env.episode_length,
                                         params=params, scene_envs=0)
     return first_episode_returns(rollout)
 

@@ -424,7 +424,7 @@ def _eval_brax(args) -> int:
 
     import envs
     from agents import brax_agents, brax_run, checkpoint
-    from agents.recording import collect_rollout_cached
+    from agents.rollouts import collect_rollout_cached
 
     env_name, env, config, params = brax_run.load_agent(args.checkpoint)
     options = checkpoint.load_config(args.checkpoint).env_options
@@ -445,7 +445,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
     import numpy as np
 
     import envs
-    from agents.recording import collect_rollout_cached
+    from agents.rollouts import collect_rollout_cached
     from envs import recording
 
     if extra:
@@ -455,7 +455,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
         _require_registered(args.env)
     if args.checkpoint:
         from agents import checkpoint
-        from agents.recording import load_greedy
+        from agents.rollouts import load_greedy
 
         trained_on, env, policy, params = load_greedy(args.checkpoint)
         saved = checkpoint.load_config(args.checkpoint)

@@ -203,6 +203,17 @@ def _env() -> dict:
     return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "MJXSUITE_COMPILE_CACHE": "0"}
 
 
+@pytest.mark.slow  # issue #29: two compiling subprocesses (~40 s); the tiny PPO run stays in the default run
+def test_training_and_judging_a_ppo_run_need_no_rerun(tmp_path):
+    """GPU machines may lack rerun-sdk (it is large): only --rerun and `rollout` may import it."""
+    out = tmp_path / "run"
+    no_rerun = "import runpy, sys; sys.modules['rerun'] = None; runpy.run_module('agents.cli', run_name='__main__')"
+    for argv in (["train", "--env", "pendulum-mjx", "--agent", "ppo", *TINY_PPO_ARGS, "--out", str(out)],
+                 ["eval", "--checkpoint", str(out), "--episodes", "2"]):
+        done = subprocess.run([sys.executable, "-c", no_rerun, *argv], env=_env(), capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr[-2000:]
+
+
 @pytest.mark.slow
 def test_ppo_defaults_solve_pendulum_within_3_minutes(tmp_path):
     """`mjxsuite train --env pendulum-mjx --agent ppo` with the table's defaults: Gymnasium's
