@@ -111,13 +111,16 @@ AGENTS = ("dqn", "ppo", "sac")
 
 
 def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
-    """--agent, by default dqn for a discrete task and ppo for a continuous one; a mismatch is refused."""
+    """--agent, by default dqn for a discrete task and the table's choice (ppo or sac) for a continuous one;
+    a mismatch is refused."""
     import envs
+
+    from agents import brax_defaults
 
     env = envs.make(env_name, **env_opts)
     discrete = env.num_actions is not None
     fits = ("dqn",) if discrete else ("ppo", "sac")
-    agent = agent or fits[0]
+    agent = agent or ("dqn" if discrete else brax_defaults.default_agent(env_name))
     if agent not in fits:
         kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
         raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
@@ -193,7 +196,9 @@ def _train_brax(args, config, **kwargs):
     kwargs.update(seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
                   checkpoint_seconds=args.checkpoint_seconds)
     if agent_name(config) == "sac" and not args.out:
-        raise UsageError("--agent sac needs --out: SAC's parameters reach mjxsuite through Brax's checkpoint folder")
+        default = "" if args.agent else f" ({args.env}'s default agent)"
+        raise UsageError(f"--agent sac{default} needs --out: SAC's parameters reach mjxsuite through Brax's "
+                         "checkpoint folder")
     if not args.rerun:
         return train_brax(args.env, config, **kwargs)
     from agents.recording import BRAX_CURVES, TrainingLogger
@@ -559,7 +564,8 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--env", help="registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)")
     train.add_argument("--agent", choices=AGENTS,
                        help="dqn (ours) for discrete tasks, Brax's ppo or sac for continuous ones "
-                            "(default: dqn for a discrete task, ppo for a continuous one)")
+                            "(default: dqn for a discrete task; for a continuous one, ppo or the task's choice in "
+                            "agents/brax_defaults.py: sac for half-cheetah and walker2d)")
     train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
     train.add_argument("--seed", type=int, help="random seed (default 0)")
     train.add_argument("--steps", type=ranged(int, COUNT),

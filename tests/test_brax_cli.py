@@ -70,6 +70,14 @@ def test_default_agent_follows_the_action_space(monkeypatch):
     monkeypatch.setattr("agents.cli._report_brax", lambda *a: 0)
     assert cli_main(["train", "--env", "pendulum-mjx", "--learning_rate", "3e-4"]) == 0
     assert seen["config"] == PPOConfig(**{**brax_defaults.settings("pendulum-mjx", "ppo"), "learning_rate": 3e-4})
+    seen.clear()
+    assert cli_main(["train", "--env", "half-cheetah", "--out", "unused"]) == 0  # the table's choice
+    assert seen["config"] == SACConfig(**brax_defaults.settings("half-cheetah", "sac"))
+
+
+def test_a_default_sac_without_out_names_where_sac_came_from():
+    with pytest.raises(UsageError, match=r"--agent sac \(half-cheetah's default agent\) needs --out"):
+        cli_main(["train", "--env", "half-cheetah"])
 
 
 @pytest.fixture(scope="module")
