@@ -480,11 +480,19 @@ class DQN:
         )
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of acting and learning, then a greedy evaluation. With `record`,
-        `metrics["eval_episode"]` holds its first episode (`evaluate`'s `record`), else None: the
-        same train state and metrics from a smaller program, for runs that log no episodes."""
+        """`eval_every` env steps of acting and learning (`train_steps`), then a greedy evaluation
+        (`judge`). With `record`, `metrics["eval_episode"]` holds its first episode (`evaluate`'s
+        `record`), else None: the same train state and metrics from a smaller program, for runs
+        that log no episodes. `agents.run` compiles the two halves as two programs, at once."""
+        ts, trained, eval_key = self.train_steps(ts)
+        ts, judged = self.judge(ts, eval_key, record)
+        return ts, {**judged, **trained}
+
+    def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
+        """A chunk's `eval_every` env steps of acting and learning: the train state, its
+        training metrics and the key of the evaluation that follows."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
-            return self.with_hyperparams(ts.hyperparams).chunk(ts, record)
+            return self.with_hyperparams(ts.hyperparams).train_steps(ts)
         cfg = self.config
 
         def iteration(ts, noise: StepNoise):
@@ -497,23 +505,8 @@ class DQN:
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
         ts = ts.replace(key=key)
         ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, self.draw_noise(noise_key))
-        if record:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
-        else:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
-        eval_return = eval_returns.mean()
-        better = eval_return > ts.best_return
-        solved_now = (eval_return >= cfg.solve_return) & (ts.solve_step < 0)
-        ts = ts.replace(
-            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
-            best_return=jnp.maximum(eval_return, ts.best_return),
-            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
-        )
         episodes = collected["episodes"].sum()
         metrics = {
-            "env_steps": ts.env_steps,
-            "eval_return": eval_return,
-            "best_return": ts.best_return,
             "loss": learned["loss"].mean(),
             "q": learned["q"].mean(),
             "epsilon": epsilon[-1],
@@ -523,8 +516,27 @@ class DQN:
             # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
             "overflow_contacts": collected["overflow_contacts"].sum(),
             "overflow_constraints": collected["overflow_constraints"].sum(),
-            "eval_episode": eval_episode,  # for loggers; not a scalar metric
         }
+        return ts, metrics, eval_key
+
+    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
+        """A chunk's greedy evaluation: keeps the best parameters and the step that solved the task."""
+        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
+            return self.with_hyperparams(ts.hyperparams).judge(ts, eval_key, record)
+        if record:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        else:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
+        eval_return = eval_returns.mean()
+        better = eval_return > ts.best_return
+        solved_now = (eval_return >= self.config.solve_return) & (ts.solve_step < 0)
+        ts = ts.replace(
+            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
+            best_return=jnp.maximum(eval_return, ts.best_return),
+            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
+        )
+        metrics = {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
+                   "eval_episode": eval_episode}  # the episode is for loggers, not a scalar metric
         return ts, metrics
 
 

@@ -1,4 +1,5 @@
-"""Host-side driver: runs `DQN.chunk` under jit(vmap) for many seeds (spread over devices by
+"""Host-side driver: runs `DQN.chunk` (as two programs: its training steps and its judge) under
+jit(vmap) for many seeds (spread over devices by
 `agents.sharding`, several configs at once for a sweep), with a progress
 bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
 
@@ -188,13 +189,28 @@ def train_run(
     # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
     # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
     record_episode = on_chunk is not None
-    step = dqn.chunk if record_episode else partial(dqn.chunk, record=False)
-    per_device = seed_batched(step, agents // placement.count, seed_axis)
+    per_device = agents // placement.count
+    judge = partial(dqn.judge, record=record_episode)
     if placement.mesh is None:
-        name = f"DQN.chunk over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-        chunk = compile_cached(name, per_device, (ts,), dqn, agents, env_name, env_options, donate=True)
-    else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-        chunk = jax.jit(placement.spread(per_device), donate_argnums=0).lower(ts).compile(training_compiler_options())
+        # Two programs, compiled at once (the judge on another thread): a chunk's training steps and
+        # its evaluation each hold a copy of the env's step, and together were one program that XLA
+        # compiled alone (cartpole-mjx on 2 CPU cores: compile 1.1-2.6 s sooner split; docs/results.md).
+        judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+        judge_program = _compile_aside(partial(compile_cached, judged, seed_batched(judge, per_device, seed_axis),
+                                               (ts, ts.key), dqn, agents, env_name, env_options, donate=True), "judge")
+        train_program = compile_cached(f"DQN.train_steps over seeds by {seed_axis}",
+                                       seed_batched(dqn.train_steps, per_device, seed_axis), (ts,), dqn, agents,
+                                       env_name, env_options, donate=True)
+        judge_program = judge_program.result()
+
+        def chunk(ts):
+            ts, trained, eval_key = train_program(ts)
+            ts, judged = judge_program(ts, eval_key)
+            return ts, {**judged, **trained}
+    else:  # one sharded program; sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+        step = partial(dqn.chunk, record=record_episode)
+        chunk = jax.jit(placement.spread(seed_batched(step, per_device, seed_axis)),
+                        donate_argnums=0).lower(ts).compile(training_compiler_options())
     if init_program is not None:
         ts = init_program.result()(*init_args)
     compile_s = time.perf_counter() - compile_start  # a fresh run's init program included

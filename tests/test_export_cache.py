@@ -27,15 +27,15 @@ def cache_dir(tmp_path):
 
 @pytest.fixture
 def chunk_traces(monkeypatch):
-    """How often `DQN.chunk` is traced (a run that loads it from the cache never calls it)."""
+    """How often a chunk's training steps are traced (a run that loads them from the cache never calls them)."""
     calls = []
-    original = DQN.chunk
+    original = DQN.train_steps
 
     def counted(self, ts, *args, **kwargs):
         calls.append(1)
         return original(self, ts, *args, **kwargs)
 
-    monkeypatch.setattr(DQN, "chunk", counted)
+    monkeypatch.setattr(DQN, "train_steps", counted)
     return calls
 
 
@@ -60,7 +60,7 @@ def test_a_second_run_loads_the_traced_chunk_with_identical_results(tmp_path, ch
         first = train_run("cartpole", TINY, progress=False)
         assert len(chunk_traces) == 2  # traced, exported and written
         files = sorted((tmp_path / "export").iterdir())
-        assert [f.suffix for f in files] == [".pkl", ".pkl"]  # the chunk and the final evaluation
+        assert [f.suffix for f in files] == [".pkl"] * 3  # the chunk's two halves and the final evaluation
         second = train_run("cartpole", TINY, progress=False)
         assert len(chunk_traces) == 2  # loaded: not traced
         assert sorted((tmp_path / "export").iterdir()) == files
