@@ -71,7 +71,7 @@ def directory() -> Path | None:
 class CachedProgram:
     """A compiled program over flat leaves, called like the original function."""
 
-    compiled: Any  # jax.stages.Compiled, taking one list of leaves
+    compiled: Callable  # the compiled program, taking one list of leaves
     out_tree: Any  # the original function's output structure
     hit: bool  # loaded from the cache (nothing traced but the call wrapper)
 
@@ -86,17 +86,18 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
 
     `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
     trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
-    the env, the code outside the suite's packages. `donate` donates every argument's
-    buffers; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read
+    the env, the code outside the suite's packages. `donate` donates the first argument's
+    buffers, as `jax.jit(fn, donate_argnums=0)` does; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read
     is traced again and overwritten; a program that cannot be exported (e.g. one with
     host callbacks) is compiled without the cache.
     """
     leaves, in_tree = jax.tree.flatten(args)
+    donated = len(jax.tree.leaves(args[0])) if donate and args else 0  # the first argument's leaves lead
     path = cache_file(cache_dir, key_parts, args)
     if path.is_file():
         try:
             exported, out_tree = _read(path, in_tree)
-            return CachedProgram(_compile(exported.call, leaves, donate, compiler_options), out_tree, hit=True)
+            return CachedProgram(_compile(exported.call, leaves, donated, compiler_options), out_tree, hit=True)
         except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
             warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
     try:
@@ -104,11 +105,11 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     except Exception as err:
         warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
         flat, found = _flat(fn, in_tree)
-        return CachedProgram(_compile(flat, leaves, donate, compiler_options), found["out_tree"], hit=False)
+        return CachedProgram(_compile(flat, leaves, donated, compiler_options), found["out_tree"], hit=False)
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
     exported = jax.export.deserialize(bytearray(blob))
-    return CachedProgram(_compile(exported.call, leaves, donate, compiler_options), out_tree, hit=False)
+    return CachedProgram(_compile(exported.call, leaves, donated, compiler_options), out_tree, hit=False)
 
 
 def compile_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
@@ -165,9 +166,12 @@ def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
     return bytes(exported.serialize()), found["out_tree"]
 
 
-def _compile(flat_fn: Callable, leaves: list, donate: bool, compiler_options: dict | None):
-    """`flat_fn` (over one list of leaves) compiled for `leaves`."""
-    return jax.jit(flat_fn, donate_argnums=0 if donate else ()).lower(leaves).compile(compiler_options)
+def _compile(flat_fn: Callable, leaves: list, donated: int, compiler_options: dict | None):
+    """`flat_fn` (over one list of leaves) compiled for `leaves`, the first `donated` of them
+    donated (called with one list, as `CachedProgram` calls it)."""
+    split = jax.jit(lambda head, tail: flat_fn([*head, *tail]), donate_argnums=0)
+    compiled = split.lower(leaves[:donated], leaves[donated:]).compile(compiler_options)
+    return lambda flat: compiled(flat[:donated], flat[donated:])
 
 
 def _read(path: Path, in_tree) -> tuple[Any, Any]:

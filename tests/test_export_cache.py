@@ -3,6 +3,7 @@ with identical results; anything that could change the program misses; a bad fil
 traced again; nothing is written while the cache is off."""
 
 import dataclasses
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -137,12 +138,19 @@ def test_a_corrupt_file_is_traced_again_and_overwritten(cache_dir, damage):
             np.testing.assert_array_equal(x, y)
 
 
-def test_donation_is_kept(cache_dir):
+def test_donation_is_kept_for_the_first_argument_only(cache_dir):
+    """As `jax.jit(fn, donate_argnums=0)`: a second argument (a key, say) is neither donated nor
+    warned about ("Some donated buffers were not usable")."""
+    def step_with_key(state, key):
+        return step(state, *example_args()[1:]), jax.random.split(key)[0]
+
     for _ in range(2):  # written, then loaded
-        args = example_args()
-        program = export_cache.cached_compile(step, args, "step", cache_dir, donate=True)
+        args = (*example_args()[:1], jax.random.PRNGKey(0))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            program = export_cache.cached_compile(step_with_key, args, "step-with-key", cache_dir, donate=True)
         program(*args)
-        assert args[0].obs.is_deleted()
+        assert args[0].obs.is_deleted() and not args[1].is_deleted()
     assert program.hit
 
 
