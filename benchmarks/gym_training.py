@@ -61,9 +61,12 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     record = {"kind": "gym-training", "command": "mjxsuite train " + shlex.join(train_args)}
     command = [sys.executable, "-m", "benchmarks.cli", "train", *train_args, "--out", str(out_dir)]
     start = time.perf_counter()
-    # SIGINT back to its default in the child: a shell ignores it in background jobs, and Python
-    # then never turns it into KeyboardInterrupt, so the Ctrl-C below would do nothing.
-    training = subprocess.Popen(command, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        # A shell ignores SIGINT in background jobs and the child would inherit that, so Python
+        # there would never raise KeyboardInterrupt and the Ctrl-C below would do nothing. A
+        # handled signal starts the child with the default instead.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    training = subprocess.Popen(command)
     try:
         training.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
