@@ -137,13 +137,16 @@ def train_brax(
     policy = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)
     evaluated = {}  # PPO: the parameters of the evaluation under way, from policy_params_fn
 
+    overflow_told = False
+
     def progress_fn(brax_step: int, metrics: dict) -> None:
-        nonlocal state, evals_done
+        nonlocal state, evals_done, overflow_told
         if restarting and brax_step == 0:
             return  # Brax re-evaluates the restored parameters first: that record exists already
         steps = step_offset + brax_step
         params = _evaluated_params(config, out, evaluated, brax_step)
         record = {**_record(metrics, evals_done, steps), "wall_s": time.perf_counter() - start}
+        overflow_told = _check_overflow(env, record, config.num_eval_envs, bar, overflow_told)
         if params is not None and (state.best_params is None or record["eval_return"] > float(state.best_return[0])):
             state = state._replace(best_params=params, best_return=np.full(1, record["eval_return"], np.float32))
         if params is not None:
@@ -226,7 +229,20 @@ def _record(metrics: dict, index: int, steps: int) -> dict:
         if name.startswith("training/") and np.ndim(value) == 0:
             record[name.removeprefix("training/")] = float(value)
     record["steps_per_s"] = record.pop("sps", None)
+    for buffer in ("contacts", "constraints"):  # MJX tasks (envs.interop.brax): shares of evaluation episodes
+        if f"eval/episode_overflow_{buffer}" in metrics:
+            record[f"eval_overflow_{buffer}"] = float(metrics[f"eval/episode_overflow_{buffer}"])
     return record
+
+
+def _check_overflow(env: envs.Env, record: dict, episodes: int, bar, told: bool) -> bool:
+    """`driver.check_overflow` for an evaluation's record. Brax's trainers report no overflow of
+    their training steps; the evaluation's episodes, run by the policy under training (its
+    deterministic actions), stand in for them."""
+    count = lambda buffer: round(record.get(f"eval_overflow_{buffer}", 0.0) * episodes)
+    return driver.check_overflow(env, count("contacts"), count("constraints"), episodes, "evaluation episodes",
+                                 f"evaluation {record['evaluation']}", "each ended its episode with reward 0, in "
+                                 "training as in evaluation, where Brax's trainer learns from it", bar, told)
 
 
 def _scratch(out: Path | None) -> Path:

@@ -22,6 +22,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from agents import checkpoint
+from envs.mjx_env import overflow_report
 from envs.ranges import COUNT, NON_NEGATIVE
 
 # Periodic checkpoints: after every CHECKPOINT_EVERY chunks (DQN) or evaluations (PPO, SAC), once
@@ -35,6 +36,27 @@ CHECKPOINT_SECONDS = 5.0
 # save's duration: saving then takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%)
 # however large the state, while runs whose saves take under 0.25 s keep the CHECKPOINT_SECONDS rhythm.
 SAVE_COST_FACTOR = 20.0
+
+
+# A run whose steps overflow MuJoCo Warp's buffers more often than this stops: its agents would
+# learn from the few steps that fit, in a state distribution the overflows cut short.
+MOST_OVERFLOWING = 0.5
+
+
+def check_overflow(env, contacts: int, constraints: int, out_of: int, unit: str, where: str, consequence: str,
+                   bar: tqdm, told: bool) -> bool:
+    """Say once in a run which of MuJoCo Warp's buffers overflowed on how many of `out_of` `unit`
+    (env-steps, evaluation episodes) and how to raise it; stop the run with that message when
+    most of them overflowed. `where`: "chunk 3", "evaluation 2"; `consequence`: what became of
+    those steps. Returns whether it was said."""
+    if not contacts and not constraints:
+        return told
+    report = f"{overflow_report(env, contacts, constraints, out_of, unit)} Those steps are not physics: {consequence}."
+    if max(contacts, constraints) > MOST_OVERFLOWING * out_of:
+        raise RuntimeError(f"{report} Most {unit} of {where} overflowed: the run stops rather than train on them.")
+    if not told:
+        bar.write(f"{where}: {report}")
+    return True
 
 
 def open_run_dir(out_dir, run: checkpoint.SavedRun, resume: bool, writer: bool = True) -> Path | None:

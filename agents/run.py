@@ -21,7 +21,6 @@ from agents import checkpoint, driver, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
-from envs.mjx_env import overflow_report
 from envs.ranges import COUNT
 
 
@@ -304,25 +303,12 @@ def train_run(
     return result
 
 
-# A run whose env-steps overflow MuJoCo Warp's buffers more often than this stops: its agents
-# would learn from the few steps that fit, in a state distribution the overflows cut short.
-MOST_STEPS_OVERFLOWING = 0.5
-
-
 def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
-    """Say once in a run which Warp buffer overflowed (and how to raise it); stop the run with that
-    message when most of a chunk's steps of some agent overflowed. Returns whether it was said."""
-    contacts = int(np.max(record.get("overflow_contacts", 0)))
-    constraints = int(np.max(record.get("overflow_constraints", 0)))
-    if not contacts and not constraints:
-        return told
-    report = overflow_report(env, contacts, constraints, chunk_steps)
-    if max(contacts, constraints) > MOST_STEPS_OVERFLOWING * chunk_steps:
-        raise RuntimeError(f"{report} Most steps of chunk {record['chunk']} overflowed: the run stops rather than "
-                           "train on them.")
-    if not told:
-        bar.write(f"chunk {record['chunk']}: {report}")
-    return True
+    """`driver.check_overflow` for a chunk's record (the most any agent's steps overflowed)."""
+    return driver.check_overflow(env, int(np.max(record.get("overflow_contacts", 0))),
+                                 int(np.max(record.get("overflow_constraints", 0))), chunk_steps, "env-steps",
+                                 f"chunk {record['chunk']}", "they ended their episodes and stayed out of the replay",
+                                 bar, told)
 
 
 def per_agent(configs: list[DQNConfig], seeds: int) -> Hyperparams:

@@ -88,8 +88,10 @@ def steps_for(num_envs: int, mjx: bool = False, on: str | None = None) -> int:
 
 
 def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | None = None):
-    """`run(key) -> (total reward, final observations)` of `steps` steps of `num_envs` envs
-    (made with `env_options`) with random actions.
+    """`run(key) -> (total reward, final observations, overflowed env-steps)` of `steps` steps
+    of `num_envs` envs (made with `env_options`) with random actions. The last counts the
+    env-steps on which MuJoCo Warp ran out of a buffer (`info["overflow"]`, always 0 under
+    impl="jax"): such a step is no physics, so a Warp figure counts only beside a zero.
 
     The work is that of the peers' loops: auto-reset with fresh episodes, no episode
     statistics (gymnax keeps none; `wrap_for_training(..., episode_stats=False)`), and the
@@ -101,17 +103,19 @@ def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | Non
     env = envs.wrap_for_training(base, num_envs, episode_stats=False)
 
     def body(carry, _):
-        state, key, total = carry
+        state, key, total, overflowed = carry
         key, action_key = jax.random.split(key)
         action = random_env_actions(action_key, env, num_envs)
         state = env.step(state, action)
-        return (state, key, total + state.reward.sum()), None
+        overflowed += (state.info["overflow"] > 0).sum()
+        return (state, key, total + state.reward.sum(), overflowed), None
 
     @jax.jit
     def run(key):
         key, reset_key = jax.random.split(key)
-        (state, _, total), _ = jax.lax.scan(body, (env.reset(reset_key), key, jnp.zeros(())), None, steps)
-        return total, jax.vmap(base.unwrapped.observation)(state.pipeline_state)
+        start = (env.reset(reset_key), key, jnp.zeros(()), jnp.zeros((), jnp.int32))
+        (state, _, total, overflowed), _ = jax.lax.scan(body, start, None, steps)
+        return total, jax.vmap(base.unwrapped.observation)(state.pipeline_state), overflowed
 
     return run
 
@@ -125,16 +129,22 @@ def _record(lib: str, env_name: str, num_envs: int, steps: int, repeats: int) ->
             "repeats": repeats, "device": device_name(), "steps_per_s": None, "compile_s": None}
 
 
+def overflow_steps(output) -> int | None:
+    """The overflowed env-steps a run of `rollout_fn` returned (None for a peer's run, which has no count)."""
+    return int(output[2]) if len(output) > 2 else None
+
+
 def _compile(lib: str, env_name: str, num_envs: int, steps: int):
-    """(compiled run, compile seconds, None), or (None, None, why it cannot run)."""
+    """(compiled run, compile seconds, overflowed env-steps of its warm-up run or None), or
+    (None, None, why it cannot run)."""
     try:
         run = rollout_fn(env_name, num_envs, steps) if lib == "mjxsuite" else peer_libs.ROLLOUTS[lib](num_envs, steps)
         key = jax.random.PRNGKey(0)
         start = time.perf_counter()
         compiled = run.lower(key).compile()
         compile_s = time.perf_counter() - start
-        jax.block_until_ready(compiled(key))  # warm-up: first-touch allocations
-        return compiled, compile_s, None
+        warm_up = jax.block_until_ready(compiled(key))  # also first-touch allocations
+        return compiled, compile_s, overflow_steps(warm_up)
     except peer_libs.PeerMissing as missing:
         return None, None, str(missing)
     except Exception as err:  # out of memory at a large batch: record it, the caller stops growing
@@ -162,10 +172,13 @@ def measure(jobs: list[tuple[str, str]], num_envs: int, steps: int | None = None
     records, compiled = [], []
     for lib, env_name in jobs:
         n_steps = steps or steps_for(num_envs, mjx=is_mjx(env_name))
-        run, compile_s, skipped = _compile(lib, env_name, num_envs, n_steps)
+        run, compile_s, found = _compile(lib, env_name, num_envs, n_steps)
         record = _record(lib, env_name, num_envs, n_steps, repeats)
-        records.append({**record, "skipped": skipped} if skipped else {**record, "compile_s": compile_s})
-        if run is not None:
+        if run is None:
+            records.append({**record, "skipped": found})
+        else:
+            # Counted in the warm-up run (the timed runs return nothing read): None for a peer.
+            records.append({**record, "compile_s": compile_s, "overflow_steps": found})
             compiled.append((run, records[-1]))
     try:
         times = time_side_by_side([run for run, _ in compiled], repeats)
@@ -208,8 +221,10 @@ def throughput_records(ours=OURS, peers=("gymnax", "playground"), batch=None, qu
                     if r["steps_per_s"] is None:
                         print(f"{r['lib']:<11}{r['env']:<17}{num_envs:>9}   skipped: {r['skipped']}", flush=True)
                     else:
+                        overflow = f"  (overflowed Warp's buffers: {r['overflow_steps']:,} env-steps)" \
+                            if r.get("overflow_steps") else ""
                         print(f"{r['lib']:<11}{r['env']:<17}{num_envs:>9}{r['steps_per_s']:>15,.0f}"
-                              f"{r['compile_s']:>11.2f}", flush=True)
+                              f"{r['compile_s']:>11.2f}{overflow}", flush=True)
     return records
 
 

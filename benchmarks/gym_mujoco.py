@@ -12,7 +12,9 @@
   actions.
 
 Compile time is kept apart; runs of ours and Brax's at one batch size alternate (A B A B ...) and
-the figure is the median after a warm-up. Records are JSON (`--json FILE`), kind "gym-mujoco",
+the figure is the median after a warm-up. Each of our records counts the env-steps of its warm-up
+run on which MuJoCo Warp ran out of a buffer (`overflow_steps`, always 0 under impl="jax"): a
+Warp figure with overflows is no physics figure, and its rows say so. Records are JSON (`--json FILE`), kind "gym-mujoco",
 plus "gym-mujoco-ratio" records: each of ours against Gymnasium's vector env and against Brax at
 equal solver options. On a CPU it is a smoke test (`--sizes 4 --steps 5 --gymnasium-steps 20`).
 
@@ -145,16 +147,16 @@ def _record(lib: str, name: str, num_envs: int, steps: int, repeats: int, **extr
 
 
 def _compiled(make_run):
-    """(compiled run, its solver options, compile seconds) after a warm-up run, or the reason it
-    cannot run (a missing peer, out of memory) as a string."""
+    """(compiled run, its solver options, compile seconds, overflowed env-steps of the warm-up
+    run: None for Brax's), or the reason it cannot run (a missing peer, out of memory) as a string."""
     try:
         run, solver = make_run()
         key = jax.random.PRNGKey(0)
         start = time.perf_counter()
         compiled = run.lower(key).compile()
         compile_s = time.perf_counter() - start
-        jax.block_until_ready(compiled(key))
-        return compiled, solver, compile_s
+        warm_up = jax.block_until_ready(compiled(key))
+        return compiled, solver, compile_s, env_throughput.overflow_steps(warm_up)
     except PeerMissing as missing:
         return str(missing)
     except Exception as err:
@@ -178,7 +180,7 @@ def measure_task(name: str, num_envs: int, impls, brax: bool, steps: int, repeat
         if isinstance(result, str):
             record["skipped"] = result
         else:
-            run, record["solver"], record["compile_s"] = result
+            run, record["solver"], record["compile_s"], record["overflow_steps"] = result
             runs.append((run, record))
         records.append(record)
     times = env_throughput.time_side_by_side([run for run, _ in runs], repeats)
@@ -186,6 +188,12 @@ def measure_task(name: str, num_envs: int, impls, brax: bool, steps: int, repeat
         record["steps_per_s"] = num_envs * steps / statistics.median(spent)
         record["run_s"] = spent
     return records
+
+
+def overflow_note(record: dict) -> str:
+    """What a row says when MuJoCo Warp ran out of a buffer in it: its figure is not physics."""
+    found = record.get("overflow_steps")
+    return f"  (NOT PHYSICS: {found:,} env-steps overflowed Warp's buffers)" if found else ""
 
 
 def ratio_records(records: list[dict]) -> list[dict]:
@@ -199,7 +207,8 @@ def ratio_records(records: list[dict]) -> list[dict]:
                 continue
             rows.append({"kind": "gym-mujoco-ratio", "env": ours["env"], "impl": ours["impl"],
                          "num_envs": ours["num_envs"], "peer": peer["lib"], "peer_num_envs": peer["num_envs"],
-                         "ratio": ours["steps_per_s"] / peer["steps_per_s"], "device": ours["device"]})
+                         "ratio": ours["steps_per_s"] / peer["steps_per_s"], "device": ours["device"],
+                         "overflow_steps": ours.get("overflow_steps")})
     return rows
 
 
@@ -225,11 +234,11 @@ def run_benchmark(tasks, sizes, impls, brax=True, gymnasium=True, steps=None, gy
                     show(f"{r['lib']:<10}{name:<26}{label:<24}{num_envs:>9}   skipped: {r['skipped']}", flush=True)
                 else:
                     show(f"{r['lib']:<10}{name:<26}{label:<24}{num_envs:>9}{r['steps_per_s']:>15,.0f}"
-                         f"{r['compile_s']:>11.1f}", flush=True)
+                         f"{r['compile_s']:>11.1f}{overflow_note(r)}", flush=True)
     ratios = ratio_records(records)
     for r in ratios:
         show(f"{r['env']} impl={r['impl']} at {r['num_envs']} envs / {r['peer']} ({r['peer_num_envs']} envs): "
-             f"{r['ratio']:,.2f}x")
+             f"{r['ratio']:,.2f}x{overflow_note(r)}")
     return records + ratios
 
 

@@ -430,9 +430,9 @@ class MjxEnv(Env):
         return jnp.asarray(np.stack(table), jnp.float32)
 
 
-def overflow_report(env: Env, contact_steps: int, constraint_steps: int, steps: int) -> str:
+def overflow_report(env: Env, contact_steps: int, constraint_steps: int, steps: int, unit: str = "env-steps") -> str:
     """One line for a training log: which of MuJoCo Warp's buffers ran out on how many of `steps`
-    env-steps (counted from info["overflow"]) and the override that fixes it."""
+    env-steps (counted from info["overflow"]; or of another `unit`) and the override that fixes it."""
     task = env
     while not isinstance(task, MjxEnv) and hasattr(task, "env"):
         task = task.env
@@ -441,14 +441,13 @@ def overflow_report(env: Env, contact_steps: int, constraint_steps: int, steps: 
     if contact_steps:
         now = f"naconmax={buffers.naconmax} for the batch" if buffers.naconmax else f"nconmax={buffers.nconmax} per env"
         bigger = f"naconmax={2 * buffers.naconmax}" if buffers.naconmax else f"nconmax={2 * buffers.nconmax}"
-        parts.append(f"its contact pool ({now}) on {contact_steps:,} of {steps:,} env-steps: raise it with "
+        parts.append(f"its contact pool ({now}) on {contact_steps:,} of {steps:,} {unit}: raise it with "
                      f"--env-opt {bigger} (envs.make(..., {bigger}))")
     if constraint_steps:
         parts.append(f"its constraint rows (njmax={buffers.njmax} per env) on {constraint_steps:,} of {steps:,} "
-                     f"env-steps: raise them with --env-opt njmax={2 * buffers.njmax} "
+                     f"{unit}: raise them with --env-opt njmax={2 * buffers.njmax} "
                      f"(envs.make(..., njmax={2 * buffers.njmax}))")
-    return ("MuJoCo Warp ran out of " + "; and of ".join(parts)
-            + ". Those steps are not physics: they ended their episodes and stayed out of the replay.")
+    return "MuJoCo Warp ran out of " + "; and of ".join(parts) + "."
 
 
 def _broadcast(tree, batched, axis_size: int):

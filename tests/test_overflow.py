@@ -65,7 +65,7 @@ def test_a_run_says_once_which_buffer_to_raise(capsys):
 
 @pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); a third faked-overflow run (~14 s); the flag, the skipped transitions and the message stay
 def test_a_run_that_overflows_on_most_steps_stops():
-    with pytest.raises(RuntimeError, match=r"MuJoCo Warp ran out of its contact pool .* Most steps of chunk 0 "
+    with pytest.raises(RuntimeError, match=r"MuJoCo Warp ran out of its contact pool .* Most env-steps of chunk 0 "
                                            r"overflowed: the run stops"):
         train_run("test-always-overflowing-cartpole", CONFIG, progress=False)
 
@@ -78,3 +78,53 @@ def test_the_report_names_the_buffer_and_the_override():
     assert "constraint rows (njmax=70 per env) on 4 of 1,000" in line and "--env-opt njmax=140" in line
     task.warp_buffers = mjx_env.WarpBuffers(nconmax=16, njmax=70, naconmax=5000)
     assert "naconmax=5000 for the batch" in mjx_env.overflow_report(task, 1, 0, 10)
+
+
+def test_throughput_runs_count_the_steps_that_overflowed():
+    from benchmarks import env_throughput
+
+    num_envs, steps = 3, 40
+    counts = {name: int(env_throughput.rollout_fn(name, num_envs, steps)(jax.random.PRNGKey(0))[2])
+              for name in ("cartpole-mjx", "test-overflowing-cartpole", "test-always-overflowing-cartpole")}
+    assert counts["cartpole-mjx"] == 0
+    assert 0 < counts["test-overflowing-cartpole"] < num_envs * steps
+    assert counts["test-always-overflowing-cartpole"] == num_envs * steps
+    [record] = env_throughput.measure([("mjxsuite", "test-always-overflowing-cartpole")], num_envs, steps, repeats=1)
+    assert record["overflow_steps"] == num_envs * steps and record["steps_per_s"] > 0
+
+
+class AlwaysOverflowingPendulum(envs.PendulumMjx):
+    """A continuous task whose every step overflows the constraint rows, for Brax's trainers."""
+
+    def _overflow(self, data):
+        return jnp.full((), mjx_env.OVERFLOW_CONSTRAINTS, jnp.float32)
+
+
+if "test-always-overflowing-pendulum" not in envs.names():
+    envs.register("test-always-overflowing-pendulum", AlwaysOverflowingPendulum, episode_length=50)
+
+
+def test_a_brax_run_whose_evaluation_episodes_overflow_stops():
+    """The flag reaches Brax's evaluator as a metric (envs.to_brax) and the PPO/SAC driver's record."""
+    from agents import brax_run
+    from agents.brax_agents import PPOConfig
+
+    config = PPOConfig(num_timesteps=512, num_envs=8, batch_size=8, num_minibatches=4, unroll_length=8,
+                       num_updates_per_batch=1, num_evals=3, num_eval_envs=4, policy_hidden=(16,), value_hidden=(16,))
+    with pytest.raises(RuntimeError, match=r"MuJoCo Warp ran out of its constraint rows .* on 4 of 4 evaluation "
+                                           r"episodes.* Most evaluation episodes of evaluation 0 overflowed"):
+        brax_run.train_brax("test-always-overflowing-pendulum", config, progress=False)
+
+
+def test_a_brax_run_says_once_when_some_evaluation_episodes_overflowed():
+    from agents import brax_run
+
+    lines = []
+    bar = type("Bar", (), {"write": lambda self, line: lines.append(line)})()
+    record = lambda index, share: {"evaluation": index, "eval_overflow_contacts": share, "eval_overflow_constraints": 0.0}
+    told = brax_run._check_overflow(envs.CartPoleMjx(), record(1, 0.0), 8, bar, False)
+    assert not told and not lines
+    for index in (2, 3):
+        told = brax_run._check_overflow(envs.CartPoleMjx(), record(index, 0.25), 8, bar, told)
+    assert told and len(lines) == 1 and "evaluation 2: MuJoCo Warp ran out of its contact pool" in lines[0]
+    assert "on 2 of 8 evaluation episodes" in lines[0]

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.core import Env, Wrapper
+from envs.core import Env, State, Wrapper
 from envs.registry import make
 from envs.wrappers import TimeLimit
 
@@ -49,8 +49,27 @@ class BraxEnv(Wrapper):
         super().__init__(env)
         self.episode_length = int(episode_length)
 
+    def reset(self, key: jax.Array) -> State:
+        return _with_overflow_metrics(self.env.reset(key))
+
+    def step(self, state: State, action: jax.Array) -> State:
+        return _with_overflow_metrics(self.env.step(state, action))
+
     def __repr__(self) -> str:
         return f"BraxEnv({self.env!r}, episode_length={self.episode_length})"
+
+
+def _with_overflow_metrics(state: State) -> State:
+    """The state with MuJoCo Warp's overflow flags of its step (`info["overflow"]`, an MJX
+    task's) as two 0/1 metrics. Brax's evaluator sums each metric over an episode, and an
+    overflow ends its episode, so `eval/episode_overflow_contacts` is the share of evaluation
+    episodes that a contact-pool overflow ended (`agents.brax_run` reports it)."""
+    if "overflow" not in state.info:
+        return state
+    code = state.info["overflow"]  # envs.mjx_env: 1 contact pool, 2 constraint rows, 3 both
+    flags = {"overflow_contacts": code % 2 == 1, "overflow_constraints": code >= 2}
+    return state.replace(metrics={**state.metrics, **{name: flag.astype(state.reward.dtype)
+                                                       for name, flag in flags.items()}})
 
 
 def _device_put_replicated(tree: Any, devices: Sequence[jax.Device]) -> Any:
