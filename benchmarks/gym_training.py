@@ -88,13 +88,19 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     record.update(env=saved.env, agent=saved.agent, env_options=saved.env_options)
     metrics = out_dir / "metrics.jsonl"
     evaluations = [json.loads(text) for text in metrics.read_text().splitlines()] if metrics.exists() else []
-    record["evaluations"] = [{key: r.get(key) for key in ("env_steps", "eval_return", "wall_s")} for r in evaluations]
+    curve_keys = ("env_steps", "eval_return", "wall_s", "eval_overflow_contacts", "eval_overflow_constraints")
+    record["evaluations"] = [{key: r.get(key) for key in curve_keys} for r in evaluations]
+    # The largest share of an evaluation's episodes that MuJoCo Warp's overflow ended (None: not an MJX task).
+    shares = [r[key] for r in evaluations for key in curve_keys[3:] if r.get(key) is not None]
+    record["most_overflowing_evaluation"] = max(shares) if shares else None
     if (out_dir / "eval.json").exists():
         summary = json.loads((out_dir / "eval.json").read_text())
         record.update(return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
                       compile_s=summary.get("compile_s"))
     else:  # interrupted: the best of Brax's evaluations stands in for our final one
         record["return_here"] = max((r["eval_return"] for r in evaluations), default=None)
+    if not (out_dir / checkpoint.POLICY_FILE).exists():  # stopped before Brax's first trained evaluation
+        return {**record, "skipped": "stopped before any trained parameters were evaluated and saved"}
     returns = gymnasium_returns(out_dir, saved.env, episodes)
     if returns is not None:
         record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)))
@@ -109,8 +115,10 @@ def line(r: dict) -> str:
     gym = f"{r['return_on_gymnasium']:.1f}" if "return_on_gymnasium" in r else "-"
     here = f"{r['return_here']:.1f}" if r.get("return_here") is not None else "-"
     stopped = f" [{r['interrupted']}]" if "interrupted" in r else ""
+    overflow = r.get("most_overflowing_evaluation")
+    overflow = "" if overflow is None else f"  overflowed <= {overflow:.0%} of eval episodes"
     return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {here:>9}  "
-            f"on Gymnasium {gym:>9}   ({r['command']}){stopped}")
+            f"on Gymnasium {gym:>9}{overflow}   ({r['command']}){stopped}")
 
 
 def main(argv=None) -> None:
