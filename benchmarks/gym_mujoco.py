@@ -18,7 +18,7 @@ Warp figure with overflows is no physics figure, and its rows say so. Records ar
 plus "gym-mujoco-ratio" records: each of ours against Gymnasium's vector env and against Brax at
 equal solver options. On a CPU it is a smoke test (`--sizes 4 --steps 5 --gymnasium-steps 20`).
 
-    python -m benchmarks.gym_mujoco [--tasks half-cheetah hopper ...] [--sizes 4096 32768]
+    python -m benchmarks.gym_mujoco [--tasks half-cheetah hopper ...] [--sizes [4096 32768 ...]]
         [--impls jax warp] [--no-brax] [--no-gymnasium] [--steps N] [--gymnasium-steps N]
         [--repeats R] [--json FILE]
 """
@@ -245,7 +245,8 @@ def run_benchmark(tasks, sizes, impls, brax=True, gymnasium=True, steps=None, gy
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="+", help="registered names (default: every Gymnasium MuJoCo task)")
-    parser.add_argument("--sizes", nargs="+", type=int, default=[4096, 32768], help="batch sizes of ours and Brax's")
+    parser.add_argument("--sizes", nargs="*", type=int, default=[4096, 32768],
+                        help="batch sizes of ours and Brax's (none: Gymnasium's vector env alone)")
     parser.add_argument("--impls", nargs="+", choices=envs.mjx_env.IMPLS,
                         help="MJX implementations (default: jax, and warp where it runs)")
     parser.add_argument("--no-brax", action="store_true", help="leave out Brax's envs")
