@@ -154,11 +154,12 @@ def train_run(
     sweep = sweep or None
     configs = sweep_configs(config, sweep)
     agents = seeds * len(configs)
-    placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs)))
+    env = envs.make(env_name, **(env_options or {}))
+    mjx_task = env_name if isinstance(env.unwrapped, envs.MjxEnv) else None
+    placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
     writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
     run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
     out = driver.open_run_dir(out_dir, run, resume, writer)
-    env = envs.make(env_name, **(env_options or {}))
     dqn = DQN(config, env, agents=agents // placement.count)
     init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
 

@@ -16,6 +16,7 @@ the final evaluation, which process 0 alone writes (`is_writer`).
 from __future__ import annotations
 
 import os
+import warnings
 from typing import Any, Callable
 
 import jax
@@ -52,14 +53,32 @@ def is_writer() -> bool:
     return jax.process_index() == 0
 
 
-def choose_devices(seeds: int, devices: int | None = None, configs: int = 1) -> list:
+# Seen on two H200s and on two H100s (jax 0.11.2, 2026-11-24 and 11-26): XLA's GPU compiler
+# segfaults compiling a batched MJX step under shard_map over two GPUs (`benchmarks.two_gpu_mjx`
+# reproduces it; the same env's reset, a batched Cholesky and the analytic CartPole compile fine).
+MJX_OVER_GPUS = ("an MJX task's step, spread over several GPUs in one program, crashes XLA's GPU compiler "
+                 "(a segmentation fault; docs/scaling.md)")
+
+
+def choose_devices(seeds: int, devices: int | None = None, configs: int = 1, mjx_task: str | None = None) -> list:
     """The devices for `configs` x `seeds` agents: every device of every process in a multi-host
     run; on one host `devices` local devices (None: all of them when the agents split evenly
     over them, else the most that do, so one seed still runs on a machine with several GPUs).
-    ValueError when they do not split evenly, naming the --seeds that would."""
+    ValueError when they do not split evenly, naming the --seeds that would. An MJX task
+    (`mjx_task`, its name) stays on one GPU: by default with a warning, refused when asked for more
+    (`MJX_OVER_GPUS`)."""
     multi_host = jax.process_count() > 1
     available = jax.devices() if multi_host else jax.local_devices()
     agents = configs * seeds
+    if mjx_task and len(available) > 1 and available[0].platform == "gpu":
+        if multi_host or (devices or 1) > 1:
+            asked = "a multi-host run" if multi_host else f"--devices {devices}"
+            raise ValueError(f"{asked}: {MJX_OVER_GPUS}, so {mjx_task} trains on one GPU per process: use "
+                             "--devices 1, or one process per GPU (CUDA_VISIBLE_DEVICES=0, 1, ...) with its own --out")
+        if devices is None:
+            warnings.warn(f"{mjx_task}: training on 1 of {len(available)} GPUs: {MJX_OVER_GPUS}; run one process "
+                          "per GPU (CUDA_VISIBLE_DEVICES) to use the others", stacklevel=2)
+            devices = 1
 
     def splitting(count: int) -> list[int]:  # device counts up to `count` that split the agents evenly
         return [k for k in range(1, count + 1) if agents % k == 0]

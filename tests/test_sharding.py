@@ -138,6 +138,29 @@ def test_uneven_seeds_are_refused_naming_what_works_and_the_default_uses_the_dev
     assert found["default_devices"] == 2  # 2 seeds on a 4-device host: the 2 devices that split them evenly
 
 
+def test_an_mjx_task_stays_on_one_gpu(monkeypatch):
+    """MJX over several GPUs crashes XLA (sharding.MJX_OVER_GPUS): the default takes one GPU and
+    says why; asking for more is refused naming the option and the fix. The analytic tasks and
+    CPU devices spread as ever."""
+    import types
+
+    import jax
+
+    from agents import sharding
+
+    gpus = [types.SimpleNamespace(platform="gpu", id=i) for i in range(2)]
+    monkeypatch.setattr(jax, "local_devices", lambda: gpus)
+    with pytest.warns(UserWarning, match=r"cartpole-mjx: training on 1 of 2 GPUs: an MJX task's step"):
+        assert sharding.choose_devices(4, mjx_task="cartpole-mjx") == gpus[:1]
+    with pytest.raises(ValueError, match=r"--devices 2: an MJX task's step, spread over several GPUs .* use --devices 1"):
+        sharding.choose_devices(4, 2, mjx_task="cartpole-mjx")
+    assert sharding.choose_devices(4, 1, mjx_task="cartpole-mjx") == gpus[:1]
+    assert sharding.choose_devices(4) == gpus  # the analytic CartPole
+    cpus = [types.SimpleNamespace(platform="cpu", id=i) for i in range(2)]
+    monkeypatch.setattr(jax, "local_devices", lambda: cpus)
+    assert sharding.choose_devices(4, mjx_task="cartpole-mjx") == cpus
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -214,3 +237,13 @@ def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_pat
     assert [(r["workload"], r["agents"], r["devices"]) for r in records] == \
         [("seeds", 4, 1), ("seeds", 4, 2), ("sweep", 8, 1), ("sweep", 8, 2)]
     assert all(r["agent_steps_per_s"] > 0 for r in records) and records[0]["ratio_to_one_device"] == 1.0
+
+
+@pytest.mark.slow
+def test_the_two_gpu_mjx_reproducer_runs_its_cases_on_two_cpu_devices():
+    """benchmarks.two_gpu_mjx's bare case (what goes upstream) compiles and runs where XLA does not crash."""
+    from benchmarks import two_gpu_mjx
+
+    status, output = two_gpu_mjx.run_case("bare-step", 4)
+    assert status == 0, output
+    assert "CpuDevice(id=1)" in output
