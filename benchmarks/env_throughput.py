@@ -107,7 +107,8 @@ def rollout_fn(env_name: str, num_envs: int, steps: int, env_options: dict | Non
         key, action_key = jax.random.split(key)
         action = random_env_actions(action_key, env, num_envs)
         state = env.step(state, action)
-        overflowed += (state.info["overflow"] > 0).sum()
+        if "overflow" in state.info:  # MJX tasks only
+            overflowed += (state.info["overflow"] > 0).sum()
         return (state, key, total + state.reward.sum(), overflowed), None
 
     @jax.jit
