@@ -135,6 +135,12 @@ def overflow_steps(output) -> int | None:
     return int(output[2]) if len(output) > 2 else None
 
 
+def overflow_note(record: dict) -> str:
+    """What a row says when MuJoCo Warp ran out of a buffer in it: its figure is not physics."""
+    found = record.get("overflow_steps")
+    return f"  (NOT PHYSICS: {found:,} env-steps overflowed Warp's buffers)" if found else ""
+
+
 def _compile(lib: str, env_name: str, num_envs: int, steps: int):
     """(compiled run, compile seconds, overflowed env-steps of its warm-up run or None), or
     (None, None, why it cannot run)."""
@@ -222,10 +228,8 @@ def throughput_records(ours=OURS, peers=("gymnax", "playground"), batch=None, qu
                     if r["steps_per_s"] is None:
                         print(f"{r['lib']:<11}{r['env']:<17}{num_envs:>9}   skipped: {r['skipped']}", flush=True)
                     else:
-                        overflow = f"  (overflowed Warp's buffers: {r['overflow_steps']:,} env-steps)" \
-                            if r.get("overflow_steps") else ""
                         print(f"{r['lib']:<11}{r['env']:<17}{num_envs:>9}{r['steps_per_s']:>15,.0f}"
-                              f"{r['compile_s']:>11.2f}{overflow}", flush=True)
+                              f"{r['compile_s']:>11.2f}{overflow_note(r)}", flush=True)
     return records
 
 

@@ -190,12 +190,6 @@ def measure_task(name: str, num_envs: int, impls, brax: bool, steps: int, repeat
     return records
 
 
-def overflow_note(record: dict) -> str:
-    """What a row says when MuJoCo Warp ran out of a buffer in it: its figure is not physics."""
-    found = record.get("overflow_steps")
-    return f"  (NOT PHYSICS: {found:,} env-steps overflowed Warp's buffers)" if found else ""
-
-
 def ratio_records(records: list[dict]) -> list[dict]:
     """Ours against Gymnasium's vector env (every impl), and against Brax at the same solver options."""
     rows = []
@@ -234,11 +228,11 @@ def run_benchmark(tasks, sizes, impls, brax=True, gymnasium=True, steps=None, gy
                     show(f"{r['lib']:<10}{name:<26}{label:<24}{num_envs:>9}   skipped: {r['skipped']}", flush=True)
                 else:
                     show(f"{r['lib']:<10}{name:<26}{label:<24}{num_envs:>9}{r['steps_per_s']:>15,.0f}"
-                         f"{r['compile_s']:>11.1f}{overflow_note(r)}", flush=True)
+                         f"{r['compile_s']:>11.1f}{env_throughput.overflow_note(r)}", flush=True)
     ratios = ratio_records(records)
     for r in ratios:
         show(f"{r['env']} impl={r['impl']} at {r['num_envs']} envs / {r['peer']} ({r['peer_num_envs']} envs): "
-             f"{r['ratio']:,.2f}x{overflow_note(r)}")
+             f"{r['ratio']:,.2f}x{env_throughput.overflow_note(r)}")
     return records + ratios
 
 
