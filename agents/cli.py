@@ -646,7 +646,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
-    from envs.mjx_env import WarpUnavailable
+    from envs.mjx_options import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
 
     try:
         if args.command in ("train", "sweep", "eval", "rollout"):

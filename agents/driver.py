@@ -22,7 +22,6 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from agents import checkpoint
-from envs.mjx_env import overflow_report
 from envs.ranges import COUNT, NON_NEGATIVE
 
 # Periodic checkpoints: after every CHECKPOINT_EVERY chunks (DQN) or evaluations (PPO, SAC), once
@@ -51,6 +50,8 @@ def check_overflow(env, contacts: int, constraints: int, out_of: int, unit: str,
     those steps. Returns whether it was said."""
     if not contacts and not constraints:
         return told
+    from envs.mjx_env import overflow_report  # only MJX tasks overflow; importing it loads mujoco.mjx (start-up time)
+
     report = f"{overflow_report(env, contacts, constraints, out_of, unit)} Those steps are not physics: {consequence}."
     if max(contacts, constraints) > MOST_OVERFLOWING * out_of:
         raise RuntimeError(f"{report} Most {unit} of {where} overflowed: the run stops rather than train on them.")

@@ -22,6 +22,7 @@ from agents.backend import default_seed_axis, init_compiler_options, training_co
 from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT
+from envs.registry import is_mjx_task
 
 
 @dataclass
@@ -155,7 +156,7 @@ def train_run(
     configs = sweep_configs(config, sweep)
     agents = seeds * len(configs)
     env = envs.make(env_name, **(env_options or {}))
-    mjx_task = env_name if isinstance(env.unwrapped, envs.MjxEnv) else None
+    mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
     placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
     writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
     run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)

@@ -6,28 +6,50 @@ MJCF in `assets/`), the Brax and Gymnasium adapters in `envs.interop`. Those two
 the API modules, never this package: only this file gathers the public names and
 registers the built-in tasks. See ARCHITECTURE.md."""
 
-import functools
+import importlib
+import importlib.util
 
 from envs.core import Env, State, Wrapper
-from envs.interop.brax import BraxEnv, to_brax
-from envs.mjx_env import MjxEnv
 from envs.randomize import Randomize, randomize
 from envs.registry import make, names, options, register
 from envs.tasks.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
-from envs.tasks.acrobot_mjx import AcrobotMjx
 from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
-from envs.tasks.cartpole_mjx import CartPoleMjx
-from envs.tasks.cartpole_swingup_mjx import CartPoleSwingUpMjx, SwingUpRules
-from envs.tasks.ant import Ant, AntParams
-from envs.tasks.half_cheetah import HalfCheetah, HalfCheetahParams
-from envs.tasks.inverted_pendulums import (
-    InvertedDoublePendulum, InvertedDoublePendulumParams, InvertedPendulum, InvertedPendulumParams,
-)
-from envs.tasks.reacher import Reacher, ReacherParams
-from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS, PendulumMjx, PendulumParams
-from envs.tasks.swimmer import Swimmer, SwimmerParams
-from envs.tasks.walkers import Hopper, HopperParams, Walker2d, Walker2dParams
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
+
+# Public names imported on first use (PEP 562 `__getattr__` below): their modules load mujoco.mjx,
+# which loads MuJoCo Warp and Warp (about 2.5 s), or serve Brax. `envs.make("cartpole")` and DQN on
+# the analytic tasks then start without them; `from envs import HalfCheetah` works as before.
+_LAZY_MODULES = {
+    "envs.mjx_env": ("MjxEnv",),
+    "envs.interop.brax": ("BraxEnv", "to_brax"),
+    "envs.tasks.acrobot_mjx": ("AcrobotMjx",),
+    "envs.tasks.cartpole_mjx": ("CartPoleMjx",),
+    "envs.tasks.cartpole_swingup_mjx": ("CartPoleSwingUpMjx", "SwingUpRules"),
+    "envs.tasks.ant": ("Ant", "AntParams"),
+    "envs.tasks.half_cheetah": ("HalfCheetah", "HalfCheetahParams"),
+    "envs.tasks.inverted_pendulums": ("InvertedDoublePendulum", "InvertedDoublePendulumParams",
+                                      "InvertedPendulum", "InvertedPendulumParams"),
+    "envs.tasks.reacher": ("Reacher", "ReacherParams"),
+    "envs.tasks.pendulum_mjx": ("DISCRETE_TORQUE_BINS", "PendulumMjx", "PendulumParams"),
+    "envs.tasks.swimmer": ("Swimmer", "SwimmerParams"),
+    "envs.tasks.walkers": ("Hopper", "HopperParams", "Walker2d", "Walker2dParams"),
+}
+_LAZY = {name: module for module, names_ in _LAZY_MODULES.items() for name in names_}
+
+
+def __getattr__(name: str):
+    """A public name of `_LAZY`, or a submodule such as `envs.mjx_env`, imported now."""
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # found directly from now on
+        return value
+    if importlib.util.find_spec(f"{__name__}.{name}") is not None:
+        return importlib.import_module(f"{__name__}.{name}")
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
 
 
 def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
@@ -41,20 +63,21 @@ def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
 
 register("cartpole", CartPole, episode_length=500)
 register("acrobot", Acrobot, episode_length=500)
-register("acrobot-mjx", AcrobotMjx, episode_length=500)
-register("cartpole-mjx", CartPoleMjx, episode_length=500)
-register("cartpole-swingup-mjx", CartPoleSwingUpMjx, episode_length=1000)
-register("pendulum-mjx", PendulumMjx, episode_length=200)
-register("pendulum-mjx-discrete", functools.partial(PendulumMjx, action_bins=DISCRETE_TORQUE_BINS), episode_length=200)
+# The MJX tasks by "module:attr", imported by their first `make` or `options` (see `_LAZY_MODULES`).
+register("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", episode_length=500)
+register("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", episode_length=500)
+register("cartpole-swingup-mjx", "envs.tasks.cartpole_swingup_mjx:CartPoleSwingUpMjx", episode_length=1000)
+register("pendulum-mjx", "envs.tasks.pendulum_mjx:PendulumMjx", episode_length=200)
+register("pendulum-mjx-discrete", "envs.tasks.pendulum_mjx:PendulumMjxDiscrete", episode_length=200)
 # Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
-register("half-cheetah", HalfCheetah, episode_length=1000)
-register("hopper", Hopper, episode_length=1000)
-register("walker2d", Walker2d, episode_length=1000)
-register("swimmer", Swimmer, episode_length=1000)
-register("inverted-pendulum", InvertedPendulum, episode_length=1000)
-register("inverted-double-pendulum", InvertedDoublePendulum, episode_length=1000)
-register("reacher", Reacher, episode_length=50)
-register("ant", Ant, episode_length=1000)
+register("half-cheetah", "envs.tasks.half_cheetah:HalfCheetah", episode_length=1000)
+register("hopper", "envs.tasks.walkers:Hopper", episode_length=1000)
+register("walker2d", "envs.tasks.walkers:Walker2d", episode_length=1000)
+register("swimmer", "envs.tasks.swimmer:Swimmer", episode_length=1000)
+register("inverted-pendulum", "envs.tasks.inverted_pendulums:InvertedPendulum", episode_length=1000)
+register("inverted-double-pendulum", "envs.tasks.inverted_pendulums:InvertedDoublePendulum", episode_length=1000)
+register("reacher", "envs.tasks.reacher:Reacher", episode_length=50)
+register("ant", "envs.tasks.ant:Ant", episode_length=1000)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",

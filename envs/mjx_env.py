@@ -31,7 +31,8 @@ with contextlib.redirect_stdout(io.StringIO()):
 
 from envs.assets import load_model
 from envs.core import Env, State
-from envs.mjx_options import BUFFER_OPTIONS, WarpBuffers, apply_opt, check_buffer_sizes, check_opt
+from envs.mjx_options import (BUFFER_OPTIONS, WarpBuffers, WarpUnavailable, apply_opt, check_buffer_sizes,
+                               check_opt)
 
 ActionBins = Mapping[str, Sequence[float]]
 IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
@@ -43,10 +44,6 @@ CONTACT_OVERFLOW = 4 | 8 | 16  # BROADPHASE, NARROWPHASE, CCD: the contact pool 
 CONSTRAINT_OVERFLOW = 1 | 2  # NEFC, NJMAX_NNZ: the constraint rows of one world (njmax)
 # info["overflow"] codes: which buffer ran out on a step (both: their sum).
 OVERFLOW_CONTACTS, OVERFLOW_CONSTRAINTS = 1.0, 2.0
-
-
-class WarpUnavailable(RuntimeError):
-    """impl='warp' was asked for on a machine that cannot run MuJoCo Warp."""
 
 
 def require_warp() -> None:

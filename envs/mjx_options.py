@@ -12,19 +12,14 @@ see `WarpBuffers`. Everything here is checked in `envs.make`, before anything co
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
-import io
 from typing import Any, Mapping
 
 import mujoco
 import numpy as np
 
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, Range
-
-with contextlib.redirect_stdout(io.StringIO()):  # see envs.mjx_env
-    from mujoco import mjx
 
 # MjOption's enum fields and their MuJoCo enum (names are matched without the prefix).
 ENUMS = {
@@ -133,6 +128,11 @@ def _shown(value: Any) -> Any:
 BUFFER_OPTIONS = ("nconmax", "naconmax", "njmax")
 
 
+class WarpUnavailable(RuntimeError):
+    """impl='warp' was asked for on a machine that cannot run MuJoCo Warp (raised by
+    `envs.mjx_env.require_warp`; defined here so the CLI catches it without importing mujoco.mjx)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class WarpBuffers:
     """MuJoCo Warp's contact and constraint buffers for one task.
@@ -183,6 +183,8 @@ def contact_and_constraint_bounds(mj_model: mujoco.MjModel) -> tuple[int, int]:
     """The most contacts and constraint rows one world of `mj_model` can have, as MJX's JAX
     implementation allocates them (every candidate geom pair's most contacts, every row). For a
     model the JAX implementation cannot run: MuJoCo Warp's own guesses for one world."""
+    from envs.mjx_env import mjx  # here, not at the top: mujoco.mjx takes seconds to import (start-up time)
+
     try:
         data = mjx.make_data(mjx.put_model(mj_model, impl="jax"))
         return max(1, int(data.contact.dist.shape[0])), max(1, int(data._impl.efc_J.shape[0]))

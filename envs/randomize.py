@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import jax
 import jax.numpy as jnp
@@ -41,8 +41,10 @@ import mujoco
 import numpy as np
 
 from envs.core import Env, State, Wrapper
-from envs.mjx_env import MjxEnv, mjx
 from envs.wrappers import TimeLimit
+
+if TYPE_CHECKING:  # envs.mjx_env (mujoco.mjx) is imported where it is used: `import envs` stays fast
+    from envs.mjx_env import MjxEnv, mjx
 
 PER = ("episode", "env")
 
@@ -194,6 +196,8 @@ class Randomize(Wrapper):
     """
 
     def __init__(self, env: MjxEnv, ranges: Mapping[str, Any], per: str = "episode"):
+        from envs.mjx_env import MjxEnv  # here, not at the top: importing envs must not load MJX (start-up time)
+
         if not isinstance(env, MjxEnv):
             raise ValueError(f"randomize varies the model of an MJX task (an envs.MjxEnv); got {env!r}. Analytic "
                              "envs vary their physics by vmap over their physics dataclass instead")
@@ -265,6 +269,8 @@ def _collision_bounds(base: mjx.Model, size: jax.Array) -> dict[str, jax.Array]:
 def set_const(model: mjx.Model, data: mjx.Data, mj_model: mujoco.MjModel) -> dict[str, Any]:
     """What MuJoCo's `mj_setConst` derives from masses, inertias, geometry and transmissions,
     computed in JAX from `model` at `qpos0` (engine_setconst.c: setFixed, set0, setStat)."""
+    from envs.mjx_env import mjx  # here, not at the top: importing envs must not load MJX (start-up time)
+
     nv = mj_model.nv
     subtreemass = model.body_mass
     for body in range(mj_model.nbody - 1, 0, -1):  # children come after their parents
@@ -324,6 +330,8 @@ def randomize(env: Env, ranges: Mapping[str, Any], per: str = "episode") -> Env:
     """`env` (an MJX task, as `envs.make` returns it) with each env's model values drawn
     from `ranges` (see this module's docstring): at every reset (`per="episode"`) or once
     per env (`per="env"`)."""
+    from envs.mjx_env import MjxEnv  # here, not at the top: importing envs must not load MJX (start-up time)
+
     if isinstance(env, TimeLimit) and isinstance(env.env, MjxEnv):
         return TimeLimit(Randomize(env.env, ranges, per), env.episode_length)
     return Randomize(env, ranges, per)

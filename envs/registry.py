@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import inspect
+import sys
 from typing import Any, Callable
 
 from envs.core import Env
-from envs.mjx_env import MjxEnv
 from envs.mjx_options import check_buffer_sizes, check_opt, parse_opt_field
 from envs.randomize import PER, Randomize
 from envs.ranges import COUNT, check_fields
@@ -18,15 +19,20 @@ from envs.wrappers import TimeLimit
 MJX_OPTIONS = {"impl": "jax", "opt": None, "nconmax": None, "naconmax": None, "njmax": None,
                "randomize": None, "randomize_per": PER[0]}
 
-_REGISTRY: dict[str, tuple[Callable[..., Env], int]] = {}
+# name -> (factory, or its "module:attr" until first use; episode_length)
+_REGISTRY: dict[str, tuple[Callable[..., Env] | str, int]] = {}
 
 
-def register(name: str, factory: Callable[..., Env], episode_length: int = 1000) -> None:
+def register(name: str, factory: Callable[..., Env] | str, episode_length: int = 1000) -> None:
     """Make `factory` available as `envs.make(name)`.
 
     `factory`'s keyword arguments become overrides; an argument whose default is a
     dataclass (e.g. physics constants) also accepts each of its fields by name.
+    `factory` may also be named as "module:attr", imported when the env is first looked up:
+    the built-in MJX tasks register so, and importing `envs` never loads MJX (seconds of start-up).
     """
+    if isinstance(factory, str) and ":" not in factory:
+        raise ValueError(f"register({name!r}, {factory!r}): a factory given by name is written 'module:attr'")
     if name in _REGISTRY:
         raise ValueError(f"an env named {name!r} is already registered ({_REGISTRY[name][0]!r})")
     _REGISTRY[name] = (factory, episode_length)
@@ -87,10 +93,23 @@ def make(name: str, **overrides: Any) -> Env:
     return TimeLimit(env, episode_length)
 
 
+def is_mjx_task(env: Env) -> bool:
+    """Whether `env`, unwrapped, is an MJX task (an `envs.MjxEnv`), without importing MJX."""
+    mjx_env = _loaded_mjx_env()
+    return mjx_env is not None and isinstance(env.unwrapped, mjx_env)
+
+
 def _makes_mjx_env(factory: Callable[..., Env]) -> bool:
     """Whether `factory` is an MjxEnv subclass (or a functools.partial of one)."""
+    mjx_env = _loaded_mjx_env()
     factory = getattr(factory, "func", factory)
-    return inspect.isclass(factory) and issubclass(factory, MjxEnv)
+    return mjx_env is not None and inspect.isclass(factory) and issubclass(factory, mjx_env)
+
+
+def _loaded_mjx_env() -> type | None:
+    """`envs.MjxEnv` once envs.mjx_env is imported, else None: no MJX task exists before, and
+    importing it just to ask would load mujoco.mjx (seconds of start-up) for an analytic task."""
+    return getattr(sys.modules.get("envs.mjx_env"), "MjxEnv", None)
 
 
 def parse_option(name: str, option: str, text: str) -> Any:
@@ -134,4 +153,9 @@ def _lookup(name: str) -> tuple[Callable[..., Env], int]:
             f"unknown env {name!r}; registered envs: {names()} (a task of your own registers when its "
             "module is imported: `mjxsuite ... --import MODULE`)"
         )
-    return _REGISTRY[name]
+    factory, episode_length = _REGISTRY[name]
+    if isinstance(factory, str):  # registered by name: import it now, once
+        module, _, attr = factory.partition(":")
+        factory = getattr(importlib.import_module(module), attr)
+        _REGISTRY[name] = (factory, episode_length)
+    return factory, episode_length

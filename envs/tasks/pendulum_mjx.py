@@ -12,6 +12,7 @@ with `action_bins=n`, n evenly spaced torques from -2 to 2 for DQN.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import ClassVar
 
@@ -94,3 +95,7 @@ class PendulumMjx(MjxEnv):
     def __repr__(self) -> str:
         bins = "" if self.action_bins is None else f", action_bins={len(self.action_bins)}"
         return f"PendulumMjx(params={self.params}{bins})"
+
+
+# `pendulum-mjx-discrete`: envs/__init__.py registers it as "module:attr", imported on first use.
+PendulumMjxDiscrete = functools.partial(PendulumMjx, action_bins=DISCRETE_TORQUE_BINS)
