@@ -30,7 +30,7 @@ _LAZY_MODULES = {
     "envs.tasks.inverted_pendulums": ("InvertedDoublePendulum", "InvertedDoublePendulumParams",
                                       "InvertedPendulum", "InvertedPendulumParams"),
     "envs.tasks.reacher": ("Reacher", "ReacherParams"),
-    "envs.tasks.pendulum_mjx": ("DISCRETE_TORQUE_BINS", "PendulumMjx", "PendulumParams"),
+    "envs.tasks.pendulum_mjx": ("DISCRETE_TORQUE_BINS", "PendulumMjx", "PendulumMjxDiscrete", "PendulumParams"),
     "envs.tasks.swimmer": ("Swimmer", "SwimmerParams"),
     "envs.tasks.walkers": ("Hopper", "HopperParams", "Walker2d", "Walker2dParams"),
 }
@@ -52,6 +52,11 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
+def _lazy_task(name: str) -> str:
+    """A task class of `_LAZY` as `register` takes it by name ("module:attr"), imported on first use."""
+    return f"{_LAZY[name]}:{name}"
+
+
 def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
     """A registered env (by name) or an env instance as a `gymnasium.Env`, or with `num_envs` a
     `gymnasium.vector.VectorEnv` (see `envs.interop.gymnasium`). Gymnasium is optional, so it is
@@ -63,21 +68,21 @@ def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
 
 register("cartpole", CartPole, episode_length=500)
 register("acrobot", Acrobot, episode_length=500)
-# The MJX tasks by "module:attr", imported by their first `make` or `options` (see `_LAZY_MODULES`).
-register("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", episode_length=500)
-register("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", episode_length=500)
-register("cartpole-swingup-mjx", "envs.tasks.cartpole_swingup_mjx:CartPoleSwingUpMjx", episode_length=1000)
-register("pendulum-mjx", "envs.tasks.pendulum_mjx:PendulumMjx", episode_length=200)
-register("pendulum-mjx-discrete", "envs.tasks.pendulum_mjx:PendulumMjxDiscrete", episode_length=200)
+# The MJX tasks by "module:attr", imported by their first `make` or `options`.
+register("acrobot-mjx", _lazy_task("AcrobotMjx"), episode_length=500)
+register("cartpole-mjx", _lazy_task("CartPoleMjx"), episode_length=500)
+register("cartpole-swingup-mjx", _lazy_task("CartPoleSwingUpMjx"), episode_length=1000)
+register("pendulum-mjx", _lazy_task("PendulumMjx"), episode_length=200)
+register("pendulum-mjx-discrete", _lazy_task("PendulumMjxDiscrete"), episode_length=200)
 # Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
-register("half-cheetah", "envs.tasks.half_cheetah:HalfCheetah", episode_length=1000)
-register("hopper", "envs.tasks.walkers:Hopper", episode_length=1000)
-register("walker2d", "envs.tasks.walkers:Walker2d", episode_length=1000)
-register("swimmer", "envs.tasks.swimmer:Swimmer", episode_length=1000)
-register("inverted-pendulum", "envs.tasks.inverted_pendulums:InvertedPendulum", episode_length=1000)
-register("inverted-double-pendulum", "envs.tasks.inverted_pendulums:InvertedDoublePendulum", episode_length=1000)
-register("reacher", "envs.tasks.reacher:Reacher", episode_length=50)
-register("ant", "envs.tasks.ant:Ant", episode_length=1000)
+register("half-cheetah", _lazy_task("HalfCheetah"), episode_length=1000)
+register("hopper", _lazy_task("Hopper"), episode_length=1000)
+register("walker2d", _lazy_task("Walker2d"), episode_length=1000)
+register("swimmer", _lazy_task("Swimmer"), episode_length=1000)
+register("inverted-pendulum", _lazy_task("InvertedPendulum"), episode_length=1000)
+register("inverted-double-pendulum", _lazy_task("InvertedDoublePendulum"), episode_length=1000)
+register("reacher", _lazy_task("Reacher"), episode_length=50)
+register("ant", _lazy_task("Ant"), episode_length=1000)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
