@@ -29,6 +29,7 @@ _LAZY_MODULES = {
     "envs.tasks.half_cheetah": ("HalfCheetah", "HalfCheetahParams"),
     "envs.tasks.inverted_pendulums": ("InvertedDoublePendulum", "InvertedDoublePendulumParams",
                                       "InvertedPendulum", "InvertedPendulumParams"),
+    "envs.tasks.pusher": ("Pusher", "PusherParams"),
     "envs.tasks.reacher": ("Reacher", "ReacherParams"),
     "envs.tasks.pendulum_mjx": ("DISCRETE_TORQUE_BINS", "PendulumMjx", "PendulumMjxDiscrete", "PendulumParams"),
     "envs.tasks.swimmer": ("Swimmer", "SwimmerParams"),
@@ -83,6 +84,7 @@ register("inverted-pendulum", _lazy_task("InvertedPendulum"), episode_length=100
 register("inverted-double-pendulum", _lazy_task("InvertedDoublePendulum"), episode_length=1000)
 register("reacher", _lazy_task("Reacher"), episode_length=50)
 register("ant", _lazy_task("Ant"), episode_length=1000)
+register("pusher", _lazy_task("Pusher"), episode_length=100)
 
 __all__ = [
     "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
@@ -94,5 +96,5 @@ __all__ = [
     "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
     "Swimmer", "SwimmerParams",
     "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
-    "Reacher", "ReacherParams", "Ant", "AntParams",
+    "Reacher", "ReacherParams", "Ant", "AntParams", "Pusher", "PusherParams",
 ]
