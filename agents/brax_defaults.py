@@ -96,6 +96,14 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 entropy_cost=1e-3, num_envs=2048, batch_size=256, solve_return=-3.75)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=-3.75)},
     },
+    "pusher": {  # NOT yet run here (no GPU run on Pusher-v5 yet): Brax's notebook recipe for its pusher
+        # (PPO; Brax trains 1000-step episodes, Gymnasium's Pusher-v5 truncates at 100), a starting point.
+        # Pusher-v5's reward_threshold is 0 (its returns are negative); no solve_return until measured
+        "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=5.0, unroll_length=30,
+                                num_minibatches=16, num_updates_per_batch=8, discounting=0.95, learning_rate=3e-4,
+                                entropy_cost=1e-2, num_envs=2048, batch_size=512)},
+        "sac": {"default": dict(_PLAYGROUND_SAC)},
+    },
     "swimmer": {  # SAC, impl="warp", discounting 0.9999 (as the SB3 zoo trains Swimmer), H200: 333.9 on
         # Gymnasium after 325k steps (349 s). PPO (Playground's recipe, or SB3-like) stayed below 40
         "ppo": {"default": dict(_PLAYGROUND_PPO, num_timesteps=100_000_000, solve_return=360.0)},

@@ -244,6 +244,14 @@ class MjxEnv(Env):
         implementation does). The default changes nothing."""
         return data
 
+    def forward_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """What reset runs with `forward_on_reset` under impl="jax" (impl="warp" runs mjx.forward):
+        `mjx.forward`. A task whose reset observation reads positions only may run the cheaper
+        `mjx.kinematics` (no collisions, no constraint solve); the first step is the same either
+        way, since `mjx.step` recomputes everything from qpos and qvel and only the integrator
+        writes `qacc_warmstart`."""
+        return mjx.forward(model, data)
+
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
         if self.action_bins is not None:
@@ -275,7 +283,8 @@ class MjxEnv(Env):
         if self.forward_on_reset:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
-            forwarded = self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared else mjx.forward(model, data)
+            forwarded = (self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared
+                         else self.forward_at_reset(model, data))
             data = forwarded.replace(qpos=data.qpos)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
