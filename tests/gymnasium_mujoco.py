@@ -99,9 +99,12 @@ def transitions(name: str, num_envs: int = 32, num_steps: int = 40, keep: int = 
     )
 
 
-def gymnasium_steps(gymnasium_id: str, starts: Transitions, **kwargs: Any) -> Steps:
-    """Gymnasium's env stepped once from each start state with the same action."""
+def gymnasium_steps(gymnasium_id: str, starts: Transitions, opt: dict[str, Any] | None = None, **kwargs: Any) -> Steps:
+    """Gymnasium's env stepped once from each start state with the same action. `opt`: MjOption
+    fields set on Gymnasium's model first (humanoid: the solver our task steps its model with)."""
     env = gymnasium_env(gymnasium_id, **kwargs)
+    for field, value in (opt or {}).items():
+        setattr(env.model.opt, field, value)
     obs, rewards, terminated, infos, contacts = [], [], [], [], []
     for qpos, qvel, warmstart, action in zip(starts.qpos, starts.qvel, starts.qacc_warmstart, starts.env_actions):
         env.set_state(qpos.astype(np.float64), qvel.astype(np.float64))
