@@ -33,29 +33,26 @@ NOT_METRICS = {"tendon_length", "tendon_velocity"}
 
 def gymnasium_rollouts(count: int, seed: int = 0, max_steps: int = 60, **kwargs):
     """`count` steps of Gymnasium's own env (unmodified) under uniform random actions, episodes
-    restarted at termination or after `max_steps`: its MjData before and after each kept step (on
-    the device, cfrc_ext of the latter zeroed: ours must compute it), what the step returned, and
-    C's cfrc_ext. About half the steps are kept (spread over the episodes, every terminating one)."""
+    restarted at termination or after `max_steps`: its MjData before and after each step (on the
+    device, cfrc_ext of the latter zeroed: ours must compute it), what the step returned, and C's
+    cfrc_ext. A step's "before" is the previous step's "after" (our task reads only its xipos there)."""
     env = gymnasium_env(GYMNASIUM_ID, **kwargs)
     rng = np.random.default_rng(seed)
     kept = {key: [] for key in ("before", "after", "obs", "reward", "terminated", "info", "cfrc_ext", "ncon")}
-    steps, ended = 0, True
+    before, steps = None, 0
     while len(kept["obs"]) < count:
-        if ended or steps == max_steps:
+        if before is None or steps == max_steps:
             env.reset(seed=int(rng.integers(2**31)))
-            steps = 0
-        before = mjx.put_data(env.model, env.data)
+            before, steps = mjx.put_data(env.model, env.data), 0
         obs, reward, terminated, _, info = env.step(rng.uniform(env.action_space.low, env.action_space.high))
-        steps, ended = steps + 1, terminated
-        if not terminated and rng.uniform() < 0.5:
-            continue
         cfrc_ext = env.data.cfrc_ext.copy()  # C's mj_rnePostConstraint, run by Gymnasium's step
         env.data.cfrc_ext[:] = 0.0
-        kept["after"].append(mjx.put_data(env.model, env.data))
+        after = mjx.put_data(env.model, env.data)
         env.data.cfrc_ext[:] = cfrc_ext  # the next step starts from Gymnasium's own data
-        for key, value in (("before", before), ("obs", obs), ("reward", reward), ("terminated", terminated),
-                           ("info", info), ("cfrc_ext", cfrc_ext), ("ncon", env.data.ncon)):
+        for key, value in (("before", before), ("after", after), ("obs", obs), ("reward", reward),
+                           ("terminated", terminated), ("info", info), ("cfrc_ext", cfrc_ext), ("ncon", env.data.ncon)):
             kept[key].append(value)
+        before, steps = (None if terminated else after), steps + 1
     return kept
 
 
@@ -88,16 +85,16 @@ def assert_reads_as_gymnasium(env, kept):
     assert set(terms) == set(infos[0]) - NOT_METRICS  # every scalar info value of Gymnasium's, no other
 
 
-def test_task_reads_mujocos_data_as_gymnasium_does():  # about 5 s: no physics step compiles
+def test_task_reads_mujocos_data_as_gymnasium_does():  # about 4 s: no physics step compiles
     env = envs.make(NAME).unwrapped
-    kept = gymnasium_rollouts(240)
-    assert 0.05 < np.mean(kept["terminated"]) < 0.5, "falls and upright states both"
-    assert (np.array(kept["ncon"]) > 0).mean() > 0.3, "states touching the floor"
+    kept = gymnasium_rollouts(200)
+    assert np.sum(kept["terminated"]) >= 3, "falls"
+    assert (np.array(kept["ncon"]) > 0).mean() > 0.2, "states touching the floor"
     assert (np.abs(np.array(kept["cfrc_ext"])) > 100).any(), "large contact forces"
     assert_reads_as_gymnasium(env, kept)
 
 
-@pytest.mark.slow  # issue #29: default run <= 8 min; a second ~5 s compile of the same check, options changed
+@pytest.mark.slow  # issue #29: the default run is at its 8-minute limit; this repeats the check above (~3 s) with options changed
 def test_task_reads_mujocos_data_as_gymnasium_does_with_every_option_changed():
     options = dict(forward_reward_weight=2.0, ctrl_cost_weight=0.3, contact_cost_weight=1e-5,
                    contact_cost_range=(0.5, 2.0), healthy_reward=1.0, terminate_when_unhealthy=False,
