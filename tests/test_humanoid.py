@@ -123,7 +123,7 @@ def starts():
 STEP_TOLERANCES = {"qpos[2:]": 1e-4, "qvel": 1e-2, "cinert[1:]": 1e-4, "cvel[1:]": 1e-2, "qfrc_actuator[6:]": 1e-4}
 
 
-@pytest.mark.slow  # issue #29: compiles humanoid's contact/RK4 step and mjx.forward (about 3 min of CPU); out of the default run
+@pytest.mark.slow  # issue #29: compiles humanoid's contact/RK4 step and mjx.forward (134 s on 2 cores); out of the default run
 def test_steps_match_gymnasium_with_the_same_solver(starts):
     theirs = gymnasium_steps(GYMNASIUM_ID, starts, opt=NEWTON)
     assert (theirs.contacts > 0).mean() > 0.4 and theirs.terminated.mean() > 0.2, "feet on the floor, falls"
@@ -213,7 +213,7 @@ def test_reset_distribution_matches_gymnasium():
     assert np.abs(qvel).max() <= 0.01 + 1e-9 and np.abs(qpos - env.init_qpos).max() <= 0.01 + 1e-7, "U(-0.01, 0.01)"
 
 
-@pytest.mark.slow  # issue #29: compiles mjx.forward for humanoid's contacts (~50 s of CPU); out of the default run
+@pytest.mark.slow  # issue #29: compiles the reset's mjx.forward for humanoid's contacts (20 s on 2 cores); out of the default run
 def test_reset_observation_is_gymnasiums():
     env = envs.make(NAME).unwrapped
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(2), 50))
@@ -229,6 +229,6 @@ def test_reset_observation_is_gymnasiums():
     np.testing.assert_allclose(states.obs, their_obs, rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.slow  # issue #29: compiles humanoid's contact step for Gymnasium's checker (minutes of CPU)
+@pytest.mark.slow  # issue #29: compiles humanoid's contact step for Gymnasium's checker (62-83 s on 2 cores)
 def test_to_gymnasium_passes_check_env():
     assert_passes_check_env(NAME, GYMNASIUM_ID)

@@ -12,8 +12,8 @@ the installed gymnasium package; the rest follows `gymnasium/envs/mujoco/humanoi
   does not);
 - reward = reward_forward + reward_survive - ctrl cost - contact cost: forward_reward_weight times
   the x velocity of the centre of mass (the mass-weighted mean of the bodies' `xipos`, Gymnasium's
-  `mass_center`), healthy_reward while healthy (the torso's z strictly inside healthy_z_range),
-  ctrl_cost_weight * sum(ctrl^2) (ctrl in Gymnasium's action units, the ctrlrange [-0.4, 0.4]) and
+  `mass_center`: MuJoCo's `subtree_com` of the world body), healthy_reward while healthy (the
+  torso's z strictly inside healthy_z_range), ctrl_cost_weight * sum(ctrl^2) (ctrl in Gymnasium's action units, the ctrlrange [-0.4, 0.4]) and
   contact_cost_weight * sum(cfrc_ext^2) over every body, that total clipped to contact_cost_range
   (default (-inf, 10]); terminated when unhealthy (with terminate_when_unhealthy);
 - reset: qpos = qpos0 + U(-s, s), qvel = U(-s, s), s = reset_noise_scale (1e-2).
@@ -30,7 +30,7 @@ difference against Gymnasium's unmodified env (docs/tasks.md has the figures). `
 "cg"}` picks CG instead; `opt={"solver": "pgs"}` is refused by MJX as before.
 
 Quantities read as Gymnasium reads them, after MuJoCo's step:
-- `cinert`, `cvel`, `qfrc_actuator` and `xipos` are those MuJoCo derives in its last forward
+- `cinert`, `cvel`, `qfrc_actuator` and `subtree_com` are those MuJoCo derives in its last forward
   evaluation: after an RK4 step that is RK4's last stage, not the new qpos, in C MuJoCo and MJX
   alike. Reset runs `mjx.forward` (`forward_on_reset`) as Gymnasium's `set_state` runs
   `mj_forward`, so the reset observation holds the reset pose's cinert and cvel and the first
@@ -45,7 +45,8 @@ tendons): `state.metrics` holds scalars only (Brax's evaluator sums each per epi
 left out of it; they are `state.pipeline_state.ten_length` and `.ten_velocity`.
 
 Actions: ours in [-1, 1], scaled to the ctrlrange [-0.4, 0.4]: our action a is Gymnasium's 0.4a
-(`env.to_env_action`, which `load_policy` applies).
+(`env.to_env_action`; `load_policy` returns actions in the same [-0.4, 0.4] through
+`env.action_low`/`action_high`, so a policy trained here acts on `gymnasium.make("Humanoid-v5")`).
 """
 
 from __future__ import annotations
@@ -55,7 +56,6 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import struct
 
 from envs.mjx_env import mjx
@@ -103,8 +103,6 @@ class Humanoid(GymnasiumMujocoEnv):
 
     def __init__(self, params: HumanoidParams = HumanoidParams(), xml: str | None = None):
         super().__init__(params, xml)
-        mass = np.asarray(self.mj_model.body_mass, np.float64)
-        self.mass_share = mass / mass.sum()  # Gymnasium's mass_center weights
         # Contact forces are needed unless both the observation and the reward leave them out.
         self.needs_cfrc_ext = params.include_cfrc_ext_in_observation or params.contact_cost_weight != 0
 
@@ -139,8 +137,10 @@ class Humanoid(GymnasiumMujocoEnv):
         return jnp.concatenate(parts)
 
     def mass_center(self, data: mjx.Data) -> jax.Array:
-        """x, y of the centre of mass: the bodies' xipos weighted by mass (Gymnasium's mass_center)."""
-        return jnp.asarray(self.mass_share, data.xipos.dtype) @ data.xipos[:, :2]
+        """x, y of the centre of mass: Gymnasium's mass_center, the bodies' xipos weighted by body_mass,
+        is the world body's subtree_com, which MuJoCo computes beside xipos from the model's own masses
+        (so with envs.randomize's too)."""
+        return data.subtree_com[0, :2]
 
     def is_healthy(self, data: mjx.Data) -> jax.Array:
         low, high = self.params.healthy_z_range
