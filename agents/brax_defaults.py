@@ -71,6 +71,15 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 batch_size=2048, solve_return=6000.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=6000.0)},
     },
+    "humanoid": {  # NOT yet run here (on any device): starting points. PPO: Brax's training notebook
+        # recipe for its humanoid look-alike (google/brax notebooks/training.ipynb, train_fn['humanoid'],
+        # read at commit 0b96d05: 50M steps, reward_scaling 0.1, unroll 10, 8 updates per batch,
+        # entropy 1e-3, 2,048 envs); SAC: Playground's recipe, as the other rows
+        "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=10, reward_scaling=0.1, unroll_length=10,
+                                num_minibatches=32, num_updates_per_batch=8, discounting=0.97, learning_rate=3e-4,
+                                entropy_cost=1e-3, num_envs=2048, batch_size=1024)},
+        "sac": {"default": dict(_PLAYGROUND_SAC)},
+    },
     "half-cheetah": {  # SAC, impl="warp", H100: 9,468 on Gymnasium in 247 s; PPO: best 2,607
         "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=1.0, unroll_length=20,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.95, learning_rate=3e-4,

@@ -82,7 +82,35 @@ class CachedProgram:
 def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
                    donate: bool = False, compiler_options: dict | None = None) -> CachedProgram:
     """`fn` compiled for `args` (a tuple of pytrees of arrays), its traced program loaded from
-    `cache_dir` when there, else traced, exported and written there.
+    `cache_dir` when there, else traced, exported and written there: `cached_lower(...).compile()`."""
+    return cached_lower(fn, args, key_parts, cache_dir, donate, compiler_options).compile()
+
+
+@dataclass(frozen=True)
+class LoweredProgram:
+    """A program traced and lowered, not yet compiled. Tracing and lowering are Python and
+    hold Python's lock; `compile()` is XLA's work and does not, so a caller can compile one
+    program on another thread while it traces the next (`agents.run`)."""
+
+    lowered: Any  # jax.stages.Lowered
+    compiler_options: dict | None
+    out_tree: Any = None  # the original function's output structure; None: `lowered` takes the original arguments
+    donated: int = 0  # leaves of the first argument donated (flat programs only)
+    hit: bool = False  # loaded from the cache
+
+    def compile(self) -> Callable:
+        compiled = self.lowered.compile(self.compiler_options)
+        if self.out_tree is None:
+            return compiled
+        donated = self.donated
+        return CachedProgram(lambda flat: compiled(flat[:donated], flat[donated:]), self.out_tree, self.hit)
+
+
+def cached_lower(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
+                 donate: bool = False, compiler_options: dict | None = None) -> LoweredProgram:
+    """`fn` lowered for `args` (a tuple of pytrees of arrays), its traced program loaded from
+    `cache_dir` when there, else traced, exported and written there; `.compile()` gives a
+    `CachedProgram`.
 
     `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
     trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
@@ -97,7 +125,7 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     if path.is_file():
         try:
             exported, out_tree = _read(path, in_tree)
-            return CachedProgram(_compile(exported.call, leaves, donated, compiler_options), out_tree, hit=True)
+            return _lower(exported.call, leaves, donated, compiler_options, out_tree, hit=True)
         except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
             warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
     try:
@@ -105,24 +133,32 @@ def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | o
     except Exception as err:
         warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
         flat, found = _flat(fn, in_tree)
-        return CachedProgram(_compile(flat, leaves, donated, compiler_options), found["out_tree"], hit=False)
+        lowered = _split_jit(flat).lower(leaves[:donated], leaves[donated:])  # traces `flat`: fills `found`
+        return LoweredProgram(lowered, compiler_options, found["out_tree"], donated)
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
     exported = jax.export.deserialize(bytearray(blob))
-    return CachedProgram(_compile(exported.call, leaves, donated, compiler_options), out_tree, hit=False)
+    return _lower(exported.call, leaves, donated, compiler_options, out_tree, hit=False)
 
 
 def compile_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
                         extra: dict | None = None, donate: bool = False,
                         compiler_options: dict | None = None) -> Callable:
-    """`fn` (a program that runs `env`) compiled for `args`: through this cache when it is on
+    """`fn` (a program that runs `env`) compiled for `args`: `lower_env_program(...).compile()`."""
+    return lower_env_program(program, fn, args, env, env_name, env_options, extra, donate, compiler_options).compile()
+
+
+def lower_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
+                      extra: dict | None = None, donate: bool = False,
+                      compiler_options: dict | None = None) -> LoweredProgram:
+    """`fn` (a program that runs `env`) lowered for `args`: through this cache when it is on
     and the env can be fingerprinted, else by plain `jax.jit`. The key is `program`, the
     env's name, options and `env_fingerprint`, and `extra` (whatever else the trace depends
     on: a config, the number of seeds, static sizes)."""
     key_parts = program_key_parts(program, env, env_name, env_options, extra) if _directory is not None else None
     if key_parts is None:  # cache off, or an env whose code cannot be hashed
-        return jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args).compile(compiler_options)
-    return cached_compile(fn, args, key_parts, _directory, donate=donate, compiler_options=compiler_options)
+        return LoweredProgram(jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args), compiler_options)
+    return cached_lower(fn, args, key_parts, _directory, donate=donate, compiler_options=compiler_options)
 
 
 def program_key_parts(program: str, env, env_name: str, env_options: dict | None,
@@ -166,12 +202,17 @@ def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
     return bytes(exported.serialize()), found["out_tree"]
 
 
-def _compile(flat_fn: Callable, leaves: list, donated: int, compiler_options: dict | None):
-    """`flat_fn` (over one list of leaves) compiled for `leaves`, the first `donated` of them
-    donated (called with one list, as `CachedProgram` calls it)."""
-    split = jax.jit(lambda head, tail: flat_fn([*head, *tail]), donate_argnums=0)
-    compiled = split.lower(leaves[:donated], leaves[donated:]).compile(compiler_options)
-    return lambda flat: compiled(flat[:donated], flat[donated:])
+def _split_jit(flat_fn: Callable):
+    """`flat_fn` (over one list of leaves) jitted as (head, tail) with the head donated."""
+    return jax.jit(lambda head, tail: flat_fn([*head, *tail]), donate_argnums=0)
+
+
+def _lower(flat_fn: Callable, leaves: list, donated: int, compiler_options: dict | None, out_tree,
+           hit: bool) -> LoweredProgram:
+    """`flat_fn` (over one list of leaves) lowered for `leaves`, the first `donated` of them
+    donated; compiled, it is called with one list, as `CachedProgram` calls it."""
+    lowered = _split_jit(flat_fn).lower(leaves[:donated], leaves[donated:])
+    return LoweredProgram(lowered, compiler_options, out_tree, donated, hit)
 
 
 def _read(path: Path, in_tree) -> tuple[Any, Any]:

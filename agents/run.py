@@ -103,12 +103,19 @@ def _compile_aside(compile_program: Callable[[], Any], name: str) -> Future:
 def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
                    env_options: dict | None, donate: bool = False) -> Callable:
     """A DQN program (`fn`, for `seeds` seeds of `dqn`) compiled for `args` with the training
-    programs' XLA options; with the export cache on (`agents.compile_cache.enable()`), its
-    traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
+    programs' XLA options: `lower_cached(...).compile()`."""
+    return lower_cached(program, fn, args, dqn, seeds, env_name, env_options, donate).compile()
+
+
+def lower_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
+                 env_options: dict | None, donate: bool = False) -> export_cache.LoweredProgram:
+    """A DQN program (`fn`, for `seeds` seeds of `dqn`) lowered for `args`, to compile with the
+    training programs' XLA options; with the export cache on (`agents.compile_cache.enable()`),
+    its traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
     the training chunk and the evaluation) is most of a warm start."""
-    return export_cache.compile_env_program(program, fn, args, dqn.env, env_name, env_options,
-                                            extra=dqn_key_parts(dqn, seeds), donate=donate,
-                                            compiler_options=training_compiler_options())
+    return export_cache.lower_env_program(program, fn, args, dqn.env, env_name, env_options,
+                                          extra=dqn_key_parts(dqn, seeds), donate=donate,
+                                          compiler_options=training_compiler_options())
 
 
 def dqn_key_parts(dqn: DQN, seeds: int) -> dict:
@@ -193,16 +200,18 @@ def train_run(
     per_device = agents // placement.count
     judge = partial(dqn.judge, record=record_episode)
     if placement.mesh is None:
-        # Two programs, compiled at once (the judge on another thread): a chunk's training steps and
-        # its evaluation each hold a copy of the env's step, and together were one program that XLA
-        # compiled alone (cartpole-mjx on 2 CPU cores: compile 1.1-2.6 s sooner split; docs/results.md).
+        # Two programs, a chunk's training steps and its evaluation: each holds a copy of the env's
+        # step, and together were one program that XLA compiled alone. Tracing and lowering hold
+        # Python's lock, XLA's compile does not: so the training steps are traced first and compile
+        # on another thread while this one traces the judge (cartpole-mjx on 2 CPU cores: traced on
+        # two threads at once, both compiles waited for both traces; docs/results.md).
         judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-        judge_program = _compile_aside(partial(compile_cached, judged, seed_batched(judge, per_device, seed_axis),
-                                               (ts, ts.key), dqn, agents, env_name, env_options, donate=True), "judge")
-        train_program = compile_cached(f"DQN.train_steps over seeds by {seed_axis}",
-                                       seed_batched(dqn.train_steps, per_device, seed_axis), (ts,), dqn, agents,
-                                       env_name, env_options, donate=True)
-        judge_program = judge_program.result()
+        train_program = _compile_aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}",
+                                                    seed_batched(dqn.train_steps, per_device, seed_axis), (ts,),
+                                                    dqn, agents, env_name, env_options, donate=True).compile, "train")
+        judge_program = lower_cached(judged, seed_batched(judge, per_device, seed_axis), (ts, ts.key), dqn, agents,
+                                     env_name, env_options, donate=True).compile()
+        train_program = train_program.result()
 
         def chunk(ts):
             ts, trained, eval_key = train_program(ts)

@@ -41,7 +41,8 @@ from benchmarks import env_throughput
 from benchmarks.peers import PeerMissing, version
 
 # Brax's environments that copy a Gymnasium task (with their own models and solver options).
-BRAX_NAMES = {"half-cheetah": "halfcheetah", "hopper": "hopper", "walker2d": "walker2d", "ant": "ant"}
+BRAX_NAMES = {"half-cheetah": "halfcheetah", "hopper": "hopper", "walker2d": "walker2d", "ant": "ant",
+              "humanoid": "humanoid"}
 # The MJCF options that set how much work a physics step does, recorded with every figure.
 SOLVER_FIELDS = ("solver", "iterations", "ls_iterations", "tolerance", "integrator")
 EPISODE_LENGTH = 1000  # every task here: Gymnasium's max_episode_steps, and Brax's default
@@ -169,6 +170,8 @@ def measure_task(name: str, num_envs: int, impls, brax: bool, steps: int, repeat
     """Ours (each impl) and Brax's (own and equal solver options) at one batch size, side by side."""
     jobs = [(("mjxsuite", impl), lambda impl=impl: our_rollout(name, impl, num_envs, steps)) for impl in impls]
     if brax and name in BRAX_NAMES:
+        # Our task's model options: Gymnasium's MJCF's, but Newton where it names PGS (humanoid), which
+        # MJX lacks; Gymnasium's vector env keeps its own (each record names the solver it ran).
         gymnasium_solver = solver_options(envs.make(name).unwrapped.mj_model.opt)
         jobs.append((("brax", "own"), lambda: brax_rollout(BRAX_NAMES[name], num_envs, steps)))
         jobs.append((("brax", "gymnasium"), lambda: brax_rollout(BRAX_NAMES[name], num_envs, steps, gymnasium_solver)))

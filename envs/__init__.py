@@ -27,6 +27,7 @@ _LAZY_MODULES = {
     "envs.tasks.cartpole_swingup_mjx": ("CartPoleSwingUpMjx", "SwingUpRules"),
     "envs.tasks.ant": ("Ant", "AntParams"),
     "envs.tasks.half_cheetah": ("HalfCheetah", "HalfCheetahParams"),
+    "envs.tasks.humanoid": ("Humanoid", "HumanoidParams"),
     "envs.tasks.inverted_pendulums": ("InvertedDoublePendulum", "InvertedDoublePendulumParams",
                                       "InvertedPendulum", "InvertedPendulumParams"),
     "envs.tasks.pusher": ("Pusher", "PusherParams"),
@@ -84,6 +85,7 @@ register("inverted-pendulum", _lazy_task("InvertedPendulum"), episode_length=100
 register("inverted-double-pendulum", _lazy_task("InvertedDoublePendulum"), episode_length=1000)
 register("reacher", _lazy_task("Reacher"), episode_length=50)
 register("ant", _lazy_task("Ant"), episode_length=1000)
+register("humanoid", _lazy_task("Humanoid"), episode_length=1000)
 register("pusher", _lazy_task("Pusher"), episode_length=100)
 
 __all__ = [
@@ -96,5 +98,5 @@ __all__ = [
     "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
     "Swimmer", "SwimmerParams",
     "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
-    "Reacher", "ReacherParams", "Ant", "AntParams", "Pusher", "PusherParams",
+    "Reacher", "ReacherParams", "Ant", "AntParams", "Humanoid", "HumanoidParams", "Pusher", "PusherParams",
 ]

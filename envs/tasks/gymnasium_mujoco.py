@@ -10,6 +10,11 @@ before and after the step, as Gymnasium does; the control cost is the weight tim
 the sum of the squared controls (Gymnasium's action is the ctrl it sets: the env's
 [-1, 1] action scaled to the actuators' ctrlrange, `data.ctrl` here).
 
+MJX (impl "jax") and MuJoCo Warp solve constraints with CG or Newton only. Where Gymnasium's MJCF
+names PGS (humanoid.xml and humanoidstandup.xml: `solver="PGS" iterations="50"`), the task steps
+the model with `MODEL_SOLVER` (Newton) instead and keeps every other option of the MJCF: the one
+change made to a Gymnasium model, made here and nowhere else (docs/tasks.md).
+
 Each task reports the terms of its reward and Gymnasium's other `info` values
 (`reward_forward`, `reward_ctrl`, `x_velocity`, `x_position`, ...) in `state.metrics`.
 """
@@ -20,11 +25,16 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from envs.assets import gymnasium_asset
 from envs.mjx_env import MjxEnv, mjx
 from envs.ranges import check_fields
+
+# The solver a Gymnasium MJCF that names PGS is stepped with: MJX's `put_model` raises
+# NotImplementedError(mjSOL_PGS) and MuJoCo Warp's refuses it ("mjSOL_PGS is unsupported").
+MODEL_SOLVER = mujoco.mjtSolver.mjSOL_NEWTON
 
 
 class GymnasiumMujocoEnv(MjxEnv):
@@ -46,6 +56,13 @@ class GymnasiumMujocoEnv(MjxEnv):
         # Gymnasium's init_qpos/init_qvel: what mj_resetData leaves (qpos0, zero velocity).
         self.init_qpos = self.mj_model.qpos0.copy()
         self.init_qvel = np.zeros(self.mj_model.nv)
+
+    def _put_on_device(self, impl: str) -> None:
+        # At construction (no `opt` given yet) a PGS model becomes MODEL_SOLVER's; an explicit
+        # opt={"solver": "pgs"} is left for MJX to refuse.
+        if self.mj_model.opt.solver == mujoco.mjtSolver.mjSOL_PGS and "solver" not in self.opt:
+            self.mj_model.opt.solver = MODEL_SOLVER
+        super()._put_on_device(impl)
 
     @property
     def name(self) -> str:
