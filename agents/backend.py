@@ -84,11 +84,16 @@ CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 
 
 def init_compiler_options(platform: str | None = None) -> dict:
-    """XLA options for a run's init program, which runs once: no GEMM autotuning on a GPU
-    (autotuning its one forward pass took most of its ~2 s compile on an H100). The CPU keeps
-    XLA's defaults here: the classic emitters compiled cartpole-mjx's init in 5.2 s of CPU
-    time against 3.2 s."""
-    if (platform or jax.default_backend()) != "gpu":
+    """XLA options for a run's init program, which runs once, so its compile is all that counts:
+    no GEMM autotuning on a GPU (autotuning its one forward pass took most of its ~2 s compile on
+    an H100); LLVM's optimisation level 1 on the CPU (cartpole-mjx's init compiled in 0.7-0.8 s
+    against 1.3-1.5 s at XLA's default level, to the same values; it compiles beside the training
+    chunk's trace on a 2-core CPU). The CPU keeps XLA's default fusion emitters here: the classic
+    ones compiled cartpole-mjx's init in 5.2 s of CPU time against 3.2 s."""
+    platform = platform or jax.default_backend()
+    if platform == "cpu":
+        return {"xla_backend_optimization_level": 1}
+    if platform != "gpu":
         return {}
     return {"xla_gpu_autotune_level": 0}
 
