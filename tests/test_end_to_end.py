@@ -22,6 +22,7 @@ def test_the_full_size_commands_are_pure_jax_rl_settings():
     assert peer["TARGET_UPDATE_INTERVAL"] == 500 and peer["TOTAL_TIMESTEPS"] == 500_000 and peer["NUM_ENVS"] == 10
 
 
+@pytest.mark.slow  # issue #29: two training processes (~22 s); the commands' settings stay checked above
 def test_both_sides_run_at_tiny_sizes(tmp_path):
     pytest.importorskip("gymnax")
     pytest.importorskip("flashbax")

@@ -92,9 +92,10 @@ def test_drawn_values_stay_in_range_and_differ_across_envs(randomized_rollout):
     np.testing.assert_allclose(model["body_mass"][:, 1], drawn["body_mass:cart"], rtol=1e-6)
 
 
-# issue #29: the per-episode redraw compiles the batch's reset path with the model's derivation (~35 s
-# alone): slow. The draws reaching the physics stay proven here (test_each_env_steps_as_c_mujoco_with_its_drawn_values)
-@pytest.mark.parametrize("per", [pytest.param("episode", marks=pytest.mark.slow), "env"])
+# issue #29: each compiles the batch's auto-reset path with the model's derivation (~30 s alone): slow.
+# The draws reaching the physics stay proven here (test_each_env_steps_as_c_mujoco_with_its_drawn_values)
+@pytest.mark.slow
+@pytest.mark.parametrize("per", ["episode", "env"])
 def test_auto_reset_redraws_per_episode_or_keeps_per_env(per):
     env = envs.make("cartpole-mjx", randomize={"body_mass:pole": (0.05, 0.5)}, randomize_per=per)
     batch = envs.BatchedAutoReset(env, 32, max_resets=4)  # as training; both of its reset paths run
