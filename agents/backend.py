@@ -10,7 +10,10 @@ measurements: docs/results.md, "DQN on the GPU".
 
 from __future__ import annotations
 
+import functools
+
 import jax
+import jax.numpy as jnp
 
 
 def on_cpu(platform: str | None = None) -> bool:
@@ -80,7 +83,26 @@ GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FU
 # classic ones for the DQN's training and evaluation programs, with no faster training: on the 2-core CPU, cartpole-mjx's
 # chunk 14.5 -> 7.6 s and its evaluation 6.0 -> 3.8 s of CPU time, chunks 0.21 -> 0.18 s
 # (docs/results.md, "Compile time on the CPU"). They round a few operations differently.
+# XLA has since retired its classic CPU emitters (openxla/xla#48001): jax 0.11's XLA:CPU refuses the
+# option ("No such compile option"), so it is passed only where this XLA knows it (`cpu_accepts`).
 CPU_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+
+
+@functools.cache
+def cpu_accepts(option: str, value: bool | int) -> bool:
+    """Whether this jaxlib's XLA:CPU knows compile option `option` (a trivial program compiled with it)."""
+    try:
+        jax.jit(lambda x: x + 1).lower(jax.ShapeDtypeStruct((), jnp.float32)).compile({option: value})
+    except Exception as err:  # jax's XlaRuntimeError: INVALID_ARGUMENT: No such compile option
+        if "No such compile option" not in str(err):
+            raise
+        return False
+    return True
+
+
+def known_cpu_options(options: dict) -> dict:
+    """`options` less those this XLA:CPU does not know."""
+    return {name: value for name, value in options.items() if cpu_accepts(name, value)}
 
 
 def init_compiler_options(platform: str | None = None) -> dict:
@@ -92,7 +114,7 @@ def init_compiler_options(platform: str | None = None) -> dict:
     ones compiled cartpole-mjx's init in 5.2 s of CPU time against 3.2 s."""
     platform = platform or jax.default_backend()
     if platform == "cpu":
-        return {"xla_backend_optimization_level": 1}
+        return known_cpu_options({"xla_backend_optimization_level": 1})
     if platform != "gpu":
         return {}
     return {"xla_gpu_autotune_level": 0}
@@ -107,7 +129,7 @@ def training_compiler_options(platform: str | None = None) -> dict:
     seeds' (10 envs per agent) in fresh processes."""
     platform = platform or jax.default_backend()
     if platform == "cpu":
-        return dict(CPU_COMPILER_OPTIONS)
+        return known_cpu_options(CPU_COMPILER_OPTIONS)
     if platform != "gpu":
         return {}
     return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS}

@@ -1,4 +1,5 @@
 import atexit
+import importlib.metadata
 import os
 import shutil
 import tempfile
@@ -7,8 +8,10 @@ import tempfile
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # The CPU compiler options `mjxsuite train` uses for its programs (`agents.backend.CPU_COMPILER_OPTIONS`)
 # for every program the tests compile, their directly jitted DQN and MJX programs too: half the compile
-# time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it.
-os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false"]).strip()
+# time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it. jaxlib 0.11's XLA
+# no longer has the flag (its classic emitters are retired) and aborts on an unknown XLA_FLAGS entry.
+if tuple(int(part) for part in importlib.metadata.version("jaxlib").split(".")[:2]) < (0, 11):
+    os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false"]).strip()
 
 # Many tests compile the same programs (the same tiny training run, evaluation, rollout):
 # JAX's persistent compilation cache, in a directory of this session's own (deleted at exit,

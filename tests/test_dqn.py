@@ -9,7 +9,7 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import envs
-from agents import DQN, DQNConfig, load_policy, train, train_run
+from agents import DQN, DQNConfig, backend, load_policy, train, train_run
 from agents.cli import main as cli_main
 from agents.dqn import unpack
 
@@ -224,3 +224,11 @@ def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
         np.testing.assert_allclose(np.asarray(new_gpu), np.asarray(new_cpu), rtol=1e-5, atol=1e-7)
         moved |= not np.array_equal(np.asarray(new_cpu), np.asarray(old))
     assert moved
+
+
+def test_cpu_compile_options_unknown_to_this_xla_are_left_out():
+    # jax 0.11's XLA:CPU refuses xla_cpu_use_fusion_emitters; a run must compile there all the same.
+    assert not backend.cpu_accepts("xla_cpu_no_such_option", False)
+    assert backend.known_cpu_options({"xla_cpu_no_such_option": False, "xla_backend_optimization_level": 1}) == {
+        "xla_backend_optimization_level": 1}
+    assert set(backend.training_compiler_options("cpu")) <= set(backend.CPU_COMPILER_OPTIONS)
