@@ -212,6 +212,22 @@ def exact_noise_bounds(ours: np.ndarray, centre: np.ndarray, scale: float, what:
 NOT_RULES = {"self", "xml_file", "frame_skip", "default_camera_config", "kwargs"}
 
 
+def through_our_task(env, before: list, after: list) -> tuple:
+    """Gymnasium's `MjData` before and after each of its steps (`mjx.put_data`), through our task's
+    post_step, reward and observation: (cfrc_ext, observation, reward, reward terms, terminated), each
+    stacked over the steps (ant and humanoid: our task reads MuJoCo's data as Gymnasium does)."""
+    stack = lambda datas: jax.tree.map(lambda *x: np.stack(x), *datas)
+
+    @jax.jit
+    @jax.vmap
+    def task(prev, data):
+        data = env.post_step(prev, data)
+        reward, terms = env.reward(data, None, prev)
+        return data._impl.cfrc_ext, env.observation(data), reward, terms, env.terminated(data)
+
+    return jax.tree.map(np.asarray, task(stack(before), stack(after)))
+
+
 def assert_same_options(name: str, gymnasium_id: str) -> None:
     """`envs.make(name)`'s task options are v5's constructor arguments, with the same defaults,
     and the time limit is Gymnasium's max_episode_steps."""

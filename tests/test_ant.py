@@ -8,14 +8,14 @@ Two proofs, because MJX's contact solve is not C MuJoCo's for Ant (see docs/task
 - stepping from the same states: most steps agree to float32 precision; where a foot touches
   the floor MJX's friction pyramid can differ from C MuJoCo's, which the test bounds."""
 
-import jax
 import numpy as np
 import pytest
 
 import envs
 from envs.mjx_env import mjx
 from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options, gymnasium_env,
-                              gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
+                              gymnasium_reset_samples, gymnasium_steps, reset_samples, through_our_task,
+                              transitions)
 
 NAME, GYMNASIUM_ID = "ant", "Ant-v5"
 CFRC = slice(27, None)  # the observation's cfrc_ext part
@@ -41,16 +41,7 @@ def test_task_reads_mujocos_data_as_gymnasium_does(starts):
         theirs.data.cfrc_ext[:] = 0.0  # ours must compute it from the contacts and constraint forces
         after.append(mjx.put_data(theirs.model, theirs.data))
         their_obs.append(obs), their_rewards.append(reward), their_terminated.append(terminated), their_infos.append(info)
-    stack = lambda datas: jax.tree.map(lambda *x: np.stack(x), *datas)
-
-    @jax.jit
-    @jax.vmap
-    def task(prev, data):
-        data = env.post_step(prev, data)
-        reward, terms = env.reward(data, None, prev)
-        return data._impl.cfrc_ext, env.observation(data), reward, terms, env.terminated(data)
-
-    cfrc, obs, reward, terms, terminated = task(stack(before), stack(after))
+    cfrc, obs, reward, terms, terminated = through_our_task(env, before, after)
     assert (np.abs(np.array(their_cfrc)) > 1.0).any(), "some contact forces must reach the clip"
     np.testing.assert_allclose(cfrc, np.array(their_cfrc), rtol=1e-4, atol=1e-3, err_msg="cfrc_ext")
     np.testing.assert_allclose(obs, np.array(their_obs), rtol=1e-5, atol=1e-5, err_msg="observation")

@@ -20,7 +20,7 @@ import pytest
 import envs
 from envs.mjx_env import mjx
 from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options, gymnasium_env,
-                              gymnasium_kwargs, gymnasium_reset_samples, gymnasium_steps, transitions)
+                              gymnasium_kwargs, gymnasium_reset_samples, gymnasium_steps, through_our_task, transitions)
 
 NAME, GYMNASIUM_ID = "humanoid", "Humanoid-v5"
 NEWTON = {"solver": mujoco.mjtSolver.mjSOL_NEWTON}  # our task's one change to Gymnasium's model
@@ -56,23 +56,8 @@ def gymnasium_rollouts(count: int, seed: int = 0, max_steps: int = 60, **kwargs)
     return kept
 
 
-def through_our_task(env, kept):
-    """Gymnasium's data before and after each step through our task: cfrc_ext, observation, reward,
-    reward terms, termination."""
-    stack = lambda datas: jax.tree.map(lambda *x: np.stack(x), *datas)
-
-    @jax.jit
-    @jax.vmap
-    def task(prev, data):
-        data = env.post_step(prev, data)
-        reward, terms = env.reward(data, None, prev)
-        return data._impl.cfrc_ext, env.observation(data), reward, terms, env.terminated(data)
-
-    return jax.tree.map(np.asarray, task(stack(kept["before"]), stack(kept["after"])))
-
-
 def assert_reads_as_gymnasium(env, kept):
-    cfrc, obs, reward, terms, terminated = through_our_task(env, kept)
+    cfrc, obs, reward, terms, terminated = through_our_task(env, kept["before"], kept["after"])
     their_obs = np.array(kept["obs"])
     assert obs.shape == their_obs.shape
     np.testing.assert_allclose(cfrc, np.array(kept["cfrc_ext"]), rtol=1e-4, atol=1e-2, err_msg="cfrc_ext")

@@ -76,6 +76,7 @@ class Ant(GymnasiumMujocoEnv):
     frame_skip = 5
     skipped_qpos = 2  # the torso's x and y
     forward_on_reset = True  # the first step's velocity needs the reset pose's xpos
+    reads_contact_forces = True  # cfrc_ext after each step (GymnasiumMujocoEnv)
 
     def __init__(self, params: AntParams = AntParams(), xml: str | None = None):
         super().__init__(params, xml)
@@ -90,13 +91,6 @@ class Ant(GymnasiumMujocoEnv):
             raise ValueError(f"task {self.name}: main_body must be a body id in [0, {self.mj_model.nbody}) "
                              f"or one of the body names {names}, got {main_body!r}")
         self.main_body = body
-        # Contact forces are needed unless both the observation and the reward leave them out.
-        self.needs_cfrc_ext = params.include_cfrc_ext_in_observation or params.contact_cost_weight != 0
-
-    def _put_on_device(self, impl: str) -> None:
-        super()._put_on_device(impl)
-        if impl == "warp":  # MuJoCo Warp computes cfrc_ext in its forward pass when asked to
-            self.mjx_model = self.mjx_model.tree_replace({"opt._impl.run_rne_postconstraint": True})
 
     @property
     def observation_size(self) -> int:
@@ -105,11 +99,6 @@ class Ant(GymnasiumMujocoEnv):
 
     def initial_qvel_noise(self, key: jax.Array) -> jax.Array:
         return self.params.reset_noise_scale * jax.random.normal(key, self.init_qvel.shape)
-
-    def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
-        if self.needs_cfrc_ext and self.impl == "jax":
-            data = mjx.rne_postconstraint(self.mjx_model, data)
-        return data
 
     def contact_forces(self, data: mjx.Data) -> jax.Array:
         """cfrc_ext of every body (world first), clipped to contact_force_range: shape (nbody, 6)."""

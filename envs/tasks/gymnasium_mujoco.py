@@ -47,6 +47,11 @@ class GymnasiumMujocoEnv(MjxEnv):
     frame_skip: ClassVar[int]  # MuJoCo steps per env step (Gymnasium's default for the task)
     skipped_qpos: ClassVar[int] = 1  # leading qpos left out by exclude_current_positions_from_observation
     velocity_clip: ClassVar[float | None] = None  # Hopper and Walker2d clip qvel to +-10 in the observation
+    # Ant and Humanoid read each body's contact force `cfrc_ext` after a step (their params have
+    # include_cfrc_ext_in_observation and contact_cost_weight). Gymnasium computes it with
+    # mj_rnePostConstraint after mj_step; here MJX's `mjx.rne_postconstraint` after the step under
+    # impl "jax", and MuJoCo Warp inside each forward pass, asked by opt.run_rne_postconstraint, under "warp".
+    reads_contact_forces: ClassVar[bool] = False
 
     def __init__(self, params, xml: str | None = None):
         check_fields(params, getattr(params, "RANGES", {}))  # also when built without envs.make
@@ -63,6 +68,20 @@ class GymnasiumMujocoEnv(MjxEnv):
         if self.mj_model.opt.solver == mujoco.mjtSolver.mjSOL_PGS and "solver" not in self.opt:
             self.mj_model.opt.solver = MODEL_SOLVER
         super()._put_on_device(impl)
+        if impl == "warp" and self.reads_contact_forces:
+            self.mjx_model = self.mjx_model.tree_replace({"opt._impl.run_rne_postconstraint": True})
+
+    @property
+    def needs_cfrc_ext(self) -> bool:
+        """Whether a step computes cfrc_ext: a task that reads it, unless both its observation and its
+        contact cost leave it out."""
+        p = self.params
+        return self.reads_contact_forces and (p.include_cfrc_ext_in_observation or p.contact_cost_weight != 0)
+
+    def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
+        if self.needs_cfrc_ext and self.impl == "jax":
+            data = mjx.rne_postconstraint(self.mjx_model, data)
+        return data
 
     @property
     def name(self) -> str:

@@ -100,16 +100,10 @@ class Humanoid(GymnasiumMujocoEnv):
     frame_skip = 5
     skipped_qpos = 2  # the torso's x and y
     forward_on_reset = True  # the reset observation's cinert/cvel, and the first step's centre of mass
+    reads_contact_forces = True  # cfrc_ext after each step (GymnasiumMujocoEnv)
 
     def __init__(self, params: HumanoidParams = HumanoidParams(), xml: str | None = None):
         super().__init__(params, xml)
-        # Contact forces are needed unless both the observation and the reward leave them out.
-        self.needs_cfrc_ext = params.include_cfrc_ext_in_observation or params.contact_cost_weight != 0
-
-    def _put_on_device(self, impl: str) -> None:
-        super()._put_on_device(impl)
-        if impl == "warp":  # MuJoCo Warp computes cfrc_ext in its forward pass when asked to
-            self.mjx_model = self.mjx_model.tree_replace({"opt._impl.run_rne_postconstraint": True})
 
     @property
     def observation_size(self) -> int:
@@ -117,11 +111,6 @@ class Humanoid(GymnasiumMujocoEnv):
         return (super().observation_size + 10 * bodies * p.include_cinert_in_observation
                 + 6 * bodies * p.include_cvel_in_observation + (nv - 6) * p.include_qfrc_actuator_in_observation
                 + 6 * bodies * p.include_cfrc_ext_in_observation)
-
-    def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
-        if self.needs_cfrc_ext and self.impl == "jax":
-            data = mjx.rne_postconstraint(self.mjx_model, data)
-        return data
 
     def observation(self, data: mjx.Data) -> jax.Array:
         p = self.params
