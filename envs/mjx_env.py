@@ -252,6 +252,13 @@ class MjxEnv(Env):
         writes `qacc_warmstart`."""
         return mjx.forward(model, data)
 
+    def forward(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
+        """`mjx.forward` of `data` (an env state's `pipeline_state`) with this task's model or
+        `model`: everything MuJoCo derives from qpos and qvel (positions, contacts, forces). Under
+        impl="warp" MuJoCo Warp's buffers that a batch shares are lent for the call."""
+        model = self.mjx_model if model is None else model
+        return self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared else mjx.forward(model, data)
+
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
         if self.action_bins is not None:
@@ -283,8 +290,7 @@ class MjxEnv(Env):
         if self.forward_on_reset:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
-            forwarded = (self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared
-                         else self.forward_at_reset(model, data))
+            forwarded = self.forward(data, model) if self._warp_shared else self.forward_at_reset(model, data)
             data = forwarded.replace(qpos=data.qpos)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):

@@ -77,7 +77,7 @@ def transitions(name: str, num_envs: int = 32, num_steps: int = 40, keep: int = 
 
         def step(state, action):
             if forward_first:
-                state = state.replace(pipeline_state=mjx.forward(env.mjx_model, state.pipeline_state))
+                state = state.replace(pipeline_state=env.forward(state.pipeline_state))
             before = state.pipeline_state
             state = env.step(state, action)
             return state, (before.qpos, before.qvel, before.qacc_warmstart, state.obs, state.reward,
