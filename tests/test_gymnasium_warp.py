@@ -10,7 +10,8 @@ What they showed (2026-11-26, 2-core CPU; docs/tasks.md):
 - pusher's pushing contact: Warp's capsule-cylinder contact is C MuJoCo's (the object moves 1.00x
   as far as in Gymnasium's step, median; MJX's JAX collider 1.9x);
 - ant: as under impl="jax", the steps where a leg touches the floor differ (64.0% of 200 steps
-  within 1e-3, against 61.5% under impl="jax"); humanoid: the Newton-solver bounds of its jax test.
+  within 1e-3, against 61.5% under impl="jax"): Warp frames a steep capsule's plane contact as MJX
+  does (tests/test_ant.py); humanoid: the Newton-solver bounds of its jax test.
 """
 
 import numpy as np
