@@ -234,6 +234,33 @@ class TrainState:
     hyperparams: Hyperparams | None = None  # a sweep's per-agent values; None: the config's constants
 
 
+def copy_where(copy: jax.Array, new: Any, old: Any, batch_skips: bool = False) -> Any:
+    """`new` where the scalar `copy` is true, else `old` (pytrees of the same structure), as
+    `jnp.where` per leaf. With `batch_skips`, vmapped over agents, a batch in which no agent
+    copies returns `old` as it is (one `lax.cond` for the whole batch) instead of selecting
+    every leaf of every agent: the same values, without reading and writing `old` on the
+    updates where nothing changes (hard target updates: all but one in `target_period`)."""
+
+    def select(copy, new, old):
+        return jax.tree.map(lambda n, o: jnp.where(copy, n, o), new, old)
+
+    if not batch_skips:
+        return select(copy, new, old)
+
+    @jax.custom_batching.custom_vmap
+    def copied(copy, new, old):
+        return select(copy, new, old)
+
+    @copied.def_vmap
+    def copied_batched(axis_size, in_batched, copy, new, old):
+        copy, new, old = jax.tree.map(lambda x, batched: x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape),
+                                      (copy, new, old), tuple(in_batched))
+        out = jax.lax.cond(copy.any(), lambda: jax.vmap(select)(copy, new, old), lambda: old)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return copied(copy, new, old)
+
+
 class DQN:
     """The pieces of a DQN run for one env and config; all methods are pure."""
 
@@ -254,6 +281,7 @@ class DQN:
                               and fused_mlp.fits(env.observation_size, config.hidden, env.num_actions))
         self.flat_optimizer = backend.flat_optimizer(platform)
         self.unroll = backend.unrolled_inner_loops(platform)
+        self.batch_skips_idle_copies = backend.batch_skips_idle_target_copies(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
         # Adam's direction only: the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
         # would (same state leaves), so a sweep can trace the learning rate.
@@ -390,7 +418,7 @@ class DQN:
             target_params = jax.tree.map(keep_unless_learning, target_params, ts.target_params)
         else:  # a select, not optax.periodic_update's lax.cond
             copy_now = learning & (updates % cfg.target_period == 0)
-            target_params = jax.tree.map(lambda new, old: jnp.where(copy_now, new, old), params, ts.target_params)
+            target_params = copy_where(copy_now, params, ts.target_params, self.batch_skips_idle_copies)
         buffer = ts.buffer
         if cfg.replay == "prioritized":  # only the priorities change; the stored transitions stay
             new = self.buffer.update_priorities(buffer, indices, jnp.abs(td_error))

@@ -1,5 +1,6 @@
 """DQN: targets, truncation handling, determinism, checkpoint/resume, policy loading, CLI errors."""
 
+import dataclasses
 import json
 
 import jax
@@ -224,6 +225,50 @@ def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
         np.testing.assert_allclose(np.asarray(new_gpu), np.asarray(new_cpu), rtol=1e-5, atol=1e-7)
         moved |= not np.array_equal(np.asarray(new_cpu), np.asarray(old))
     assert moved
+
+
+def test_a_batch_that_skips_idle_target_copies_copies_the_same():
+    """`copy_where` with `batch_skips` (the accelerators' hard target update: one `lax.cond` for
+    a vmapped batch, skipped when no agent copies) gives `jnp.where`'s values bit for bit:
+    under vmap whether none, some or all agents copy, nested (a sweep's configs x seeds), with
+    an unbatched side, and unbatched."""
+    from agents.dqn import copy_where
+
+    new = {"kernel": jnp.arange(24.0).reshape(4, 2, 3), "bias": jnp.arange(8.0).reshape(4, 2)}
+    old = jax.tree.map(jnp.negative, new)
+    plain = lambda c, n, o: copy_where(c, n, o, batch_skips=False)
+    skips = lambda c, n, o: copy_where(c, n, o, batch_skips=True)
+    for copy in ([0, 0, 0, 0], [0, 1, 0, 1], [1, 1, 1, 1]):
+        copy = jnp.array(copy, bool)
+        _assert_trees_equal(jax.jit(jax.vmap(skips))(copy, new, old), jax.vmap(plain)(copy, new, old))
+    copy = jnp.array([[0, 1], [0, 0]], bool)
+    nested = jax.tree.map(lambda x: x.reshape((2, 2) + x.shape[1:]), (new, old))
+    _assert_trees_equal(jax.jit(jax.vmap(jax.vmap(skips)))(copy, *nested), jax.vmap(jax.vmap(plain))(copy, *nested))
+    one_new, one_old = jax.tree.map(lambda x: x[0], (new, old))
+    copy = jnp.array([1, 0, 0, 1], bool)
+    _assert_trees_equal(jax.jit(jax.vmap(skips, in_axes=(0, None, None)))(copy, one_new, one_old),
+                        jax.vmap(plain, in_axes=(0, None, None))(copy, one_new, one_old))
+    _assert_trees_equal(skips(jnp.array(True), one_new, one_old), one_new)
+    assert "stablehlo.case" in jax.jit(jax.vmap(skips)).lower(copy, new, old).as_text()  # one cond, not a select
+
+
+@pytest.mark.slow  # two compiles of a vmapped training chunk (~20 s); the test above checks copy_where itself
+def test_vmapped_agents_train_the_same_when_the_batch_skips_idle_target_copies(monkeypatch):
+    config = dataclasses.replace(GPU_SHAPED, target_update="hard", target_period=3, replay="uniform")
+
+    def run():
+        dqn = DQN(config, envs.make("cartpole"), platform="cpu")
+        ts = jax.jit(jax.vmap(dqn.init))(jax.random.split(jax.random.PRNGKey(0), 3))
+        chunk = jax.jit(jax.vmap(dqn.chunk))
+        for _ in range(3):
+            ts, _ = chunk(ts)
+        return ts
+
+    selected = run()
+    monkeypatch.setattr(backend, "batch_skips_idle_target_copies", lambda platform=None: True)
+    skipped = run()
+    assert int(selected.updates[0]) > config.target_period  # several copies happened
+    _assert_trees_equal(skipped, selected)
 
 
 def test_cpu_compile_options_unknown_to_this_xla_are_left_out():
