@@ -416,7 +416,7 @@ class DQN:
             target_params = jax.tree.map(lambda new, old: hyper.polyak_tau * new + hyper.polyak_keep * old,
                                          params, ts.target_params)
             target_params = jax.tree.map(keep_unless_learning, target_params, ts.target_params)
-        else:  # a select, not optax.periodic_update's lax.cond
+        else:  # a select (off the CPU, one lax.cond per vmapped batch), not optax.periodic_update's lax.cond
             copy_now = learning & (updates % cfg.target_period == 0)
             target_params = copy_where(copy_now, params, ts.target_params, self.batch_skips_idle_copies)
         buffer = ts.buffer
