@@ -13,6 +13,7 @@ import envs
 from agents import DQN, DQNConfig, backend, load_policy, train, train_run
 from agents.cli import main as cli_main
 from agents.dqn import unpack
+from agents.run import run_keys
 
 
 class Counter(envs.Env):
@@ -65,6 +66,12 @@ def test_termination_does_not_bootstrap():
     targets = np.asarray(dqn.td_targets(ts.params, ts.params, batch))
     np.testing.assert_allclose(targets[[2, 5]], 1.0)
     assert np.all(np.abs(targets[[0, 1, 3, 4, 6]] - 1.0) > 1e-6)
+
+
+def test_run_keys_are_the_seed_keys_split_and_the_evaluations_folded_in():
+    training, evaluation = run_keys(3, 5)
+    np.testing.assert_array_equal(training, jax.random.split(jax.random.PRNGKey(3), 5))
+    np.testing.assert_array_equal(evaluation, jax.random.split(jax.random.fold_in(jax.random.PRNGKey(3), 1), 5))
 
 
 def test_train_is_deterministic_and_vmaps_over_seeds():
