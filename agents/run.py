@@ -66,8 +66,9 @@ def seed_keys(seed: int, seeds: int) -> jax.Array:
 @partial(jax.jit, static_argnums=(0, 1))
 def run_keys(seed: int, seeds: int) -> tuple[jax.Array, jax.Array]:
     """A run's keys for `seeds` agents: their training keys (`seed_keys`) and the keys of the
-    final evaluation. One small program: on a GPU each random op run by itself compiled its own
-    (0.5 s of a run's start-up on an H100, 2026-11-26); the same keys."""
+    final evaluation, the same as five random ops each run by itself give, from one small
+    program: on a GPU each of those ops compiled its own (0.55-0.94 s against 0.35-0.40 s on an
+    H100, 2026-11-26)."""
     seed_key = jax.random.PRNGKey(seed)
     return jax.random.split(seed_key, seeds), jax.random.split(jax.random.fold_in(seed_key, 1), seeds)
 
