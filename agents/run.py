@@ -96,16 +96,16 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
-def _compile_aside(compile_program: Callable[[], Any], name: str) -> Future:
-    """`compile_program()` on another thread. XLA compiles without holding Python's lock, so a
-    fresh run's init program (about 1 s on a 2-core CPU) compiles while this thread traces and
-    lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for cartpole-mjx) and
-    while XLA compiles the chunk, and the final evaluation's program (~5 s for cartpole-mjx on 2
-    cores) while the agents train. They are the programs, with the options, that compiling
-    them here would give: the same results, bit for bit."""
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mjxsuite-{name}-compile")
+def _aside(work: Callable[[], Any], name: str) -> Future:
+    """`work()` on another thread. XLA compiles, and a program runs, without holding Python's
+    lock, so a fresh run's init program (about 1 s on a 2-core CPU) compiles while this thread
+    traces and lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for
+    cartpole-mjx) and while XLA compiles the chunk, and the final evaluation's program (~5 s for
+    cartpole-mjx on 2 cores) while the agents train. The programs and options are those that
+    compiling them here would give: the same results, bit for bit."""
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mjxsuite-{name}")
     try:
-        return pool.submit(compile_program)
+        return pool.submit(work)
     finally:
         pool.shutdown(wait=False)  # its one thread ends with its one task
 
@@ -181,12 +181,24 @@ def train_run(
     dqn = DQN(config, env, agents=agents // placement.count)
     init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
 
-    keys, eval_keys = run_keys(seed, seeds)
-    init_args = (keys,) if sweep is None else (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds))
-    init_args = placement.put(init_args)
+    def run_inputs():  # the init program's arguments and the final evaluation's keys
+        keys, eval_keys = run_keys(seed, seeds)
+        if sweep is None:
+            return (keys,), eval_keys
+        return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
+
+    inputs = None  # on one device the inputs are made on another thread while the programs compile
+    if placement.mesh is None:
+        # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
+        # a GPU the first allocation, where XLA reserves most of the device's memory: 1.3 s of
+        # a fresh H100 process, now spent while XLA compiles.
+        inputs = _aside(run_inputs, "inputs")
+        init_args, eval_keys = jax.eval_shape(run_inputs)
+    else:
+        init_args, eval_keys = placement.put(run_inputs())
     chunks_done = 0
     compile_start = time.perf_counter()
-    init_program = None  # a fresh run's init program, compiling on another thread (`_compile_aside`)
+    init_program = None  # a fresh run's init program, compiling on another thread (`_aside`)
     if resume and (out / checkpoint.STATE_FILE).is_file():
         ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
         ts = placement.put(ts)  # saved from any number of devices, split over this run's
@@ -194,7 +206,7 @@ def train_run(
     else:  # a run killed before its first checkpoint resumes from the start, as it began
         if placement.mesh is None:
             traced = init.trace(*init_args)
-            init_program = _compile_aside(traced.lower().compile, "init")
+            init_program = _aside(traced.lower().compile, "init")
             ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
         else:
             ts = init(*init_args)
@@ -216,9 +228,9 @@ def train_run(
         # on another thread while this one traces the judge (cartpole-mjx on 2 CPU cores: traced on
         # two threads at once, both compiles waited for both traces; docs/results.md).
         judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-        train_program = _compile_aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}",
-                                                    seed_batched(dqn.train_steps, per_device, seed_axis), (ts,),
-                                                    dqn, agents, env_name, env_options, donate=True).compile, "train")
+        train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}",
+                                            seed_batched(dqn.train_steps, per_device, seed_axis), (ts,),
+                                            dqn, agents, env_name, env_options, donate=True).compile, "train")
         judge_program = lower_cached(judged, seed_batched(judge, per_device, seed_axis), (ts, ts.key), dqn, agents,
                                      env_name, env_options, donate=True).compile()
         train_program = train_program.result()
@@ -231,17 +243,18 @@ def train_run(
         step = partial(dqn.chunk, record=record_episode)
         chunk = jax.jit(placement.spread(seed_batched(step, per_device, seed_axis)),
                         donate_argnums=0).lower(ts).compile(training_compiler_options())
+    if inputs is not None:
+        init_args, eval_keys = inputs.result()
     if init_program is not None:
         ts = init_program.result()(*init_args)
     compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
-    eval_keys = placement.put(eval_keys if sweep is None else jnp.tile(eval_keys, (len(configs), 1)))
     final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
     if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
         params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
                                     ts.best_params)  # not the arrays: the first chunk consumes them
-        final_evaluation = _compile_aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
-                                                  (params_shape, eval_keys), dqn, agents, env_name, env_options),
-                                          "evaluation")
+        final_evaluation = _aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
+                                          (params_shape, eval_keys), dqn, agents, env_name, env_options),
+                                  "evaluation")
 
     result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                        devices=placement.count, setup_s=compile_start - start)
