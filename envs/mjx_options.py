@@ -14,19 +14,22 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-from typing import Any, Mapping
+import functools
+from typing import TYPE_CHECKING, Any, Mapping
 
-import mujoco
 import numpy as np
 
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, Range
 
-# MjOption's enum fields and their MuJoCo enum (names are matched without the prefix).
+if TYPE_CHECKING:  # mujoco is imported where it is used: importing it (0.19 s on an H100 machine, most of
+    import mujoco  # it loading GLFW for rendering) would slow the start of every analytic task's run
+
+# MjOption's enum fields, the name of their MuJoCo enum and its members' prefix (names are matched without it).
 ENUMS = {
-    "integrator": (mujoco.mjtIntegrator, "mjINT_"),
-    "cone": (mujoco.mjtCone, "mjCONE_"),
-    "solver": (mujoco.mjtSolver, "mjSOL_"),
-    "jacobian": (mujoco.mjtJacobian, "mjJAC_"),
+    "integrator": ("mjtIntegrator", "mjINT_"),
+    "cone": ("mjtCone", "mjCONE_"),
+    "solver": ("mjtSolver", "mjSOL_"),
+    "jacobian": ("mjtJacobian", "mjJAC_"),
 }
 # Numeric fields whose range is narrower than "a finite number" (the others: any finite value).
 RANGES = {
@@ -39,17 +42,29 @@ RANGES = {
 }
 
 
-def _defaults() -> dict[str, Any]:
+@functools.cache
+def opt_defaults() -> dict[str, Any]:
+    """Every MjOption field with MuJoCo's default (its type tells the kind of value)."""
+    import mujoco
+
     option = mujoco.MjOption()
     return {name: getattr(option, name) for name in dir(option) if not name.startswith("_")}
 
 
-OPT_DEFAULTS = _defaults()  # every MjOption field with MuJoCo's default (its type tells the kind of value)
-OPT_FIELDS = tuple(sorted(OPT_DEFAULTS))
+def opt_fields() -> tuple[str, ...]:
+    return tuple(sorted(opt_defaults()))
+
+
+def _enum(field: str) -> tuple[Any, str]:
+    """An enum field's MuJoCo enum and its members' prefix."""
+    import mujoco
+
+    name, prefix = ENUMS[field]
+    return getattr(mujoco, name), prefix
 
 
 def enum_names(field: str) -> list[str]:
-    enum, prefix = ENUMS[field]
+    enum, prefix = _enum(field)
     return [name.removeprefix(prefix).lower() for name in dir(enum) if name.startswith(prefix)]
 
 
@@ -61,17 +76,17 @@ def check_opt(opt: Mapping[str, Any] | None, task: str = "task") -> dict[str, An
     if not isinstance(opt, Mapping):
         raise ValueError(f"{task}: opt must be a mapping of mujoco.MjOption fields to values, e.g. "
                          f"opt={{'iterations': 4}}; got {opt!r}")
-    unknown = sorted(set(opt) - set(OPT_FIELDS))
+    unknown = sorted(set(opt) - set(opt_fields()))
     if unknown:
-        raise ValueError(f"{task}: unknown opt field(s) {unknown}; valid fields (mujoco.MjOption): {list(OPT_FIELDS)}")
+        raise ValueError(f"{task}: unknown opt field(s) {unknown}; valid fields (mujoco.MjOption): {list(opt_fields())}")
     return {field: _check_value(field, value, task) for field, value in opt.items()}
 
 
 def _check_value(field: str, value: Any, task: str) -> Any:
-    default = OPT_DEFAULTS[field]
+    default = opt_defaults()[field]
     where = f"{task}: opt.{field}"
     if field in ENUMS:
-        enum, prefix = ENUMS[field]
+        enum, prefix = _enum(field)
         names = enum_names(field)
         if isinstance(value, str) and value.lower() in names:
             return int(getattr(enum, prefix + value.upper()))
@@ -107,9 +122,9 @@ def apply_opt(mj_model: mujoco.MjModel, opt: Mapping[str, Any]) -> mujoco.MjMode
 def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
     """One `opt` field from the command line (`--env-opt opt.FIELD=TEXT`): an enum by name, a vector
     as comma-separated numbers, an integer or a float by the field's type."""
-    if field not in OPT_FIELDS:
-        raise ValueError(f"{task}: unknown opt field {field!r}; valid fields (mujoco.MjOption): {list(OPT_FIELDS)}")
-    default = OPT_DEFAULTS[field]
+    if field not in opt_defaults():
+        raise ValueError(f"{task}: unknown opt field {field!r}; valid fields (mujoco.MjOption): {list(opt_fields())}")
+    default = opt_defaults()[field]
     try:
         if field in ENUMS:
             return int(text) if text.lstrip("-").isdigit() else text

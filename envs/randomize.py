@@ -37,24 +37,25 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 from envs.core import Env, State, Wrapper
 from envs.wrappers import TimeLimit
 
-if TYPE_CHECKING:  # envs.mjx_env (mujoco.mjx) is imported where it is used: `import envs` stays fast
+if TYPE_CHECKING:  # mujoco and envs.mjx_env (mujoco.mjx) are imported where they are used: `import envs` stays fast
+    import mujoco
+
     from envs.mjx_env import MjxEnv, mjx
 
 PER = ("episode", "env")
 
-# The element type each field prefix indexes (a dof_ field is named by its joint).
+# The element type (a `mujoco.mjtObj` member's name) each field prefix indexes (a dof_ field is named
+# by its joint). Names, not the members: importing mujoco (0.19 s on an H100 machine, most of it
+# loading GLFW for rendering) would slow the start of every analytic task's run.
 ELEMENT_TYPES = {
-    "body": mujoco.mjtObj.mjOBJ_BODY, "jnt": mujoco.mjtObj.mjOBJ_JOINT, "dof": mujoco.mjtObj.mjOBJ_JOINT,
-    "geom": mujoco.mjtObj.mjOBJ_GEOM, "site": mujoco.mjtObj.mjOBJ_SITE, "cam": mujoco.mjtObj.mjOBJ_CAMERA,
-    "light": mujoco.mjtObj.mjOBJ_LIGHT, "mat": mujoco.mjtObj.mjOBJ_MATERIAL, "pair": mujoco.mjtObj.mjOBJ_PAIR,
-    "eq": mujoco.mjtObj.mjOBJ_EQUALITY, "tendon": mujoco.mjtObj.mjOBJ_TENDON,
-    "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+    "body": "mjOBJ_BODY", "jnt": "mjOBJ_JOINT", "dof": "mjOBJ_JOINT", "geom": "mjOBJ_GEOM", "site": "mjOBJ_SITE",
+    "cam": "mjOBJ_CAMERA", "light": "mjOBJ_LIGHT", "mat": "mjOBJ_MATERIAL", "pair": "mjOBJ_PAIR",
+    "eq": "mjOBJ_EQUALITY", "tendon": "mjOBJ_TENDON", "actuator": "mjOBJ_ACTUATOR",
 }
 # Computed by the compiler or mj_setConst from other fields: randomise those instead.
 DERIVED = frozenset({
@@ -124,11 +125,14 @@ def _parse_entry(task: MjxEnv, name: str, spec: Any) -> Variation:
         else:
             why = "is not a float field of mjx.Model indexed by a named element"
         raise ValueError(f"randomize: {name!r}: {field!r} {why}; fields that can vary per env: {', '.join(valid)}")
+    import mujoco
+
     prefix = field.split("_")[0]
-    element_id = mujoco.mj_name2id(mj_model, ELEMENT_TYPES[prefix], element)
+    element_type = getattr(mujoco.mjtObj, ELEMENT_TYPES[prefix])
+    element_id = mujoco.mj_name2id(mj_model, element_type, element)
     if element_id < 0:
-        names = _element_names(mj_model, ELEMENT_TYPES[prefix])
-        kind = "joint" if prefix == "dof" else ELEMENT_TYPES[prefix].name.removeprefix("mjOBJ_").lower()
+        names = _element_names(mj_model, element_type)
+        kind = "joint" if prefix == "dof" else ELEMENT_TYPES[prefix].removeprefix("mjOBJ_").lower()
         kinds = {"body": "bodies"}.get(kind, kind + "s")
         raise ValueError(f"randomize: {name!r}: the model has no {kind} named {element!r}; "
                          f"its {kinds}: {', '.join(names) or '(none with a name)'}")
@@ -171,6 +175,8 @@ def _parse_range(name: str, spec: Any) -> tuple[bool, float, float]:
 
 
 def _element_names(mj_model: mujoco.MjModel, kind: mujoco.mjtObj) -> list[str]:
+    import mujoco
+
     count = {mujoco.mjtObj.mjOBJ_BODY: mj_model.nbody, mujoco.mjtObj.mjOBJ_JOINT: mj_model.njnt,
              mujoco.mjtObj.mjOBJ_GEOM: mj_model.ngeom, mujoco.mjtObj.mjOBJ_SITE: mj_model.nsite,
              mujoco.mjtObj.mjOBJ_CAMERA: mj_model.ncam, mujoco.mjtObj.mjOBJ_LIGHT: mj_model.nlight,
@@ -181,6 +187,8 @@ def _element_names(mj_model: mujoco.MjModel, kind: mujoco.mjtObj) -> list[str]:
 
 
 def _rows(mj_model: mujoco.MjModel, prefix: str, element_id: int) -> tuple[int, ...]:
+    import mujoco
+
     if prefix != "dof":
         return (element_id,)
     dofs = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}.get(mj_model.jnt_type[element_id], 1)
@@ -269,6 +277,8 @@ def _collision_bounds(base: mjx.Model, size: jax.Array) -> dict[str, jax.Array]:
 def set_const(model: mjx.Model, data: mjx.Data, mj_model: mujoco.MjModel) -> dict[str, Any]:
     """What MuJoCo's `mj_setConst` derives from masses, inertias, geometry and transmissions,
     computed in JAX from `model` at `qpos0` (engine_setconst.c: setFixed, set0, setStat)."""
+    import mujoco
+
     from envs.mjx_env import mjx  # here, not at the top: importing envs must not load MJX (start-up time)
 
     nv = mj_model.nv
