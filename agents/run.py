@@ -98,8 +98,9 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
 
 def _aside(work: Callable[[], Any], name: str) -> Future:
     """`work()` on another thread. XLA compiles, and a program runs, without holding Python's
-    lock, so a fresh run's init program (about 1 s on a 2-core CPU) compiles while this thread
-    traces and lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for
+    lock, so the run's inputs are made (on a GPU with the process's first allocation) while the
+    programs compile, a fresh run's init program (about 1 s on a 2-core CPU) compiles while this
+    thread traces and lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for
     cartpole-mjx) and while XLA compiles the chunk, and the final evaluation's program (~5 s for
     cartpole-mjx on 2 cores) while the agents train. The programs and options are those that
     compiling them here would give: the same results, bit for bit."""
