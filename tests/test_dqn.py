@@ -12,7 +12,7 @@ from jax.flatten_util import ravel_pytree
 import envs
 from agents import DQN, DQNConfig, backend, load_policy, train, train_run
 from agents.cli import main as cli_main
-from agents.dqn import unpack
+from agents.dqn import greedy, unpack
 from agents.run import run_keys
 
 
@@ -66,6 +66,20 @@ def test_termination_does_not_bootstrap():
     targets = np.asarray(dqn.td_targets(ts.params, ts.params, batch))
     np.testing.assert_allclose(targets[[2, 5]], 1.0)
     assert np.all(np.abs(targets[[0, 1, 3, 4, 6]] - 1.0) > 1e-6)
+
+
+@pytest.mark.parametrize("num_actions", [1, 2, 3, 5])
+def test_greedy_is_jnp_argmax_and_the_value_there(num_actions):
+    rng = np.random.default_rng(num_actions)
+    q = rng.normal(size=(6, 40, num_actions)).astype(np.float32)
+    q[:, :10] = np.round(q[:, :10])  # ties
+    special = [np.nan, np.inf, -np.inf, 0.0, -0.0]
+    q[:, 10:30] = rng.choice(special, size=(6, 20, num_actions))  # NaN, infinities and signed zeros
+    action, value = jax.jit(greedy)(jnp.asarray(q))
+    expected = np.asarray(jnp.argmax(jnp.asarray(q), axis=-1))
+    np.testing.assert_array_equal(np.asarray(action), expected)
+    assert action.dtype == jnp.int32
+    np.testing.assert_array_equal(np.asarray(value), np.take_along_axis(q, expected[..., None], axis=-1)[..., 0])
 
 
 def test_run_keys_are_the_seed_keys_split_and_the_evaluations_folded_in():
