@@ -198,10 +198,10 @@ def unpack(rows: jax.Array, obs_size: int) -> Transition:
 def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
     """The greedy action over the last axis of `q` (the actions) and its value: `jnp.argmax(q,
     axis=-1)` and `q` there, as a chain of elementwise comparisons, one per action (ties go to the
-    first action and a NaN wins, as in `jnp.argmax`). Why: XLA's argmax is a reduction to a (value, index) pair, which on a GPU does
-    not vectorise over a short axis; for the TD target of 2,048 agents x 128 replayed rows x 2
-    actions it took 33 us of a 1,444 us iteration (H100, 2026-11-26), where the comparisons are a
-    few us and fuse with the ops around them."""
+    first action and a NaN wins, as in `jnp.argmax`). Why: XLA's argmax is a reduction to a
+    (value, index) pair, which on a GPU does not vectorise over a short axis; for the TD target of
+    2,048 agents x 128 replayed rows x 2 actions it took 33 us of a 1,444 us iteration (H100,
+    2026-11-26), where the comparisons are a few us and fuse with the ops around them."""
     best_action = jnp.zeros(q.shape[:-1], jnp.int32)
     best = q[..., 0]
     for action in range(1, q.shape[-1]):

@@ -7,17 +7,16 @@ import os
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 
 import envs
 from agents import export_cache
-from agents.dqn import DQN
+from agents.dqn import DQN, greedy
 from envs import rollouts
 
 
 def greedy_policy(dqn: DQN) -> rollouts.PolicyFn:
     """`(params, obs, key) -> argmax_a Q(obs, a)`, jittable, for `envs.rollouts.collect_rollout`."""
-    return lambda params, obs, key: jnp.argmax(dqn.q_values(params, obs), axis=-1).astype(jnp.int32)
+    return lambda params, obs, key: greedy(dqn.q_values(params, obs))[0]
 
 
 def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):

@@ -19,7 +19,7 @@ import numpy as np
 import envs
 from agents import checkpoint, driver, export_cache, sharding
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
-from agents.dqn import DQN, DQNConfig, Hyperparams, sweep_configs
+from agents.dqn import DQN, DQNConfig, Hyperparams, greedy, sweep_configs
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
@@ -392,12 +392,12 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
         return brax_run.load_policy(out_dir)
     env_name, env, dqn, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
-    greedy = jax.jit(lambda obs: jnp.argmax(dqn.q_values(params, obs), axis=-1))
+    act = jax.jit(lambda obs: greedy(dqn.q_values(params, obs))[0])
 
     def policy(obs):
         obs = np.asarray(obs, np.float32)
         if obs.shape[-1:] != (env.observation_size,):
             raise ValueError(f"{env_name} observations have size {env.observation_size}; got shape {obs.shape}")
-        return np.asarray(greedy(obs)).astype(np.int64)
+        return np.asarray(act(obs)).astype(np.int64)
 
     return policy
