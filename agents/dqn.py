@@ -545,22 +545,34 @@ class DQN:
             ts, collected = repeat(lambda ts, bits: self.collect(ts, epsilon, bits), ts, noise.act, self.unroll)
             learning = ts.env_steps >= cfg.learning_starts
             ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample, self.unroll)
-            return ts, (jax.tree.map(jnp.sum, collected), jax.tree.map(jnp.mean, learned), epsilon)
+            return ts, {**jax.tree.map(jnp.sum, collected), **jax.tree.map(jnp.mean, learned), "epsilon": epsilon}
+
+        def add_up(carry, noise: StepNoise):
+            # Running totals in the loop's carry, not a stacked row per iteration: on a GPU each
+            # stacked metric was a kernel of its own in every iteration.
+            ts, totals = carry
+            ts, stats = iteration(ts, noise)
+            totals = {name: stats[name] if name == "epsilon" else totals[name] + stats[name] for name in stats}
+            return (ts, totals), None
 
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
         ts = ts.replace(key=key)
-        ts, (collected, learned, epsilon) = jax.lax.scan(iteration, ts, self.draw_noise(noise_key))
-        episodes = collected["episodes"].sum()
+        noise = self.draw_noise(noise_key)
+        first = jax.tree.map(lambda x: x[0], noise)
+        totals = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(iteration, ts, first)[1])
+        (ts, totals), _ = jax.lax.scan(add_up, (ts, totals), noise)
+        episodes = totals["episodes"]
+        iterations = cfg.iterations_per_chunk
         metrics = {
-            "loss": learned["loss"].mean(),
-            "q": learned["q"].mean(),
-            "epsilon": epsilon[-1],
+            "loss": totals["loss"] / iterations,
+            "q": totals["q"] / iterations,
+            "epsilon": totals["epsilon"],  # the last iteration's
             "episodes": episodes,
-            "train_return": collected["return_sum"].sum() / jnp.maximum(episodes, 1),
-            "nan_episodes": collected["nan_episodes"].sum(),
+            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
+            "nan_episodes": totals["nan_episodes"],
             # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
-            "overflow_contacts": collected["overflow_contacts"].sum(),
-            "overflow_constraints": collected["overflow_constraints"].sum(),
+            "overflow_contacts": totals["overflow_contacts"],
+            "overflow_constraints": totals["overflow_constraints"],
         }
         return ts, metrics, eval_key
 
