@@ -15,6 +15,11 @@ cache:
   compile and run, as PureJaxRL's own `main()` does), and its process's wall time too.
 
 `ratio` is the peer's `make_train` time over our process's wall time (> 1: we finish first).
+First, untimed, a warm-up process imports jax, Flax and Optax and runs a small program on the
+device: the first process on a freshly started machine reads the libraries from disk and
+starts the GPU for the first time, which cost whichever side ran first a few seconds more (our
+start-up and compile took 3.9 and 9.2 s first on a fresh H100, 2.0 and 6.9 s second).
+`--no-warm-up` skips it.
 On a GPU, the issue's run (about 2 minutes for both):
 
     python -m benchmarks.end_to_end --peer /path/to/purejaxrl_dqn.py --json e2e.json
@@ -57,6 +62,13 @@ jax.block_until_ready(compiled(keys))
 done = time.perf_counter()
 print(json.dumps({"make_train_s": done - tick, "compile_s": compiled_at - tick, "run_s": done - compiled_at,
                   "startup_s": tick - start, "device": jax.devices()[0].device_kind}))
+"""
+
+# The untimed warm-up: the libraries both sides load, and a first program on the device.
+_WARM_UP_PROGRAM = """
+import jax, jax.numpy as jnp, flax, optax
+x = jnp.ones((256, 256))
+jax.block_until_ready(jax.jit(lambda a: jnp.maximum(a @ a, 0.0).sum())(x))
 """
 
 
@@ -121,6 +133,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--learning-starts", type=int, default=OURS.learning_starts)
     parser.add_argument("--exploration-steps", type=int, default=OURS.exploration_steps)
     parser.add_argument("--peer-first", action="store_true", help="run the peer before ours")
+    parser.add_argument("--no-warm-up", dest="warm_up", action="store_false",
+                        help="skip the untimed warm-up process (libraries read and the device started once)")
     parser.add_argument("--timeout", type=float, default=540.0, help="seconds allowed to each process")
     parser.add_argument("--json", type=Path, help="also write the record here")
     args = parser.parse_args(argv)
@@ -129,12 +143,14 @@ def main(argv: list[str] | None = None) -> dict:
     for name in ("seeds", "steps", "eval_every"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} {getattr(args, name)}: must be at least 1")
+    if args.warm_up:
+        _run([sys.executable, "-c", _WARM_UP_PROGRAM], args.timeout)
     runs = [run_peer, run_ours] if args.peer_first else [run_ours, run_peer]
     results = {run.__name__: run(args) for run in runs}
     ours, peer = results["run_ours"], results["run_peer"]
     record = {"kind": "end-to-end", "device": peer["device"], "seeds": args.seeds, "steps": args.steps,
               "ours": ours, "peer": peer, "ratio": peer["make_train_s"] / ours["process_s"],
-              "order": "peer first" if args.peer_first else "ours first"}
+              "order": "peer first" if args.peer_first else "ours first", "warm_up": args.warm_up}
     print(json.dumps(record, indent=1))
     if args.json:
         args.json.write_text(json.dumps(record, indent=1) + "\n")
