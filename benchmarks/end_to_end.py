@@ -18,8 +18,9 @@ cache:
 First, untimed, a warm-up process imports jax, Flax and Optax and runs a small program on the
 device: the first process on a freshly started machine reads the libraries from disk and
 starts the GPU for the first time, which cost whichever side ran first a few seconds more (our
-start-up and compile took 3.9 and 9.2 s first on a fresh H100, 2.0 and 6.9 s second).
-`--no-warm-up` skips it.
+start-up and compile took 3.9 and 9.2 s when ours ran first on a freshly started H100, 2.0 and
+6.9 s when it ran second on another). `--no-warm-up` skips it.
+
 On a GPU, the issue's run (about 2 minutes for both):
 
     python -m benchmarks.end_to_end --peer /path/to/purejaxrl_dqn.py --json e2e.json
