@@ -222,28 +222,33 @@ def train_run(
     record_episode = on_chunk is not None
     per_device = agents // placement.count
     judge = partial(dqn.judge, record=record_episode)
+    # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
+    # device: each holds a copy of the env's step, and together were one program that XLA compiled
+    # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
+    # are traced first and compile on another thread while this one traces the judge (cartpole-mjx
+    # on 2 CPU cores: traced on two threads at once, both compiles waited for both traces;
+    # docs/results.md). Several devices: one sharded program of both took 251.4 ms a chunk of
+    # 2 x 1,024 agents on two H100s, the two 245.8 ms (docs/scaling.md).
+    train_fn = seed_batched(dqn.train_steps, per_device, seed_axis)
+    judge_fn = seed_batched(judge, per_device, seed_axis)
     if placement.mesh is None:
-        # Two programs, a chunk's training steps and its evaluation: each holds a copy of the env's
-        # step, and together were one program that XLA compiled alone. Tracing and lowering hold
-        # Python's lock, XLA's compile does not: so the training steps are traced first and compile
-        # on another thread while this one traces the judge (cartpole-mjx on 2 CPU cores: traced on
-        # two threads at once, both compiles waited for both traces; docs/results.md).
         judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-        train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}",
-                                            seed_batched(dqn.train_steps, per_device, seed_axis), (ts,),
+        train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}", train_fn, (ts,),
                                             dqn, agents, env_name, env_options, donate=True).compile, "train")
-        judge_program = lower_cached(judged, seed_batched(judge, per_device, seed_axis), (ts, ts.key), dqn, agents,
+        judge_program = lower_cached(judged, judge_fn, (ts, ts.key), dqn, agents,
                                      env_name, env_options, donate=True).compile()
-        train_program = train_program.result()
+    else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+        options = training_compiler_options()
+        train_program = _aside(partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile,
+                                       options), "train")
+        judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
+    train_program = train_program.result()
 
-        def chunk(ts):
-            ts, trained, eval_key = train_program(ts)
-            ts, judged = judge_program(ts, eval_key)
-            return ts, {**judged, **trained}
-    else:  # one sharded program; sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-        step = partial(dqn.chunk, record=record_episode)
-        chunk = jax.jit(placement.spread(seed_batched(step, per_device, seed_axis)),
-                        donate_argnums=0).lower(ts).compile(training_compiler_options())
+    def chunk(ts):
+        ts, trained, eval_key = train_program(ts)
+        ts, judged = judge_program(ts, eval_key)
+        return ts, {**judged, **trained}
+
     if inputs is not None:
         init_args, eval_keys = inputs.result()
     if init_program is not None:
