@@ -298,3 +298,15 @@ def test_cpu_compile_options_unknown_to_this_xla_are_left_out():
     assert backend.known_cpu_options({"xla_cpu_no_such_option": False, "xla_backend_optimization_level": 1}) == {
         "xla_backend_optimization_level": 1}
     assert set(backend.training_compiler_options("cpu")) <= set(backend.CPU_COMPILER_OPTIONS)
+
+
+def test_gpu_training_options_are_options_this_xla_knows():
+    # CI has no GPU; XLA parses every platform's debug options on any, so a misspelt option or
+    # value (command buffer kinds, scheduling mode) fails here as it would on a GPU. A misspelt
+    # value is refused, as the last line shows.
+    options = backend.training_compiler_options("gpu")
+    assert options["xla_gpu_command_buffer_scheduling_mode"] == "CONCURRENT"
+    program = jax.jit(lambda x: x + 1).lower(jax.ShapeDtypeStruct((), jnp.float32))
+    program.compile(options)
+    with pytest.raises(Exception, match="not a valid enum value"):
+        program.compile({**options, "xla_gpu_command_buffer_scheduling_mode": "CONCURENT"})
