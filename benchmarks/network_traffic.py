@@ -118,7 +118,7 @@ def programs(config_name: str, agents: int) -> tuple[DQN, dict]:
 
     found = {
         "act forward": (jax.vmap(dqn.q_values), (params, current_obs), nudge_obs),
-        "target forward": (jax.vmap(dqn.replay_q_values), (params, replayed.next_obs), nudge_obs),
+        "target forward": (jax.vmap(dqn.batch_q_values), (params, replayed.next_obs), nudge_obs),
         "update forward+backward": (jax.vmap(jax.grad(dqn.loss, has_aux=True)),
                                     (params, replayed, targets, weights), nudge_replayed_obs),
         "adam": (jax.vmap(adam_step), (grads, jax.vmap(dqn.optimizer.init)(params), params), adam_next),

@@ -40,3 +40,20 @@ def test_the_update_uses_the_kernels_only_for_many_agents_of_a_narrow_network_on
     assert not DQN(DQNConfig(), cartpole, platform="cpu", agents=many).fused_network
     assert not DQN(DQNConfig(dueling=True), cartpole, platform="gpu", agents=many).fused_network
     assert not DQN(DQNConfig(hidden=(120, 84)), cartpole, platform="gpu", agents=many).fused_network  # XLA wins
+
+
+def test_the_judge_runs_the_kernels_and_scores_its_episodes_as_flax_does():
+    """Where the update uses the kernels, the greedy evaluation does too (its 64 episodes are
+    many rows per agent); interpreted on the CPU, the same actions and returns as Flax's network,
+    and the kernel is really in the program (a Pallas call in its jaxpr)."""
+    cartpole, config = envs.make("cartpole"), DQNConfig(eval_episodes=8)
+    fused = DQN(config, cartpole, platform="gpu", agents=backend.FUSED_MIN_AGENTS)
+    flax = DQN(config, cartpole, platform="cpu")
+    assert fused.fused_network and not flax.fused_network
+    params = flax.init(jax.random.PRNGKey(0)).params
+    key = jax.random.PRNGKey(3)
+    assert "pallas_call" in str(jax.make_jaxpr(fused.evaluate)(params, key))
+    assert "pallas_call" not in str(jax.make_jaxpr(flax.evaluate)(params, key))
+    fused_returns = jax.jit(fused.evaluate)(params, key)
+    np.testing.assert_array_equal(fused_returns, jax.jit(flax.evaluate)(params, key))
+    assert len(set(np.asarray(fused_returns).tolist())) > 1  # episodes of different lengths
