@@ -1,0 +1,468 @@
+"""Soft Actor-Critic, the whole training loop inside `lax.scan`, from Brax's parts.
+
+Read top to bottom: config -> transition packing -> train state -> acting and collecting
+(the replay's first fill included) -> the SAC update -> deterministic evaluation -> one
+training chunk -> `train`. Built like `agents.dqn`: `train(config, env, key)` is pure and
+jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the same
+chunks from the host (`init`, `train_steps`, `judge`) and saves the train state between
+them; that state is the whole of one seed (networks, optimizers, temperature, normalizer,
+replay buffer, envs, key), so resuming from it is exact.
+
+Brax's parts, imported, never copied: the networks and the deterministic policy
+(`brax.training.agents.sac.networks`), the three losses (`...sac.losses.make_losses`), the
+gradient step (`brax.training.gradients.gradient_update_fn`), the observation normalizer
+(`brax.training.acme.running_statistics`) and the optimizers Brax's trainer uses (Adam at
+`learning_rate` for the policy and the Q networks, at 3e-4 for the log temperature). The
+loop follows `brax.training.agents.sac.train`: each iteration takes one step of every env
+with the stochastic policy, updates the normalizer with the observations acted on, stores the
+transitions and makes `grad_updates_per_step` updates (temperature, then critic, then actor,
+each from the parameters before the update, then the target's Polyak average).
+
+Where it differs from Brax's trainer, and why:
+- Truncation: a transition carries `discount = 1 - terminated` and the true final observation
+  (`envs.wrap_for_training`'s `info["final_obs"]`), so the critic bootstraps through a time
+  limit. Brax stores the next episode's first observation there and leaves truncated steps out
+  of the critic loss instead; here their `truncation` extra is 0, so the loss keeps them.
+- Steps with non-finite or overflowing physics (MuJoCo Warp) never reach the buffer
+  (`agents.replay.UniformReplay`'s mask; Brax's queue stores every row), as in the DQN.
+- The replay's first fill (`min_replay_size`, rounded up to whole env-step batches, with the
+  untrained policy's actions as Brax does) happens in `init`, so every chunk is the same
+  program; `env_steps` counts it, as Brax's does.
+- Brax also evaluates the untrained policy before training (one of its `num_evals`); here the
+  evaluations are the judges after each of the `num_evals - 1` chunks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, ClassVar, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.training import gradients, types
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.sac import losses as sac_losses
+from brax.training.agents.sac import networks as sac_networks
+from flax import struct
+
+from agents import backend
+from agents.dqn import EvalEpisode
+from agents.replay import UniformReplay
+from envs import Env, VmapWrapper, wrap_for_training
+from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
+
+# Brax's trainer: the log temperature's own Adam step size, whatever `learning_rate` is.
+ALPHA_LEARNING_RATE = 3e-4
+
+
+@dataclasses.dataclass(frozen=True)
+class SACConfig:
+    """Every hyperparameter of a run, with the names and meanings of the arguments of
+    `brax.training.agents.sac.train` (`num_timesteps` is `--steps` on the command line).
+
+    The replay is first filled with `min_replay_size` env steps (rounded up to whole batches of
+    `num_envs`); then each iteration takes one step of every env and makes
+    `grad_updates_per_step` gradient steps on batches of `batch_size`. The run is `num_evals - 1`
+    chunks of `eval_every` env steps, each followed by an evaluation of `num_eval_envs` episodes
+    (Brax's `num_evals` counts an evaluation before training too)."""
+
+    num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
+    num_envs: int = 16
+    batch_size: int = 256
+    grad_updates_per_step: int = 8  # gradient steps per iteration (one step of every env)
+    learning_rate: float = 1e-3  # the policy's and the Q networks' Adam
+    discounting: float = 0.99
+    tau: float = 0.005  # the target Q networks' Polyak step
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    min_replay_size: int = 2_000  # env steps with the untrained policy before learning
+    max_replay_size: int = 100_000
+    num_evals: int = 6  # Brax's: an evaluation before training, then one after each chunk
+    num_eval_envs: int = 64  # episodes per evaluation
+    hidden: tuple[int, ...] = (64, 64)  # the policy's and both Q networks' layers
+    solve_return: float | None = None  # an evaluation return that counts as solved; None: never
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_timesteps": COUNT, "num_envs": COUNT, "batch_size": COUNT, "grad_updates_per_step": COUNT,
+        "learning_rate": POSITIVE, "discounting": PROBABILITY, "tau": Range(0.0, 1.0, low_open=True),
+        "reward_scaling": POSITIVE, "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
+        "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
+    }
+
+    def __post_init__(self):
+        check_fields(self, self.RANGES)
+        if not self.hidden:
+            raise ValueError(f"SACConfig.hidden needs at least one layer width, got {self.hidden!r}; e.g. (64, 64)")
+        for width in self.hidden:
+            COUNT.check(f"SACConfig.hidden (layer widths {self.hidden})", width)
+        if self.solve_return is not None:
+            FINITE.check("SACConfig.solve_return (None: no threshold)", self.solve_return)
+        if self.prefill_steps >= self.num_timesteps:
+            raise ValueError(f"SACConfig.min_replay_size ({self.min_replay_size}, {self.prefill_steps} env steps "
+                             f"over {self.num_envs} envs) must be below num_timesteps ({self.num_timesteps}), "
+                             "or no training happens; lower min_replay_size or raise num_timesteps")
+        need = max(self.batch_size, self.min_replay_size, self.num_envs)
+        if self.max_replay_size < need:
+            raise ValueError(f"SACConfig.max_replay_size ({self.max_replay_size}) must hold at least batch_size "
+                             f"({self.batch_size}), min_replay_size ({self.min_replay_size}) and num_envs "
+                             f"({self.num_envs}) transitions; raise it to {need} or more")
+
+    @property
+    def prefill_steps(self) -> int:
+        """Env steps of the replay's first fill (in `init`): `min_replay_size` rounded up to
+        whole batches of `num_envs`, as Brax's SAC rounds it."""
+        return self.prefill_iterations * self.num_envs
+
+    @property
+    def prefill_iterations(self) -> int:
+        return -(-self.min_replay_size // self.num_envs)
+
+    @property
+    def iterations_per_chunk(self) -> int:
+        """Iterations (one step of every env, then the updates) in a chunk: Brax's
+        `num_training_steps_per_epoch`, the steps after the first fill split over the chunks,
+        rounded up."""
+        return -(-(self.num_timesteps - self.prefill_steps) // (self.num_chunks * self.num_envs))
+
+    @property
+    def eval_every(self) -> int:
+        """Env steps per seed in one chunk, a whole number of `num_envs` batches: the steps
+        after the first fill over `num_chunks`, rounded up (so `total_steps >= num_timesteps`)."""
+        return self.iterations_per_chunk * self.num_envs
+
+    @property
+    def num_chunks(self) -> int:
+        return self.num_evals - 1
+
+    @property
+    def eval_episodes(self) -> int:
+        return self.num_eval_envs
+
+    @property
+    def total_steps(self) -> int:
+        """Env steps per seed of the whole run: the first fill and every chunk."""
+        return self.prefill_steps + self.num_chunks * self.eval_every
+
+    @property
+    def steps_per_epoch(self) -> int:  # the name `agents.brax_agents.SACConfig` gives it
+        return self.eval_every
+
+
+# ---- transitions: one packed float row, so the buffer does one gather per sample ----
+class Transition(NamedTuple):
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    discount: jax.Array  # 1 - terminated: truncation still bootstraps, from `next_obs`
+    next_obs: jax.Array  # the true final observation at the end of an episode
+
+
+def pack(t: Transition) -> jax.Array:
+    scalars = jnp.stack([t.reward, t.discount], axis=-1).astype(t.obs.dtype)
+    return jnp.concatenate([t.obs, t.action.astype(t.obs.dtype), scalars, t.next_obs], axis=-1)
+
+
+def unpack(rows: jax.Array, obs_size: int, action_size: int) -> Transition:
+    a = obs_size + action_size
+    return Transition(obs=rows[..., :obs_size], action=rows[..., obs_size:a], reward=rows[..., a],
+                      discount=rows[..., a + 1], next_obs=rows[..., a + 2:])
+
+
+def brax_transitions(t: Transition) -> types.Transition:
+    """`t` as the batch Brax's losses read. `truncation` is 0: the row's next observation is
+    the true one, so the critic bootstraps through a time limit rather than dropping the row."""
+    return types.Transition(observation=t.obs, action=t.action, reward=t.reward, discount=t.discount,
+                            next_observation=t.next_obs,
+                            extras={"state_extras": {"truncation": jnp.zeros_like(t.reward)}, "policy_extras": {}})
+
+
+@struct.dataclass
+class TrainState:
+    params: Any  # (normalizer state, policy params): Brax's inference params, what `policy` and checkpoints take
+    q_params: Any
+    target_q_params: Any
+    log_alpha: jax.Array  # log of the entropy temperature
+    policy_opt_state: Any
+    q_opt_state: Any
+    alpha_opt_state: Any
+    buffer: Any
+    env_state: Any
+    key: jax.Array
+    env_steps: jax.Array  # int32, env steps taken so far (all envs, the first fill included)
+    best_params: Any  # `params` with the best evaluation so far
+    best_return: jax.Array
+    solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+    hyperparams: Any = None  # a sweep's per-agent values, as `DQN`'s; SAC has none yet
+
+
+class SAC:
+    """The pieces of a SAC run for one env and config; all methods are pure."""
+
+    def __init__(self, config: SACConfig, env: Env, platform: str | None = None, agents: int = 1):
+        """`platform`: the backend whose program shapes to use (`agents.backend`); None: JAX's
+        default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
+        interface has it)."""
+        if env.action_size is None:
+            raise ValueError(f"SAC needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
+                             "(train it with --agent dqn)")
+        self.config = config
+        self.env = env
+        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
+        self.obs_size, self.action_size = env.observation_size, env.action_size
+        # Brax's trainer builds its networks the same way (`agents.brax_agents.network_factory`),
+        # so `params` is what Brax's SAC returns and `load_policy` reads.
+        normalize = running_statistics.normalize if config.normalize_observations else types.identity_observation_preprocessor
+        self.networks = sac_networks.make_sac_networks(self.obs_size, self.action_size,
+                                                       preprocess_observations_fn=normalize,
+                                                       hidden_layer_sizes=tuple(config.hidden))
+        self.make_policy = sac_networks.make_inference_fn(self.networks)
+        self.policy_optimizer = optax.adam(config.learning_rate)
+        self.q_optimizer = optax.adam(config.learning_rate)
+        self.alpha_optimizer = optax.adam(ALPHA_LEARNING_RATE)
+        alpha_loss, critic_loss, actor_loss = sac_losses.make_losses(
+            self.networks, reward_scaling=config.reward_scaling, discounting=config.discounting,
+            action_size=self.action_size)
+        self.alpha_update = gradients.gradient_update_fn(alpha_loss, self.alpha_optimizer, pmap_axis_name=None)
+        self.critic_update = gradients.gradient_update_fn(critic_loss, self.q_optimizer, pmap_axis_name=None)
+        self.actor_update = gradients.gradient_update_fn(actor_loss, self.policy_optimizer, pmap_axis_name=None)
+        self.buffer = UniformReplay(config.max_replay_size, vectorized=backend.vectorized_replay(platform))
+        self.unroll = backend.unrolled_inner_loops(platform)
+
+    # ---- acting -------------------------------------------------------------
+    def policy(self, params, obs):
+        """The deterministic policy (the mode, tanh of the mean): an action in [-1, 1] per
+        observation; `params` = (normalizer state, policy params)."""
+        return self.make_policy(params, deterministic=True)(obs, None)[0]
+
+    def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+        """One step of every env with the stochastic policy: the normalizer sees the observations
+        acted on (as Brax's), the transitions go to the buffer (NaN and overflow steps never do)."""
+        normalizer, policy_params = ts.params
+        obs = ts.env_state.obs
+        action, _ = self.make_policy(ts.params)(obs, key)
+        env_state = self.train_env.step(ts.env_state, action)
+        info = env_state.info
+        terminated = env_state.done * (1.0 - info["truncation"])
+        rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
+        # MuJoCo Warp's overflow code (envs.mjx_env): 1 contact pool, 2 constraint rows, 3 both.
+        overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
+        buffer = self.buffer.add(ts.buffer, rows, mask=(info["nan"] == 0) & (overflow == 0))
+        normalizer = running_statistics.update(normalizer, obs)
+        ts = ts.replace(params=(normalizer, policy_params), buffer=buffer, env_state=env_state,
+                        env_steps=ts.env_steps + self.config.num_envs)
+        stats = {
+            "episodes": info["episode_done"].sum(),
+            "return_sum": (info["last_return"] * info["episode_done"]).sum(),
+            "nan_episodes": info["nan"].sum(),
+            "overflow_contacts": (overflow % 2 == 1).sum(),
+            "overflow_constraints": (overflow >= 2).sum(),
+        }
+        return ts, stats
+
+    # ---- learning -----------------------------------------------------------
+    def learn(self, ts: TrainState, batch: Transition, keys: tuple[jax.Array, jax.Array, jax.Array]):
+        """One gradient step on `batch` (Brax's `sgd_step`): the temperature, the critic and the
+        actor, each from the parameters before this step, then the target's Polyak average.
+        `keys`: the temperature's, the critic's and the actor's sampling keys."""
+        key_alpha, key_critic, key_actor = keys
+        normalizer, policy_params = ts.params
+        transitions = brax_transitions(batch)
+        alpha_loss, log_alpha, alpha_opt_state = self.alpha_update(
+            ts.log_alpha, policy_params, normalizer, transitions, key_alpha, optimizer_state=ts.alpha_opt_state)
+        alpha = jnp.exp(ts.log_alpha)
+        critic_loss, q_params, q_opt_state = self.critic_update(
+            ts.q_params, policy_params, normalizer, ts.target_q_params, alpha, transitions, key_critic,
+            optimizer_state=ts.q_opt_state)
+        actor_loss, policy_params, policy_opt_state = self.actor_update(
+            policy_params, normalizer, ts.q_params, alpha, transitions, key_actor,
+            optimizer_state=ts.policy_opt_state)
+        tau = self.config.tau
+        target_q_params = jax.tree.map(lambda old, new: old * (1 - tau) + new * tau, ts.target_q_params, q_params)
+        ts = ts.replace(params=(normalizer, policy_params), q_params=q_params, target_q_params=target_q_params,
+                        log_alpha=log_alpha, policy_opt_state=policy_opt_state, q_opt_state=q_opt_state,
+                        alpha_opt_state=alpha_opt_state)
+        stats = {"critic_loss": critic_loss, "actor_loss": actor_loss, "alpha_loss": alpha_loss,
+                 "alpha": jnp.exp(log_alpha)}
+        return ts, stats
+
+    def update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+        """`grad_updates_per_step` gradient steps, each on its own uniform batch from the buffer."""
+        cfg = self.config
+        sample_key, sgd_key = jax.random.split(key)
+        bits = jax.random.bits(sample_key, (cfg.grad_updates_per_step * cfg.batch_size,), jnp.uint32)
+        rows, _ = self.buffer.sample_from_bits(ts.buffer, bits)
+        batches = unpack(rows.reshape(cfg.grad_updates_per_step, cfg.batch_size, -1), self.obs_size, self.action_size)
+
+        def sgd_step(carry, batch):
+            ts, key = carry
+            key, key_alpha, key_critic, key_actor = jax.random.split(key, 4)  # as Brax's sgd_step
+            ts, stats = self.learn(ts, batch, (key_alpha, key_critic, key_actor))
+            return (ts, key), stats
+
+        if cfg.grad_updates_per_step == 1:
+            (ts, _), stats = sgd_step((ts, sgd_key), jax.tree.map(lambda x: x[0], batches))
+            return ts, stats
+        (ts, _), stats = jax.lax.scan(sgd_step, (ts, sgd_key), batches, unroll=self.unroll)
+        return ts, jax.tree.map(jnp.mean, stats)
+
+    # ---- evaluation -----------------------------------------------------------
+    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
+        """Return of each of `num_episodes` fresh episodes under the deterministic policy.
+
+        With `record`, also returns the first episode step by step as an `agents.dqn.EvalEpisode`
+        (its `action` rows are action vectors; rows past its `length` are padding)."""
+        env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
+        horizon = getattr(self.env, "episode_length", 1000)
+        scene_qpos = getattr(self.env, "scene_qpos", None)
+
+        def running(carry):
+            return ~carry[2].all()
+
+        def step(carry):
+            state, returns, finished, episode = carry
+            action = self.policy(params, state.obs)
+            next_state = env.step(state, action)
+            if record:
+                t = episode.length
+                first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+                episode = EvalEpisode(
+                    obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
+                    action=episode.action.at[t].set(action[0], mode="drop"),
+                    reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
+                    scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
+                    length=t + (~finished[0]).astype(jnp.int32),
+                )
+            returns = returns + next_state.reward * ~finished
+            return next_state, returns, finished | (next_state.done > 0), episode
+
+        state = env.reset(key)
+        zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
+        episode = None
+        if record:
+            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+            episode = EvalEpisode(
+                obs=jnp.zeros((horizon, self.obs_size), state.obs.dtype),
+                action=jnp.zeros((horizon, self.action_size), jnp.float32),
+                reward=jnp.zeros((horizon,), state.reward.dtype),
+                scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
+                length=jnp.zeros((), jnp.int32),
+            )
+        _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
+        return (returns, episode) if record else returns
+
+    # ---- a training run ---------------------------------------------------------
+    def init(self, key: jax.Array) -> TrainState:
+        """Fresh networks (as Brax initialises them), optimizers, temperature 1, envs, and the
+        replay's first fill: `prefill_iterations` steps of every env with the untrained
+        stochastic policy, which also feed the normalizer (Brax's `prefill_replay_buffer`)."""
+        policy_key, q_key, env_key, fill_key, loop_key = jax.random.split(key, 5)
+        policy_params = self.networks.policy_network.init(policy_key)
+        q_params = self.networks.q_network.init(q_key)
+        normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
+        log_alpha = jnp.asarray(0.0, jnp.float32)
+        env_state = self.train_env.reset(env_key)
+        example = pack(Transition(env_state.obs[0], jnp.zeros((self.action_size,), jnp.float32), env_state.reward[0],
+                                  env_state.reward[0], env_state.obs[0]))
+        ts = TrainState(
+            params=(normalizer, policy_params),
+            q_params=q_params,
+            target_q_params=q_params,
+            log_alpha=log_alpha,
+            policy_opt_state=self.policy_optimizer.init(policy_params),
+            q_opt_state=self.q_optimizer.init(q_params),
+            alpha_opt_state=self.alpha_optimizer.init(log_alpha),
+            buffer=self.buffer.init(example),
+            env_state=env_state,
+            key=loop_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            best_params=(normalizer, policy_params),
+            best_return=jnp.full((), -jnp.inf),
+            solve_step=jnp.full((), -1, jnp.int32),
+        )
+        if self.config.prefill_iterations:
+            fill_keys = jax.random.split(fill_key, self.config.prefill_iterations)
+            ts, _ = jax.lax.scan(self.collect, ts, fill_keys)
+        # The first evaluation compares against these: the untrained policy after the fill.
+        return ts.replace(best_params=ts.params)
+
+    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
+        """`eval_every` env steps of acting and learning (`train_steps`), then an evaluation
+        (`judge`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
+        ts, trained, eval_key = self.train_steps(ts)
+        ts, judged = self.judge(ts, eval_key, record)
+        return ts, {**judged, **trained}
+
+    # What a chunk adds up over its iterations (`train_steps`), with their types.
+    CHUNK_TOTALS = {
+        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
+        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
+        "critic_loss": jnp.float32, "actor_loss": jnp.float32, "alpha_loss": jnp.float32, "alpha": jnp.float32,
+    }
+
+    def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
+        """A chunk's `eval_every` env steps of acting and learning: the train state, its
+        training metrics and the key of the evaluation that follows."""
+        cfg = self.config
+
+        def iteration(carry, key):
+            # Running totals in the loop's carry, not a stacked row per iteration (see DQN.train_steps).
+            ts, totals = carry
+            act_key, learn_key = jax.random.split(key)
+            ts, collected = self.collect(ts, act_key)
+            ts, learned = self.update(ts, learn_key)
+            stats = {**collected, **learned}
+            if stats.keys() != totals.keys():
+                raise KeyError(f"SAC.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
+            totals = {name: (total + stats[name]).astype(total.dtype) for name, total in totals.items()}
+            return (ts, totals), None
+
+        key, loop_key, eval_key = jax.random.split(ts.key, 3)
+        ts = ts.replace(key=key)
+        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
+        keys = jax.random.split(loop_key, cfg.iterations_per_chunk)
+        (ts, totals), _ = jax.lax.scan(iteration, (ts, totals), keys)
+        episodes = totals["episodes"]
+        iterations = cfg.iterations_per_chunk
+        metrics = {
+            **{name: totals[name] / iterations for name in ("critic_loss", "actor_loss", "alpha_loss", "alpha")},
+            "episodes": episodes,
+            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
+            "nan_episodes": totals["nan_episodes"],
+            # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
+            "overflow_contacts": totals["overflow_contacts"],
+            "overflow_constraints": totals["overflow_constraints"],
+        }
+        return ts, metrics, eval_key
+
+    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = False) -> tuple[TrainState, dict]:
+        """A chunk's evaluation: keeps the best parameters and the step that solved the task."""
+        if record:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        else:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
+        eval_return = eval_returns.mean()
+        better = eval_return > ts.best_return
+        solve_return = math.inf if self.config.solve_return is None else self.config.solve_return
+        solved_now = (eval_return >= solve_return) & (ts.solve_step < 0)
+        ts = ts.replace(
+            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
+            best_return=jnp.maximum(eval_return, ts.best_return),
+            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
+        )
+        metrics = {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
+                   "eval_episode": eval_episode}  # the episode is for loggers, not a scalar metric
+        return ts, metrics
+
+
+def train(config: SACConfig, env: Env, key: jax.Array):
+    """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.
+
+    `metrics` holds one entry per evaluation (leading axis: chunk) plus `solve_step` (-1 if
+    never solved) and `final_params`."""
+    sac = SAC(config, env)
+    ts = sac.init(key)
+    ts, metrics = jax.lax.scan(lambda ts, _: sac.chunk(ts, record=False), ts, None, config.num_chunks)
+    metrics.pop("eval_episode")
+    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}
