@@ -1,0 +1,452 @@
+"""PPO as the suite's own agent: Brax's PPO, its loop ours and its parts Brax's.
+
+Read top to bottom: config -> train state -> acting (Brax's `acting.generate_unroll` with
+Brax's tanh-Gaussian policy) -> learning (Brax's `compute_ppo_loss` over shuffled
+minibatches, Brax's running-statistics normalizer) -> deterministic evaluation -> one
+training chunk -> `train`. The loop is Brax's `ppo/train.py` training step, with its
+keys split the same way, so one training step from the same state gives Brax's
+parameters; what differs is around it: the whole state of a seed is one pytree
+(`TrainState`: parameters, Adam's moments, the normalizer, the envs and the key), so a
+run advances chunk by chunk inside `jit`, vmaps over seeds, and resumes exactly from a
+saved copy of that pytree.
+
+The interface is `agents.dqn.DQN`'s: `init(key)`, `train_steps(ts)`, `judge(ts, eval_key)`,
+`chunk(ts)`, `evaluate(params, key)`, `policy(params, obs)`, all pure.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import functools
+from typing import Any, ClassVar, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.training import acting, gradients
+from brax.training.acme import running_statistics, specs
+from brax.training.agents.ppo import losses as ppo_losses
+from brax.training.agents.ppo import networks as ppo_networks
+from flax import struct
+
+from agents.dqn import EvalEpisode
+from envs import Env, VmapWrapper, wrap_for_training
+from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Every hyperparameter of a run, with the names and meanings of `brax.training.agents.ppo.train`.
+
+    Each training step collects `batch_size * num_minibatches * unroll_length` env steps (in
+    `batch_size * num_minibatches / num_envs` unrolls of every env) and makes
+    `num_updates_per_batch * num_minibatches` gradient steps on them. As in Brax, the
+    `num_evals - 1` evaluations after training steps split `num_timesteps`, rounded up to
+    whole training steps (`rounding()` says how); Brax's first evaluation, of the untrained
+    policy, is not a chunk. The defaults are `agents.brax_agents.PPOConfig`'s, sized for small
+    tasks on a CPU (they balance inverted-pendulum)."""
+
+    num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
+    num_envs: int = 64
+    unroll_length: int = 16
+    batch_size: int = 64  # unrolls per minibatch
+    num_minibatches: int = 16
+    num_updates_per_batch: int = 4  # passes over each collected batch
+    learning_rate: float = 1e-3
+    entropy_cost: float = 1e-3
+    discounting: float = 0.97
+    gae_lambda: float = 0.95
+    clipping_epsilon: float = 0.3
+    max_grad_norm: float | None = None  # None: no clipping
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    num_evals: int = 11  # Brax's count, its evaluation of the untrained policy included
+    num_eval_envs: int = 64  # episodes per evaluation
+    policy_hidden: tuple[int, ...] = (64, 64)
+    value_hidden: tuple[int, ...] = (64, 64)
+    solve_return: float | None = None  # a deterministic mean return that counts as solved; not Brax's
+
+    RANGES: ClassVar[dict[str, Range]] = {
+        "num_timesteps": COUNT, "num_envs": COUNT, "unroll_length": COUNT, "batch_size": COUNT,
+        "num_minibatches": COUNT, "num_updates_per_batch": COUNT, "learning_rate": POSITIVE,
+        "entropy_cost": NON_NEGATIVE, "discounting": PROBABILITY, "gae_lambda": PROBABILITY,
+        "clipping_epsilon": POSITIVE, "reward_scaling": POSITIVE, "num_evals": Range(2, integer=True),
+        "num_eval_envs": COUNT,
+    }
+
+    def __post_init__(self):
+        check_fields(self, self.RANGES)
+        for field in ("policy_hidden", "value_hidden"):
+            widths = getattr(self, field)
+            if not widths:
+                raise ValueError(f"PPOConfig.{field} needs at least one layer width, got {widths!r}")
+            for width in widths:
+                COUNT.check(f"PPOConfig.{field} (layer widths {widths})", width)
+        if not isinstance(self.normalize_observations, bool):
+            raise ValueError(f"PPOConfig.normalize_observations must be True or False, got {self.normalize_observations!r}")
+        if self.max_grad_norm is not None:
+            POSITIVE.check("PPOConfig.max_grad_norm (None: no clipping)", self.max_grad_norm)
+        if self.solve_return is not None:
+            FINITE.check("PPOConfig.solve_return (None: no threshold)", self.solve_return)
+        unrolls = self.batch_size * self.num_minibatches
+        if unrolls % self.num_envs:
+            fits = [n for n in range(1, unrolls + 1) if unrolls % n == 0 and n <= self.num_envs]
+            raise ValueError(f"PPOConfig.num_envs ({self.num_envs}) must divide batch_size * num_minibatches "
+                             f"({self.batch_size} * {self.num_minibatches} = {unrolls}): each training step unrolls "
+                             f"every env the same number of times, as Brax's PPO requires; e.g. num_envs={fits[-1]}")
+
+    @property
+    def env_steps_per_training_step(self) -> int:
+        return self.batch_size * self.num_minibatches * self.unroll_length
+
+    @property
+    def unrolls_per_training_step(self) -> int:
+        """Unrolls of all `num_envs` envs in one training step."""
+        return self.batch_size * self.num_minibatches // self.num_envs
+
+    @property
+    def num_chunks(self) -> int:
+        """Training chunks, each ended by an evaluation: Brax's evaluations after training steps."""
+        return self.num_evals - 1
+
+    @property
+    def training_steps_per_chunk(self) -> int:
+        """Brax's `num_training_steps_per_epoch`: num_timesteps split over the chunks, rounded up."""
+        return -(-self.num_timesteps // (self.num_chunks * self.env_steps_per_training_step))
+
+    @property
+    def eval_every(self) -> int:
+        """Env steps per seed in one chunk: the training steps between two evaluations."""
+        return self.training_steps_per_chunk * self.env_steps_per_training_step
+
+    @property
+    def total_steps(self) -> int:
+        """Env steps per seed of the whole run: num_timesteps rounded up to whole training steps per chunk."""
+        return self.num_chunks * self.eval_every
+
+    @property
+    def eval_episodes(self) -> int:
+        return self.num_eval_envs
+
+    def rounding(self) -> str:
+        """How `num_timesteps` became `total_steps` ("" when it needed no rounding)."""
+        if self.total_steps == self.num_timesteps:
+            return ""
+        return (f"num_timesteps {self.num_timesteps:,} rounded up to {self.total_steps:,} env steps: "
+                f"{self.num_chunks} chunks of {self.training_steps_per_chunk} training steps of "
+                f"{self.env_steps_per_training_step:,} env steps (batch_size {self.batch_size} x num_minibatches "
+                f"{self.num_minibatches} x unroll_length {self.unroll_length})")
+
+
+# ---- hyperparameters that may be traced: what a sweep may vary within one program ----
+# Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a
+# Python branch), in operations whose float32 result is the same for a Python float and a
+# traced float32 (a product, a negation): so a swept agent computes what a separate run of its
+# config computes. clipping_epsilon is left out: Brax's loss computes 1 - clipping_epsilon,
+# which rounds differently in Python's double precision than in float32.
+SWEEPABLE = ("learning_rate", "entropy_cost", "discounting", "gae_lambda", "reward_scaling")
+
+
+class Hyperparams(NamedTuple):
+    """The numbers `PPO` reads from `SWEEPABLE` fields: Python floats for one config, or per-agent
+    float32 arrays in a sweep (`TrainState.hyperparams`)."""
+
+    neg_learning_rate: Any  # optax.adam's last step, scale(-learning_rate)
+    entropy_cost: Any
+    discounting: Any
+    gae_lambda: Any
+    reward_scaling: Any
+
+    @classmethod
+    def of(cls, config: PPOConfig) -> "Hyperparams":
+        return cls(neg_learning_rate=-config.learning_rate, entropy_cost=config.entropy_cost,
+                   discounting=config.discounting, gae_lambda=config.gae_lambda,
+                   reward_scaling=config.reward_scaling)
+
+    @classmethod
+    def stacked(cls, configs: list[PPOConfig]) -> "Hyperparams":
+        """One float32 array per field, one entry per config: a sweep's traced values."""
+        rows = [cls.of(c) for c in configs]
+        return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
+
+
+@struct.dataclass
+class TrainState:
+    """The whole state of one seed: saving this pytree and loading it back resumes exactly."""
+
+    params: Any  # (normalizer state, policy params, value params): the tuple Brax's ppo.train returns
+    opt_state: Any  # Adam's, over PPONetworkParams(policy, value)
+    env_state: Any  # the `num_envs` training envs, mid-episode
+    key: jax.Array
+    env_steps: jax.Array  # int32, env steps taken so far (all envs)
+    best_params: Any  # the params with the best deterministic evaluation so far
+    best_return: jax.Array
+    solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+    hyperparams: Hyperparams | None = None  # a sweep's per-agent values; None: the config's constants
+
+
+# Env info entries an unroll keeps beside Brax's `truncation`: the episode statistics a chunk
+# reports (`envs.EpisodeStats`) and the physics faults (`info["nan"]`, MJX's `info["overflow"]`).
+STAT_FIELDS = ("episode_done", "last_return", "nan")
+
+
+class PPO:
+    """The pieces of a PPO run for one env and config; all methods are pure."""
+
+    def __init__(self, config: PPOConfig, env: Env, platform: str | None = None, agents: int = 1):
+        """`env`: one env with its time limit (`envs.make`); `platform` and `agents` as in
+        `agents.dqn.DQN` (no program shape depends on them yet)."""
+        if env.action_size is None:
+            raise ValueError(f"PPO acts with a tanh-Gaussian policy and needs a continuous-action env; "
+                             f"{env!r} has {env.num_actions} discrete actions (train it with DQN)")
+        self.config = config
+        self.env = env
+        self.platform, self.agents = platform, agents
+        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
+        preprocess = running_statistics.normalize if config.normalize_observations else (lambda obs, _: obs)
+        # Brax's networks as `agents.brax_agents.network_factory` makes them: a checkpoint's
+        # params load with `brax_agents.params_template` and act with its `deterministic_policy`.
+        self.networks = ppo_networks.make_ppo_networks(
+            env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
+            policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
+        self.make_policy = ppo_networks.make_inference_fn(self.networks)
+        # Adam's direction only; the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
+        # would, so a sweep can trace the learning rate.
+        clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm is not None else []
+        self.optimizer = optax.chain(*clip, optax.scale_by_adam())
+        self.hyper = Hyperparams.of(config)
+
+    def with_hyperparams(self, hyper: Hyperparams | None) -> "PPO":
+        """This PPO reading `hyper` (a sweep agent's traced values) instead of its config's."""
+        if hyper is None or hyper is self.hyper:
+            return self
+        bound = copy.copy(self)
+        bound.hyper = hyper
+        return bound
+
+    # ---- acting -------------------------------------------------------------
+    def policy(self, params, obs) -> jax.Array:
+        """The deterministic action in [-1, 1] (tanh of the Gaussian's mean), as Brax's
+        `deterministic_eval` acts; one observation or a batch."""
+        return self.make_policy(params, deterministic=True)(obs, None)[0]
+
+    def collect(self, ts: TrainState, key: jax.Array):
+        """One training step's data: `unrolls_per_training_step` unrolls of `unroll_length` steps
+        of every env with the stochastic policy, as Brax's training step collects them.
+        Returns the envs' new state and the transitions, leading axes (unrolls * num_envs, unroll_length)."""
+        cfg = self.config
+        policy = self.make_policy(ts.params)
+        fields = ("truncation", *STAT_FIELDS) + (("overflow",) if "overflow" in ts.env_state.info else ())
+
+        def unroll(carry, _):
+            env_state, key = carry
+            key, next_key = jax.random.split(key)
+            env_state, data = acting.generate_unroll(self.train_env, env_state, policy, key, cfg.unroll_length,
+                                                     extra_fields=fields)
+            return (env_state, next_key), data
+
+        (env_state, _), data = jax.lax.scan(unroll, (ts.env_state, key), None, length=cfg.unrolls_per_training_step)
+        # (unrolls, time, envs) -> (unrolls * envs, time): one row per unroll of one env, as in Brax.
+        data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
+        data = jax.tree.map(lambda x: jnp.reshape(x, (-1,) + x.shape[2:]), data)
+        return env_state, data
+
+    def without_faults(self, data):
+        """The transitions for the learner, and the episode statistics taken out of them.
+
+        A step whose physics failed (non-finite, or under MuJoCo Warp a full contact or
+        constraint buffer) ended its episode with reward 0; it must not teach the value that
+        such a state is terminal. Marked as a truncation, Brax's GAE gives it no advantage and
+        no value target, and bootstraps the step before it from its (finite) observation."""
+        extras = dict(data.extras["state_extras"])
+        overflow = extras.pop("overflow", jnp.zeros_like(extras["nan"]))
+        fault = (extras["nan"] > 0) | (overflow > 0)
+        stats = {
+            "episodes": extras["episode_done"].sum(),
+            "return_sum": (extras["last_return"] * extras["episode_done"]).sum(),
+            "nan_episodes": extras["nan"].sum(),
+            "overflow_contacts": (overflow % 2 == 1).sum(),
+            "overflow_constraints": (overflow >= 2).sum(),
+        }
+        truncation = jnp.where(fault, 1.0, extras["truncation"]).astype(extras["truncation"].dtype)
+        data = data._replace(extras={**data.extras, "state_extras": {"truncation": truncation}})
+        return data, stats
+
+    # ---- learning -----------------------------------------------------------
+    def loss_and_grad(self, nets, normalizer, minibatch, key):
+        """Brax's PPO loss (`compute_ppo_loss`, value coefficient 0.5, normalized advantages)
+        and its gradient with respect to `nets` (PPONetworkParams)."""
+        loss = functools.partial(
+            ppo_losses.compute_ppo_loss, ppo_network=self.networks, entropy_cost=self.hyper.entropy_cost,
+            discounting=self.hyper.discounting, reward_scaling=self.hyper.reward_scaling,
+            gae_lambda=self.hyper.gae_lambda, clipping_epsilon=self.config.clipping_epsilon)
+        return gradients.loss_and_pgrad(loss, pmap_axis_name=None, has_aux=True)(nets, normalizer, minibatch, key)
+
+    def minibatch_step(self, carry, minibatch, normalizer):
+        opt_state, nets, key = carry
+        key, key_loss = jax.random.split(key)
+        (_, metrics), grads = self.loss_and_grad(nets, normalizer, minibatch, key_loss)
+        direction, opt_state = self.optimizer.update(grads, opt_state)
+        nets = optax.apply_updates(nets, jax.tree.map(lambda d: self.hyper.neg_learning_rate * d, direction))
+        return (opt_state, nets, key), metrics
+
+    def sgd_step(self, carry, _, data, normalizer):
+        """One pass over the batch in `num_minibatches` shuffled minibatches."""
+        opt_state, nets, key = carry
+        key, key_perm, key_grad = jax.random.split(key, 3)
+        minibatches = jax.tree.map(
+            lambda x: jnp.reshape(jax.random.permutation(key_perm, x), (self.config.num_minibatches, -1) + x.shape[1:]),
+            data)
+        (opt_state, nets, _), metrics = jax.lax.scan(
+            functools.partial(self.minibatch_step, normalizer=normalizer), (opt_state, nets, key_grad), minibatches)
+        return (opt_state, nets, key), metrics
+
+    def training_step(self, ts: TrainState) -> tuple[TrainState, dict]:
+        """Brax's training step: collect, update the normalizer with the new observations, then
+        `num_updates_per_batch` passes of minibatch SGD. Its keys are split as Brax splits
+        them, so from the same state it gives Brax's parameters."""
+        cfg = self.config
+        key_sgd, key_unroll, key = jax.random.split(ts.key, 3)
+        env_state, data = self.collect(ts, key_unroll)
+        data, stats = self.without_faults(data)
+        normalizer, policy, value = ts.params
+        normalizer = running_statistics.update(normalizer, data.observation)  # before SGD, as Brax does
+        nets = ppo_losses.PPONetworkParams(policy=policy, value=value)
+        (opt_state, nets, _), metrics = jax.lax.scan(
+            functools.partial(self.sgd_step, data=data, normalizer=normalizer), (ts.opt_state, nets, key_sgd),
+            None, length=cfg.num_updates_per_batch)
+        ts = ts.replace(params=(normalizer, nets.policy, nets.value), opt_state=opt_state, env_state=env_state,
+                        key=key, env_steps=ts.env_steps + cfg.env_steps_per_training_step)
+        losses = {name: jnp.mean(metrics[name]) for name in ("total_loss", "policy_loss", "v_loss", "entropy_loss")}
+        return ts, {**stats, **losses}
+
+    # ---- evaluation -----------------------------------------------------------
+    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
+        """Deterministic-policy return of each of `num_episodes` fresh episodes (the config's
+        `num_eval_envs` when not given). With `record`, also the first episode step by step
+        as an `agents.dqn.EvalEpisode` (rows past its `length` are padding)."""
+        env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
+        horizon = getattr(self.env, "episode_length", 1000)
+        scene_qpos = getattr(self.env, "scene_qpos", None)
+
+        def running(carry):
+            return ~carry[2].all()
+
+        def step(carry):
+            state, returns, finished, episode = carry
+            action = self.policy(params, state.obs)
+            next_state = env.step(state, action)
+            if record:
+                t = episode.length
+                first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+                episode = EvalEpisode(
+                    obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
+                    action=episode.action.at[t].set(action[0], mode="drop"),
+                    reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
+                    scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
+                    length=t + (~finished[0]).astype(jnp.int32),
+                )
+            returns = returns + next_state.reward * ~finished
+            return next_state, returns, finished | (next_state.done > 0), episode
+
+        state = env.reset(key)
+        zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
+        episode = None
+        if record:
+            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+            episode = EvalEpisode(
+                obs=jnp.zeros((horizon, self.env.observation_size), state.obs.dtype),
+                action=jnp.zeros((horizon, self.env.action_size), state.obs.dtype),
+                reward=jnp.zeros((horizon,), state.reward.dtype),
+                scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
+                length=jnp.zeros((), jnp.int32),
+            )
+        _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
+        return (returns, episode) if record else returns
+
+    # ---- a training run ---------------------------------------------------------
+    def init_params(self, policy_key: jax.Array, value_key: jax.Array):
+        """Fresh (normalizer, policy, value) params, initialised as Brax's ppo.train does."""
+        obs_spec = specs.Array((self.env.observation_size,), jnp.dtype("float32"))
+        return (running_statistics.init_state(obs_spec), self.networks.policy_network.init(policy_key),
+                self.networks.value_network.init(value_key))
+
+    def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
+        """Fresh parameters, optimizer and envs; `hyperparams`: a sweep agent's own values."""
+        param_key, env_key, loop_key = jax.random.split(key, 3)
+        params = self.init_params(*jax.random.split(param_key))
+        return TrainState(
+            params=params,
+            opt_state=self.optimizer.init(ppo_losses.PPONetworkParams(policy=params[1], value=params[2])),
+            env_state=self.train_env.reset(env_key),
+            key=loop_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            best_params=params,
+            best_return=jnp.full((), -jnp.inf, jnp.float32),
+            solve_step=jnp.full((), -1, jnp.int32),
+            hyperparams=hyperparams,
+        )
+
+    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
+        """`eval_every` env steps of collecting and learning (`train_steps`), then a deterministic
+        evaluation (`judge`)."""
+        ts, trained, eval_key = self.train_steps(ts)
+        ts, judged = self.judge(ts, eval_key, record)
+        return ts, {**judged, **trained}
+
+    def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
+        """A chunk's `training_steps_per_chunk` training steps: the train state, its training
+        metrics (scalars) and the key of the evaluation that follows."""
+        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
+            return self.with_hyperparams(ts.hyperparams).train_steps(ts)
+        key, steps_key, eval_key = jax.random.split(ts.key, 3)
+        ts, stats = jax.lax.scan(lambda ts, _: self.training_step(ts), ts.replace(key=steps_key), None,
+                                 length=self.config.training_steps_per_chunk)
+        ts = ts.replace(key=key)
+        totals = jax.tree.map(jnp.sum, stats)
+        episodes = totals["episodes"]
+        metrics = {
+            "loss": stats["total_loss"].mean(),
+            "policy_loss": stats["policy_loss"].mean(),
+            "v_loss": stats["v_loss"].mean(),
+            "entropy_loss": stats["entropy_loss"].mean(),
+            "episodes": episodes,
+            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
+            "nan_episodes": totals["nan_episodes"],
+            # env-steps whose physics MuJoCo Warp could not hold (ended, never learned from; see agents.run)
+            "overflow_contacts": totals["overflow_contacts"].astype(jnp.int32),
+            "overflow_constraints": totals["overflow_constraints"].astype(jnp.int32),
+        }
+        return ts, metrics, eval_key
+
+    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
+        """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
+        if record:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
+        else:
+            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
+        eval_return = eval_returns.mean()
+        better = eval_return > ts.best_return
+        solve_return = self.config.solve_return
+        solved_now = (ts.solve_step < 0) & (False if solve_return is None else eval_return >= solve_return)
+        ts = ts.replace(
+            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
+            best_return=jnp.maximum(eval_return, ts.best_return),
+            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
+        )
+        metrics = {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
+                   "eval_episode": eval_episode}  # the episode is for loggers, not a scalar metric
+        return ts, metrics
+
+
+def train(config: PPOConfig, env: Env, key: jax.Array):
+    """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.
+
+    `metrics` holds one entry per evaluation (leading axis: chunk) plus `solve_step` (-1 if
+    never solved) and `final_params`."""
+    ppo = PPO(config, env)
+    ts = ppo.init(key)
+    ts, metrics = jax.lax.scan(lambda ts, _: ppo.chunk(ts, record=False), ts, None, config.num_chunks)
+    metrics.pop("eval_episode")
+    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}
