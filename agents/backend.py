@@ -154,3 +154,40 @@ def training_compiler_options(platform: str | None = None) -> dict:
         return {}
     return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS,
             "xla_gpu_command_buffer_scheduling_mode": GPU_COMMAND_BUFFER_SCHEDULING}
+
+
+# ---- determinism ------------------------------------------------------------------------------
+# XLA's GPU reductions (scatter-adds, some fusions) may add in a different order from run to run;
+# this flag makes them deterministic, at a cost docs/reliability.md gives. XLA:CPU is deterministic.
+DETERMINISTIC_XLA_FLAG = "--xla_gpu_deterministic_ops=true"
+
+
+def make_deterministic() -> list[str]:
+    """Ask for bit-for-bit repeatable programs (`mjxsuite train --deterministic`): XLA's
+    deterministic GPU ops, and Warp's run-to-run deterministic atomics where this warp-lang has
+    them (MuJoCo Warp's stepping stays non-deterministic otherwise: docs/reliability.md). Must
+    run before JAX starts its backends and before mujoco.mjx loads Warp. Returns what it set."""
+    import os
+    import sys
+
+    from jax._src import xla_bridge
+
+    if xla_bridge.backends_are_initialized():
+        raise RuntimeError("make_deterministic() must run before JAX starts its backends (before the first "
+                           "JAX computation); call it first, or set XLA_FLAGS=" + DETERMINISTIC_XLA_FLAG)
+    applied = []
+    flags = os.environ.get("XLA_FLAGS", "")
+    if DETERMINISTIC_XLA_FLAG.split("=")[0] not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_XLA_FLAG}".strip()
+    applied.append(DETERMINISTIC_XLA_FLAG)
+    if "mujoco.mjx" in sys.modules and "warp" in sys.modules:
+        raise RuntimeError("make_deterministic() must run before mujoco.mjx is imported (it loads Warp)")
+    try:
+        import warp
+    except ImportError:
+        return applied
+    mode = getattr(getattr(warp, "DeterministicMode", None), "RUN_TO_RUN", None)
+    if mode is not None:
+        warp.config.deterministic = mode
+        applied.append("warp.config.deterministic = RUN_TO_RUN")
+    return applied

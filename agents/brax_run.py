@@ -40,9 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import brax_agents, checkpoint, driver
+from agents import brax_agents, checkpoint, driver, signals
 from agents.brax_agents import PPOConfig, SACConfig
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from agents.rollouts import checked_observations
 
 # Whether Brax's SAC restores a checkpoint (see the module docstring): not in brax 0.14.2.
 SAC_RESTORES = False
@@ -67,7 +68,11 @@ class BraxRunResult:
     solve_wall_s: list[float | None] = dataclasses.field(default_factory=lambda: [None])
     wall_s: float = 0.0
     compile_s: float = 0.0  # seconds to Brax's first evaluation (compiling its programs)
-    interrupted: bool = False
+    interrupted: bool = False  # SIGINT or SIGTERM (see agents.signals)
+    stop_signal: str | None = None
+    saved_chunks: int | None = None  # evaluations the run directory's checkpoint holds (None: no directory)
+    total_chunks: int = 0  # evaluations of the whole run
+    chunk_unit: str = "evaluations"
     devices: int = 1
     eval_episodes: int = 0
 
@@ -98,6 +103,7 @@ def train_brax(
     checkpoint_every: int = CHECKPOINT_EVERY,  # evaluations between checkpoints in `out_dir`...
     checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds (see driver.SaveClock)
     stop_after_evals: int | None = None,  # end after this many evaluations of this call (tests)
+    overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
 ) -> BraxRunResult:
     """Train Brax's PPO or SAC (as `config`'s type says) on `env_name`; the files written to
     `out_dir` are DQN's (docs/training.md). With `resume`, continue the run in `out_dir`
@@ -106,7 +112,7 @@ def train_brax(
     agent = agent_name(config)
     clock = driver.SaveClock(checkpoint_every, checkpoint_seconds)
     run = checkpoint.SavedRun(env_name, 1, config, env_options or {}, seed, None, agent)
-    out = driver.open_run_dir(out_dir, run, resume)
+    out = driver.open_run_dir(out_dir, run, resume, overwrite=overwrite)
     env = envs.make(env_name, **(env_options or {}))
     check_continuous(env, env_name, agent)
     template = params_template(config, env)
@@ -171,17 +177,22 @@ def train_brax(
             clock.saved(evals_done, save_start)
         if stop_after_evals is not None and len(result.history) >= stop_after_evals:
             raise _Stop
+        if stop.requested is not None:  # Brax calls progress_fn from its Python loop: raising here is safe
+            result.interrupted = True
+            raise _Stop
 
     finished = epochs_left <= 0
+    result.total_chunks = config.num_evals
+    stop = signals.StopSignals()
     try:
-        if not finished:
-            _call_brax(config, env, seed, out, state if restarting else None, epochs_left, progress_fn, evaluated)
-            finished = True
+        with stop:  # SIGINT/SIGTERM: stop at Brax's next evaluation, save, return
+            if not finished:
+                _call_brax(config, env, seed, out, state if restarting else None, epochs_left, progress_fn, evaluated)
+                finished = True
     except _Stop:
         pass
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
         result.interrupted = True
-        bar.write("interrupted: saving a checkpoint")
     finally:
         bar.close()
         if out is not None:
@@ -189,6 +200,10 @@ def train_brax(
     # Not after other errors: the last periodic checkpoint stands.
     if out is not None and state.params is not None and clock.last != evals_done:
         checkpoint.save_state(out, env_name, state, evals_done)
+        clock.last = evals_done
+    result.saved_chunks = clock.last if out is not None else None
+    result.interrupted = result.interrupted or stop.requested is not None
+    result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
     if not finished or result.interrupted:
         return result
 
@@ -314,10 +329,10 @@ def first_episode_returns(rollout) -> np.ndarray:
 
 
 # ---- loading a saved run -----------------------------------------------------------------
-def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, PPOConfig | SACConfig, Any]:
-    """`(env_name, env, config, best_params)` of a PPO/SAC run directory."""
+def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, PPOConfig | SACConfig, Any]:
+    """`(env_name, env, config, best_params)` of a PPO/SAC run directory (`env`: as `agents.run.load_agent`)."""
     saved = checkpoint.load_config(out_dir)
-    env = envs.make(saved.env, **saved.env_options)
+    env = env or checkpoint.saved_env(out_dir)[1]
     params = checkpoint.load_best_params(out_dir, params_template(saved.config, env))
     return saved.env, env, saved.config, params
 
@@ -344,9 +359,7 @@ def load_policy(out_dir: str | Path) -> Callable[[np.ndarray], np.ndarray]:
     mapped = jax.jit(lambda obs: to_action_space(act(params, obs, key), low, high))
 
     def policy(obs):
-        obs = np.asarray(obs, np.float32)
-        if obs.shape[-1:] != (env.observation_size,):
-            raise ValueError(f"{env_name} observations have size {env.observation_size}; got shape {obs.shape}")
+        obs = checked_observations(obs, env_name, env.observation_size)
         return np.asarray(mapped(obs), np.float32)
 
     return policy

@@ -118,6 +118,53 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
                               f"({type(err).__name__}: {err}); restore it or start a new run") from err
 
 
+def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[str, Any, dict]:
+    """`(env_name, env, env_options)` of a run directory, on this machine: the saved env options
+    with those `given` on top (eval's and rollout's --impl, --env-opt, --randomize).
+
+    A run trained with impl="warp" on a GPU is usable anywhere: where MuJoCo Warp cannot run,
+    its physics falls back to impl="jax" (MuJoCo Warp's buffer sizes dropped) with a one-line
+    note. A policy needs no physics to act, and the Gymnasium tasks are proven equal under both."""
+    import sys
+
+    import envs
+    from envs.mjx_options import BUFFER_OPTIONS, WarpUnavailable
+
+    from agents.env_options import merged
+
+    saved = load_config(out_dir)
+    def without_warp_buffers(options: dict) -> dict:  # MuJoCo Warp's sizes mean nothing to impl="jax"
+        return {k: v for k, v in options.items() if k not in BUFFER_OPTIONS}
+
+    options = merged(saved.env_options, given or {})
+    if options.get("impl") != "warp":  # e.g. a warp run judged with --impl jax
+        options = without_warp_buffers(options)
+    try:
+        return saved.env, envs.make(saved.env, **options), options
+    except WarpUnavailable:
+        if options.get("impl") != "warp" or (given or {}).get("impl") == "warp":
+            raise
+    options = {**without_warp_buffers(options), "impl": "jax"}
+    print(f"note: {out_dir} was trained with impl='warp', which this machine cannot run (no CUDA GPU or no "
+          "warp-lang); its physics runs with impl='jax' here", file=sys.stderr)
+    return saved.env, envs.make(saved.env, **options), options
+
+
+def describe(out_dir: Path) -> str:
+    """A run directory's run in a few words, for messages: "dqn on cartpole, 3 of 50 chunks saved"."""
+    try:
+        saved = load_config(out_dir)
+    except (CheckpointError, FileNotFoundError):
+        return "an unreadable config.json"
+    progress = Path(out_dir) / PROGRESS_FILE
+    try:
+        done = json.loads(progress.read_text()).get("chunks_done", 0) if progress.is_file() else 0
+    except (ValueError, OSError):
+        done = "?"
+    finished = " finished," if (Path(out_dir) / "eval.json").is_file() else ""
+    return f"{saved.agent} on {saved.env},{finished} {done} chunks or evaluations saved"
+
+
 def config_from_record(config_class: type, fields: dict) -> Any:
     """A config dataclass from its JSON record (JSON's lists back to the tuples of layer widths)."""
     tuples = {f.name for f in dataclasses.fields(config_class) if "tuple" in str(f.type)}

@@ -7,7 +7,8 @@ train, eval and rollout use JAX's persistent compilation cache (see
 
 Exit status: 0 done, 2 a command that cannot run as given (bad option or value, unknown
 env, unusable --out, nothing or something else to --resume), 1 a failure while running
-(a damaged checkpoint, a full disk), 130 stopped by Ctrl-C (a checkpoint is saved).
+(a damaged checkpoint, a full disk), 130 stopped by Ctrl-C (SIGINT), 143 stopped by SIGTERM. A stopped
+run saves its checkpoint first (it says what it saved); a second signal exits at once without saving.
 """
 
 from __future__ import annotations
@@ -194,7 +195,7 @@ def _train_brax(args, config, **kwargs):
     from agents.brax_run import agent_name, train_brax
 
     kwargs.update(seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
-                  checkpoint_seconds=args.checkpoint_seconds)
+                  checkpoint_seconds=args.checkpoint_seconds, overwrite=args.overwrite)
     if agent_name(config) == "sac" and not args.out:
         default = "" if args.agent else f" ({args.env}'s default agent)"
         raise UsageError(f"--agent sac{default} needs --out: SAC's parameters reach mjxsuite through Brax's "
@@ -214,8 +215,7 @@ def _train_brax(args, config, **kwargs):
 
 def _report_brax(args, config, result) -> int:
     if result.interrupted:
-        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
-        return 130
+        return _report_stop(args, result)
     solve = result.solve_step[0]
     reached = "" if config.solve_return is None else (
         f"; Brax's evaluation first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
@@ -256,7 +256,7 @@ def _train(args, config: DQNConfig, **kwargs):
     from agents.run import train_run
 
     kwargs.update(seeds=args.seeds, seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
-                  checkpoint_seconds=args.checkpoint_seconds, devices=args.devices)
+                  checkpoint_seconds=args.checkpoint_seconds, devices=args.devices, overwrite=args.overwrite)
     if not args.rerun:
         return train_run(args.env, config, **kwargs)
     from agents import sharding
@@ -281,17 +281,38 @@ def _train(args, config: DQNConfig, **kwargs):
 def _report(args, config: DQNConfig, result) -> int:
     from agents import sharding
 
-    if not sharding.is_writer():  # process 0 reports for every host
-        return 130 if result.interrupted else 0
     if result.interrupted:
-        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
-        return 130
+        return _report_stop(args, result)
+    if not sharding.is_writer():  # process 0 reports for every host
+        return 0
     _report_devices(result)
     for i, (ret, solve) in enumerate(zip(result.mean_return, result.solve_step)):
         print(f"seed {i}: greedy mean return {ret:.1f} over {config.eval_episodes} episodes; "
               f"first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
     print(wall_line(result) + (f"; wrote {args.out}" if args.out else ""))
     return 0
+
+
+def _report_stop(args, result, command: str = "train") -> int:
+    """What a run stopped by a signal says (only what was saved), and its exit status: 130 after
+    SIGINT, 143 after SIGTERM."""
+    import signal
+
+    from agents import sharding
+    from agents.signals import exit_status
+
+    name = result.stop_signal or "SIGINT"
+    if sharding.is_writer():
+        resume = f"`mjxsuite {command} --out {args.out} --resume`"
+        if not args.out:
+            print(f"stopped by {name}; nothing saved (no --out)")
+        elif result.saved_chunks:
+            print(f"stopped by {name}; checkpoint saved in {args.out} ({result.saved_chunks} of "
+                  f"{result.total_chunks} {result.chunk_unit} done); continue with {resume}")
+        else:
+            print(f"stopped by {name} before the first checkpoint: nothing trained is saved in {args.out}; "
+                  f"{resume} starts the run from the beginning")
+    return exit_status(getattr(signal, name))
 
 
 def process_age_s() -> float | None:
@@ -352,11 +373,10 @@ def cmd_sweep(args, extra: list[str]) -> int:
         result = _train(args, config, sweep=grid)
     from agents import sharding
 
-    if not sharding.is_writer():
-        return 130 if result.interrupted else 0
     if result.interrupted:
-        print(f"stopped early; checkpoint saved in {args.out}" if args.out else "stopped early")
-        return 130
+        return _report_stop(args, result, "sweep")
+    if not sharding.is_writer():
+        return 0
     summary = sweeps.summarize(args.env, config, grid, args.seeds, result)
     print(sweeps.markdown_table(summary))
     _report_devices(result)
@@ -401,13 +421,12 @@ def cmd_eval(args, extra: list[str]) -> int:
 
     if extra:
         raise UsageError(f"eval: unexpected arguments {extra}")
-    if checkpoint.load_config(args.checkpoint).agent != "dqn":
-        return _eval_brax(args)
-    env_name, _, dqn, params = load_agent(args.checkpoint)
-    options = checkpoint.load_config(args.checkpoint).env_options
-    if env_options.given(args):  # judge the policy on other env options, e.g. across --randomize ranges
-        options = env_options.merged(options, env_options.from_args(env_name, args))
-        dqn = type(dqn)(dqn.config, envs.make(env_name, **options))
+    # Given env options judge the policy on other ones, e.g. across --randomize ranges, or --impl jax.
+    saved = checkpoint.load_config(args.checkpoint)
+    env_name, env, options = checkpoint.saved_env(args.checkpoint, env_options.from_args(saved.env, args))
+    if saved.agent != "dqn":
+        return _eval_brax(args, env, options)
+    _, _, dqn, params = load_agent(args.checkpoint, env)
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
     evaluate = compile_cached(f"DQN.evaluate, {args.episodes} episodes",
@@ -422,20 +441,15 @@ def cmd_eval(args, extra: list[str]) -> int:
     return 0
 
 
-def _eval_brax(args) -> int:
-    """`mjxsuite eval` of a PPO/SAC run: its deterministic policy in our env, one episode per env."""
+def _eval_brax(args, env, options: dict) -> int:
+    """`mjxsuite eval` of a PPO/SAC run: its deterministic policy in `env`, one episode per env."""
     import jax
     import numpy as np
 
-    import envs
-    from agents import brax_agents, brax_run, checkpoint
+    from agents import brax_agents, brax_run
     from agents.rollouts import collect_rollout_cached
 
-    env_name, env, config, params = brax_run.load_agent(args.checkpoint)
-    options = checkpoint.load_config(args.checkpoint).env_options
-    if env_options.given(args):
-        options = {**options, **env_options.from_args(env_name, args)}
-        env = envs.make(env_name, **options)
+    env_name, env, config, params = brax_run.load_agent(args.checkpoint, env)
     policy = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)
     rollout = collect_rollout_cached(env, env_name, options, policy, {"deterministic": config}, jax.random.PRNGKey(args.seed),
                                      num_envs=args.episodes, steps=env.episode_length, params=params, scene_envs=0)
@@ -462,20 +476,21 @@ def cmd_rollout(args, extra: list[str]) -> int:
         from agents import checkpoint
         from agents.rollouts import load_greedy
 
-        trained_on, env, policy, params = load_greedy(args.checkpoint)
         saved = checkpoint.load_config(args.checkpoint)
-        config, options = saved.config, saved.env_options
-        env_name, policy_name = trained_on, {"greedy": config} if saved.agent == "dqn" else {"deterministic": config}
-        if args.env is not None and args.env != trained_on:
+        other_env = args.env is not None and args.env != saved.env
+        # The saved env, with the options given (e.g. --randomize ranges, --impl jax) on top.
+        trained_on, env, options = checkpoint.saved_env(args.checkpoint,
+                                                        None if other_env else env_options.from_args(saved.env, args))
+        _, env, policy, params = load_greedy(args.checkpoint, env=env)
+        policy_name = {"greedy": saved.config} if saved.agent == "dqn" else {"deterministic": saved.config}
+        env_name = trained_on
+        if other_env:
             other = envs.make(args.env, **env_options.from_args(args.env, args))
             spaces = lambda e: (e.observation_size, e.num_actions, e.action_size)  # noqa: E731
             if spaces(other) != spaces(env):
                 raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
                                  f"whose observations/actions do not match {args.env}'s")
             env, env_name, options = other, args.env, env_options.from_args(args.env, args)
-        elif env_options.given(args):  # the saved env with other options (e.g. --randomize ranges)
-            options = env_options.merged(options, env_options.from_args(env_name, args))
-            env = envs.make(env_name, **options)
     elif args.env is None:
         raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:
@@ -549,6 +564,9 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     spread = argparse.ArgumentParser(add_help=False)
     spread.add_argument("--devices", type=ranged(int, COUNT),
                         help="local devices to spread the agents over (default: all that split them evenly)")
+    spread.add_argument("--deterministic", action="store_true",
+                        help="bit-for-bit repeatable runs on a GPU: XLA's deterministic ops (also "
+                             "MJXSUITE_DETERMINISTIC=1); MuJoCo Warp is not deterministic (docs/reliability.md)")
     spread.add_argument("--distributed", action="store_true",
                         help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
                              "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
@@ -585,7 +603,9 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                        metavar="S", help=f"...and at least S seconds between them, or {SAVE_COST_FACTOR:g}x the last save's "
                             "duration if longer (default %(default)s; 0: no limit)")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
-    train.add_argument("--overwrite", action="store_true", help="replace an existing --rerun file")
+    train.add_argument("--overwrite", action="store_true",
+                       help="replace the run that --out holds (else refused: --resume continues it) "
+                            "and an existing --rerun file")
     train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",
                        help="chunks (PPO/SAC: evaluations) between logged evaluation rollouts (0: none)")
 
@@ -649,6 +669,10 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     from envs.mjx_options import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
 
     try:
+        if args.command in ("train", "sweep") and (args.deterministic or os.environ.get("MJXSUITE_DETERMINISTIC") == "1"):
+            from agents.backend import make_deterministic
+
+            make_deterministic()  # before any JAX computation and before mujoco.mjx loads Warp
         if args.command in ("train", "sweep", "eval", "rollout"):
             _use_compile_cache(args)
             import_tasks(args.imports)

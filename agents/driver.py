@@ -60,14 +60,19 @@ def check_overflow(env, contacts: int, constraints: int, out_of: int, unit: str,
     return True
 
 
-def open_run_dir(out_dir, run: checkpoint.SavedRun, resume: bool, writer: bool = True) -> Path | None:
+def open_run_dir(out_dir, run: checkpoint.SavedRun, resume: bool, writer: bool = True,
+                 overwrite: bool = False) -> Path | None:
     """The run directory, checked before anything compiles: writable (for the process that
-    writes), and with `resume` holding this very run (ValueError naming what differs)."""
+    writes); with `resume` holding this very run (ValueError naming what differs); without it,
+    holding no run unless `overwrite` allows replacing it."""
     out = None if out_dir is None else checkpoint.check_writable(out_dir) if writer else Path(out_dir)
     if resume:
         if out is None:
             raise ValueError("resume needs out_dir, the directory of the run to continue")
         checkpoint.check_resumable(out, run)
+    elif out is not None and not overwrite and (out / checkpoint.CONFIG_FILE).is_file():
+        raise ValueError(f"--out {out} holds a run already ({checkpoint.describe(out)}); continue it with --resume, "
+                         "replace it with --overwrite, or choose another --out")
     return out
 
 

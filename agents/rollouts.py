@@ -7,6 +7,7 @@ import os
 from typing import Any
 
 import jax
+import numpy as np
 
 import envs
 from agents import export_cache
@@ -19,11 +20,12 @@ def greedy_policy(dqn: DQN) -> rollouts.PolicyFn:
     return lambda params, obs, key: greedy(dqn.q_values(params, obs))[0]
 
 
-def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):
+def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None, env: envs.Env | None = None):
     """The env and jittable greedy policy saved by `mjxsuite train --out DIR`: `(env_name, env, policy, params)`.
 
     With several trained seeds it takes the one with the best greedy evaluation unless `seed_index` picks one.
     A PPO/SAC run's policy is the mode of Brax's policy, acting in [-1, 1] as our envs take it.
+    `env`: the saved env made here (`agents.checkpoint.saved_env`, the default) or one with other options.
     """
     from agents import checkpoint
     from agents.run import load_agent, pick_seed
@@ -31,11 +33,27 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None):
     if checkpoint.load_config(out_dir).agent != "dqn":
         from agents import brax_agents, brax_run
 
-        env_name, env, config, params = brax_run.load_agent(out_dir)
+        env_name, env, config, params = brax_run.load_agent(out_dir, env)
         return env_name, env, brax_agents.deterministic_policy(config, env.observation_size, env.action_size), params
 
-    env_name, env, dqn, params = load_agent(out_dir)
+    env_name, env, dqn, params = load_agent(out_dir, env)
     return env_name, env, greedy_policy(dqn), pick_seed(out_dir, params, seed_index)
+
+
+def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
+    """`obs` (one observation or a batch) as float32 numpy, refused with a clear error unless its
+    last axis has `size` values and every one is finite: a policy fed NaN answers NaN or an
+    arbitrary action without a word, which is how broken physics goes unnoticed."""
+    obs = np.asarray(obs, np.float32)
+    if obs.shape[-1:] != (size,):
+        raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
+    bad = ~np.isfinite(obs)
+    if bad.any():
+        where = np.argwhere(bad)[:3].tolist()
+        raise ValueError(f"the policy of {env_name} got a non-finite observation ({int(bad.sum())} NaN or inf "
+                         f"values, first at index {where}); check the env that produced it (NaN physics ends an "
+                         "episode in mjxsuite's own envs) before acting on it")
+    return obs
 
 
 def collect_rollout_cached(env: envs.Env, env_name: str, env_options: dict | None, policy_fn: rollouts.PolicyFn,

@@ -17,9 +17,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import checkpoint, driver, export_cache, sharding
+from agents import checkpoint, driver, export_cache, sharding, signals
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQN, DQNConfig, Hyperparams, greedy, sweep_configs
+from agents.rollouts import checked_observations
 from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
@@ -54,7 +55,12 @@ class RunResult:
         """Set wall_s to the time since `start`, and host_s to what the other parts leave of it."""
         self.wall_s = time.perf_counter() - start
         self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.save_s - self.eval_s)
-    interrupted: bool = False  # Ctrl-C; like `stop_after_chunks`, leaves params None and a checkpoint
+    interrupted: bool = False  # SIGINT or SIGTERM; like `stop_after_chunks`, leaves params None and a checkpoint
+    stop_signal: str | None = None  # "SIGINT" or "SIGTERM" when interrupted
+    chunks_done: int = 0  # chunks the train state has done at the end of this call
+    saved_chunks: int | None = None  # chunks the run directory's checkpoint holds (0: none; None: no directory)
+    total_chunks: int = 0  # chunks of the whole run
+    chunk_unit: str = "chunks"
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
 
 
@@ -156,6 +162,7 @@ def train_run(
     # last save's duration if longer (0: every checkpoint_every chunks)
     devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
     sweep: dict[str, list[float]] | None = None,  # a grid over `dqn.SWEEPABLE` fields: every config x `seeds`
+    overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
 ) -> RunResult:
     """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`.
 
@@ -167,179 +174,189 @@ def train_run(
     agent `c * seeds + s` is config c with seed s's key) are spread over `devices` devices
     (`agents.sharding`; in a multi-host run every device of every process). One device runs
     the same program as ever; several give every agent the same result."""
-    start = time.perf_counter()
-    COUNT.check("seeds", seeds)
-    clock = driver.SaveClock(checkpoint_every, checkpoint_seconds)
-    sweep = sweep or None
-    configs = sweep_configs(config, sweep)
-    agents = seeds * len(configs)
-    env = envs.make(env_name, **(env_options or {}))
-    mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
-    placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
-    writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
-    run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
-    out = driver.open_run_dir(out_dir, run, resume, writer)
-    dqn = DQN(config, env, agents=agents // placement.count)
-    init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
+    with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
+        start = time.perf_counter()
+        COUNT.check("seeds", seeds)
+        clock = driver.SaveClock(checkpoint_every, checkpoint_seconds)
+        sweep = sweep or None
+        configs = sweep_configs(config, sweep)
+        agents = seeds * len(configs)
+        env = envs.make(env_name, **(env_options or {}))
+        mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
+        placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
+        writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
+        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
+        out = driver.open_run_dir(out_dir, run, resume, writer, overwrite)
+        dqn = DQN(config, env, agents=agents // placement.count)
+        init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
 
-    def run_inputs():  # the init program's arguments and the final evaluation's keys
-        keys, eval_keys = run_keys(seed, seeds)
-        if sweep is None:
-            return (keys,), eval_keys
-        return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
+        def run_inputs():  # the init program's arguments and the final evaluation's keys
+            keys, eval_keys = run_keys(seed, seeds)
+            if sweep is None:
+                return (keys,), eval_keys
+            return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
 
-    inputs = None  # on one device the inputs are made on another thread while the programs compile
-    if placement.mesh is None:
-        # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
-        # a GPU the first allocation, where XLA reserves most of the device's memory: 1.3 s of
-        # a fresh H100 process, now spent while XLA compiles.
-        inputs = _aside(run_inputs, "inputs")
-        init_args, eval_keys = jax.eval_shape(run_inputs)
-    else:
-        init_args, eval_keys = placement.put(run_inputs())
-    chunks_done = 0
-    compile_start = time.perf_counter()
-    init_program = None  # a fresh run's init program, compiling on another thread (`_aside`)
-    if resume and (out / checkpoint.STATE_FILE).is_file():
-        ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
-        ts = placement.put(ts)  # saved from any number of devices, split over this run's
-        compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
-    else:  # a run killed before its first checkpoint resumes from the start, as it began
+        inputs = None  # on one device the inputs are made on another thread while the programs compile
         if placement.mesh is None:
-            traced = init.trace(*init_args)
-            init_program = _aside(traced.lower().compile, "init")
-            ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
+            # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
+            # a GPU the first allocation, where XLA reserves most of the device's memory: 1.3 s of
+            # a fresh H100 process, now spent while XLA compiles.
+            inputs = _aside(run_inputs, "inputs")
+            init_args, eval_keys = jax.eval_shape(run_inputs)
         else:
-            ts = init(*init_args)
+            init_args, eval_keys = placement.put(run_inputs())
+        chunks_done = 0
+        compile_start = time.perf_counter()
+        init_program = None  # a fresh run's init program, compiling on another thread (`_aside`)
+        if resume and (out / checkpoint.STATE_FILE).is_file():
+            ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
+            ts = placement.put(ts)  # saved from any number of devices, split over this run's
+            compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
+        else:  # a run killed before its first checkpoint resumes from the start, as it began
+            if placement.mesh is None:
+                traced = init.trace(*init_args)
+                init_program = _aside(traced.lower().compile, "init")
+                ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
+            else:
+                ts = init(*init_args)
+            if out is not None and writer:
+                checkpoint.start_run(out, run)
         if out is not None and writer:
-            checkpoint.start_run(out, run)
-    if out is not None and writer:
-        checkpoint.keep_metrics(out, chunks_done)
+            checkpoint.keep_metrics(out, chunks_done)
 
-    seed_axis = seed_axis or default_seed_axis()
-    # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
-    # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
-    record_episode = on_chunk is not None
-    per_device = agents // placement.count
-    judge = partial(dqn.judge, record=record_episode)
-    # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
-    # device: each holds a copy of the env's step, and together were one program that XLA compiled
-    # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
-    # are traced first and compile on another thread while this one traces the judge (cartpole-mjx
-    # on 2 CPU cores: traced on two threads at once, both compiles waited for both traces;
-    # docs/results.md). Several devices: one sharded program of both took 251.4 ms a chunk of
-    # 2 x 1,024 agents on two H100s, the two 245.8 ms (docs/scaling.md).
-    train_fn = seed_batched(dqn.train_steps, per_device, seed_axis)
-    judge_fn = seed_batched(judge, per_device, seed_axis)
-    if placement.mesh is None:
-        judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-        train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}", train_fn, (ts,),
-                                            dqn, agents, env_name, env_options, donate=True).compile, "train")
-        judge_program = lower_cached(judged, judge_fn, (ts, ts.key), dqn, agents,
-                                     env_name, env_options, donate=True).compile()
-    else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-        options = training_compiler_options()
-        train_program = _aside(partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile,
-                                       options), "train")
-        judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
-    train_program = train_program.result()
+        seed_axis = seed_axis or default_seed_axis()
+        # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
+        # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
+        record_episode = on_chunk is not None
+        per_device = agents // placement.count
+        judge = partial(dqn.judge, record=record_episode)
+        # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
+        # device: each holds a copy of the env's step, and together were one program that XLA compiled
+        # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
+        # are traced first and compile on another thread while this one traces the judge (cartpole-mjx
+        # on 2 CPU cores: traced on two threads at once, both compiles waited for both traces;
+        # docs/results.md). Several devices: one sharded program of both took 251.4 ms a chunk of
+        # 2 x 1,024 agents on two H100s, the two 245.8 ms (docs/scaling.md).
+        train_fn = seed_batched(dqn.train_steps, per_device, seed_axis)
+        judge_fn = seed_batched(judge, per_device, seed_axis)
+        if placement.mesh is None:
+            judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+            train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}", train_fn, (ts,),
+                                                dqn, agents, env_name, env_options, donate=True).compile, "train")
+            judge_program = lower_cached(judged, judge_fn, (ts, ts.key), dqn, agents,
+                                         env_name, env_options, donate=True).compile()
+        else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+            options = training_compiler_options()
+            train_program = _aside(partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile,
+                                           options), "train")
+            judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
+        train_program = train_program.result()
 
-    def chunk(ts):
-        ts, trained, eval_key = train_program(ts)
-        ts, judged = judge_program(ts, eval_key)
-        return ts, {**judged, **trained}
+        def chunk(ts):
+            ts, trained, eval_key = train_program(ts)
+            ts, judged = judge_program(ts, eval_key)
+            return ts, {**judged, **trained}
 
-    if inputs is not None:
-        init_args, eval_keys = inputs.result()
-    if init_program is not None:
-        ts = init_program.result()(*init_args)
-    compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
-    final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
-    if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
-        params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
-                                    ts.best_params)  # not the arrays: the first chunk consumes them
-        final_evaluation = _aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
-                                          (params_shape, eval_keys), dqn, agents, env_name, env_options),
-                                  "evaluation")
+        if inputs is not None:
+            init_args, eval_keys = inputs.result()
+        if init_program is not None:
+            ts = init_program.result()(*init_args)
+        compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
+        final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
+        if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
+            params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
+                                        ts.best_params)  # not the arrays: the first chunk consumes them
+            final_evaluation = _aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
+                                              (params_shape, eval_keys), dqn, agents, env_name, env_options),
+                                      "evaluation")
 
-    result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
-                       devices=placement.count, setup_s=compile_start - start)
-    bar = driver.progress_bar(config.num_chunks * config.eval_every, chunks_done * config.eval_every, env_name,
-                              enabled=progress and writer)
-    last = clock.last = chunks_done
-    solved_early = False
-    overflow_told = False
-    try:
-        for index in range(chunks_done, config.num_chunks):
-            if stop_after_chunks is not None and index >= stop_after_chunks:
-                break
-            tick = time.perf_counter()
-            ts, metrics = chunk(ts)
-            eval_episode = metrics.pop("eval_episode")
-            record = _host(placement.to_host(metrics))
-            if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
-                eval_episode = placement.to_host(eval_episode)
-            elapsed = time.perf_counter() - tick
-            result.train_s += elapsed
-            record["chunk"] = index
-            record["steps_per_s"] = config.eval_every * agents / elapsed
-            overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
-            result.history.append(record)
-            last = index + 1
-            now = time.perf_counter() - start
-            for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
-                if solve >= config.solve_return and result.solve_wall_s[i] is None:
-                    result.solve_wall_s[i] = now
-            if writer:
-                driver.append_metrics(out, record)
-            if on_chunk is not None:
-                on_chunk(index, ts, {**record, "eval_episode": eval_episode})
-            driver.show(bar, config.eval_every, record)
-            if stop_when_solved and None not in result.solve_wall_s:
-                solved_early = True
-                break
-            if placement.agree(out is not None and clock.due(last)):  # process 0's clock decides
-                save_start = time.perf_counter()
-                save(out, env_name, placement, ts, last)
-                clock.saved(last, save_start)
-                result.save_s += clock.save_s
-    except KeyboardInterrupt:
-        result.interrupted = True
-        bar.write("interrupted: saving a checkpoint")
-    finally:
-        bar.close()
-        result.train_state = ts
-    # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
-    # over it, and a failed chunk may have consumed its donated train state).
-    if out is not None and clock.last != last:
-        save_start = time.perf_counter()
-        save(out, env_name, placement, ts, last)
-        result.save_s += time.perf_counter() - save_start
-    if last < config.num_chunks and not solved_early:  # interrupted or stopped: checkpoint saved, no final eval
+        result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
+                           devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
+        bar = driver.progress_bar(config.num_chunks * config.eval_every, chunks_done * config.eval_every, env_name,
+                                  enabled=progress and writer)
+        last = clock.last = chunks_done
+        solved_early = False
+        overflow_told = False
+        try:
+            for index in range(chunks_done, config.num_chunks):
+                if stop_after_chunks is not None and index >= stop_after_chunks:
+                    break
+                if placement.agree(stop.requested is not None):  # a signal during compile, a chunk or a save
+                    result.interrupted = True
+                    break
+                tick = time.perf_counter()
+                ts, metrics = chunk(ts)
+                eval_episode = metrics.pop("eval_episode")
+                record = _host(placement.to_host(metrics))
+                if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
+                    eval_episode = placement.to_host(eval_episode)
+                elapsed = time.perf_counter() - tick
+                result.train_s += elapsed
+                record["chunk"] = index
+                record["steps_per_s"] = config.eval_every * agents / elapsed
+                overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
+                result.history.append(record)
+                last = index + 1
+                now = time.perf_counter() - start
+                for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
+                    if solve >= config.solve_return and result.solve_wall_s[i] is None:
+                        result.solve_wall_s[i] = now
+                if writer:
+                    driver.append_metrics(out, record)
+                if on_chunk is not None:
+                    on_chunk(index, ts, {**record, "eval_episode": eval_episode})
+                driver.show(bar, config.eval_every, record)
+                if stop_when_solved and None not in result.solve_wall_s:
+                    solved_early = True
+                    break
+                if placement.agree(out is not None and clock.due(last)):  # process 0's clock decides
+                    save_start = time.perf_counter()
+                    save(out, env_name, placement, ts, last)
+                    clock.saved(last, save_start)
+                    result.save_s += clock.save_s
+        except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
+            result.interrupted = True
+        finally:
+            bar.close()
+            result.train_state = ts
+        # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
+        # over it, and a failed chunk may have consumed its donated train state).
+        if out is not None and clock.last != last:
+            save_start = time.perf_counter()
+            save(out, env_name, placement, ts, last)
+            clock.saved(last, save_start)
+            result.save_s += time.perf_counter() - save_start
+        result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
+        # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
+        # short once it runs): the checkpoint holds every chunk, and --resume evaluates.
+        if placement.agree(stop.requested is not None):
+            result.interrupted = True
+        result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
+        if result.interrupted or (last < config.num_chunks and not solved_early):  # checkpoint saved, no final eval
+            result.finish(start)
+            return result
+
+        eval_start = time.perf_counter()
+        result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
+        solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
+        result.solve_step = [s if s >= 0 else None for s in solve]
+        if final_evaluation is not None:
+            evaluate = final_evaluation.result()
+        elif placement.mesh is None:
+            evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, agents,
+                                      env_name, env_options)
+        else:
+            evaluate = jax.jit(placement.spread(jax.vmap(dqn.evaluate)))
+        returns = evaluate(ts.best_params, eval_keys)
+        result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
+        result.eval_s = time.perf_counter() - eval_start
         result.finish(start)
+        if writer:
+            driver.write_eval(out, {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
+                                    "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
+                                    "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
+                                    "wall_parts_s": result.wall_parts()})
         return result
-
-    eval_start = time.perf_counter()
-    result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
-    solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
-    result.solve_step = [s if s >= 0 else None for s in solve]
-    if final_evaluation is not None:
-        evaluate = final_evaluation.result()
-    elif placement.mesh is None:
-        evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, agents,
-                                  env_name, env_options)
-    else:
-        evaluate = jax.jit(placement.spread(jax.vmap(dqn.evaluate)))
-    returns = evaluate(ts.best_params, eval_keys)
-    result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
-    result.eval_s = time.perf_counter() - eval_start
-    result.finish(start)
-    if writer:
-        driver.write_eval(out, {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
-                                "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-                                "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
-                                "wall_parts_s": result.wall_parts()})
-    return result
 
 
 def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
@@ -362,11 +379,12 @@ def save(out: Path, env_name: str, placement: sharding.Placement, ts: Any, chunk
         checkpoint.save_state(out, env_name, host, chunks_done)
 
 
-def load_agent(out_dir: str | Path) -> tuple[str, envs.Env, DQN, Any]:
+def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, DQN, Any]:
     """`(env_name, env, dqn, best_params)` from a `mjxsuite train --out` directory;
-    `best_params` has a leading seed axis."""
+    `best_params` has a leading seed axis. `env`: the saved env made here
+    (`checkpoint.saved_env`, the default), or one with other options."""
     saved = checkpoint.load_config(out_dir)
-    env = envs.make(saved.env, **saved.env_options)
+    env = env or checkpoint.saved_env(out_dir)[1]
     dqn = DQN(saved.config, env)
     agents = saved.seeds * len(sweep_configs(saved.config, saved.sweep))
     template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, agents)).best_params
@@ -400,9 +418,7 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     act = jax.jit(lambda obs: greedy(dqn.q_values(params, obs))[0])
 
     def policy(obs):
-        obs = np.asarray(obs, np.float32)
-        if obs.shape[-1:] != (env.observation_size,):
-            raise ValueError(f"{env_name} observations have size {env.observation_size}; got shape {obs.shape}")
+        obs = checked_observations(obs, env_name, env.observation_size)
         return np.asarray(act(obs)).astype(np.int64)
 
     return policy

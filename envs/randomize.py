@@ -69,6 +69,13 @@ SETCONST_INPUTS = frozenset({
     "body_pos", "body_quat", "body_ipos", "body_iquat", "body_mass", "body_inertia", "jnt_pos", "jnt_axis",
     "dof_armature", "actuator_gear",
 })
+# Fields MuJoCo needs positive (masses, inertias, sizes) or non-negative (friction, damping,
+# armature, stiffness): a range reaching outside would train on physics no model can have.
+POSITIVE_FIELDS = frozenset({"body_mass", "body_inertia", "geom_size"})
+NON_NEGATIVE_FIELDS = frozenset({
+    "geom_friction", "geom_margin", "geom_gap", "dof_damping", "dof_armature", "dof_frictionloss", "jnt_stiffness",
+    "tendon_damping", "tendon_stiffness", "tendon_frictionloss", "tendon_armature",
+})
 _NAME = re.compile(r"^(?P<field>\w+):(?P<element>[^\[\]]+)(\[(?P<column>\d+)\])?$")
 
 
@@ -148,6 +155,7 @@ def _parse_entry(task: MjxEnv, name: str, spec: Any) -> Variation:
     if match["column"] is not None and values.ndim == 1:
         raise ValueError(f"randomize: {name!r}: {field} has one value per element; drop the [{match['column']}]")
     scale, low, high = _parse_range(name, spec)
+    _check_domain(name, field, scale, low, high)
     if scale and match["column"] is None:
         column = None  # a scale multiplies the whole row
     elif scale:
@@ -172,6 +180,21 @@ def _parse_range(name: str, spec: Any) -> tuple[bool, float, float]:
         raise ValueError(f"randomize: {name!r}: expected (low, high), ('x', low, high) or a number with "
                          f"finite low <= high; got {spec!r}")
     return scale, low, high
+
+
+def _check_domain(name: str, field: str, scale: bool, low: float, high: float) -> None:
+    """Refuse a range that reaches values `field` cannot take (a scale: factors that would)."""
+    if field in POSITIVE_FIELDS:
+        valid, bad, what = "positive", low <= 0, "> 0"
+    elif field in NON_NEGATIVE_FIELDS:
+        valid, bad, what = "non-negative", low < 0, ">= 0"
+    else:
+        return
+    if bad:
+        values = f"scale factors x{low:g}:{high:g}" if scale else (f"{low:g}" if low == high else f"{low:g}:{high:g}")
+        example = f"{name}=x0.5:1.5" if field in POSITIVE_FIELDS else f"{name}=0:{max(high, 1.0):g}"
+        raise ValueError(f"randomize: {name!r}: {field} must be {valid}, and {values} reaches {low:g}; "
+                         f"keep the low end {what}, e.g. {example}")
 
 
 def _element_names(mj_model: mujoco.MjModel, kind: mujoco.mjtObj) -> list[str]:

@@ -304,3 +304,143 @@ def test_checkpoint_seconds_0_still_saves_every_checkpoint_every_chunks(tmp_path
     saves, hooks = _faked_saves(monkeypatch, save_s=100.0, chunk_s=1.0)
     train_run("cartpole", CONFIG, out_dir=tmp_path, progress=False, checkpoint_seconds=0, checkpoint_every=2, **hooks)
     assert saves == [2, 4, 6]
+
+
+# ---- signals (issue #42): SIGINT and SIGTERM stop a run cleanly, at any moment ---------------------
+def _progress(out) -> int:
+    try:
+        return json.loads((out / checkpoint.PROGRESS_FILE).read_text())["chunks_done"]
+    except (FileNotFoundError, ValueError):
+        return -1
+
+
+SIGNAL_MOMENTS = {  # the run's phases, told from its directory (renames slowed by SLOW_SAVES)
+    "during compile": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
+    "during training": lambda out: (out / checkpoint.METRICS_FILE).is_file()
+    and len((out / checkpoint.METRICS_FILE).read_text().splitlines()) >= 2,
+    "during a save": lambda out: any(out.glob("*.msgpack.tmp")),
+    "during the final evaluation": lambda out: _progress(out) == CONFIG.num_chunks,
+}
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("moment", SIGNAL_MOMENTS)
+def test_a_signal_stops_the_run_cleanly_and_resume_continues_it(tmp_path, reference, moment, signum):
+    """SIGINT or SIGTERM at any moment: the run saves what it has (and says only that), exits with
+    128 + the signal's number (or 0 if it had finished), and --resume ends it as the uninterrupted run."""
+    out = tmp_path / "run"
+    process = start_training(out)
+    try:
+        wait_for(lambda: SIGNAL_MOMENTS[moment](out), out, process)
+    finally:
+        process.send_signal(signum)
+        status = process.wait(timeout=60)
+    said = (out.parent / "stderr.txt").read_text()
+    assert "Traceback" not in said and "Error" not in said, said
+    if status == 0:  # the final evaluation was over before the signal landed
+        assert moment == "during the final evaluation" and (out / "eval.json").is_file()
+    else:
+        assert status == 128 + signum, said
+        assert not (out / "eval.json").exists()
+        saved = (out / checkpoint.STATE_FILE).is_file()
+        assert saved == (moment != "during compile")
+        if saved:
+            assert final_state(out)[1] == _progress(out) >= 1  # the stop saved the chunks done
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 0
+    assert_same_run(out, reference)
+
+
+def test_what_a_stopped_run_says_is_what_it_saved(tmp_path, capsys, monkeypatch):
+    """A signal before the first chunk: no checkpoint, and the CLI says so (not "saved")."""
+    from agents import signals
+
+    entered = signals.StopSignals.__enter__
+
+    def signalled_at_once(self):  # the signal arrives while the programs compile
+        entered(self)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return self
+
+    monkeypatch.setattr(signals.StopSignals, "__enter__", signalled_at_once)
+    assert cli_main(["train", "--env", "cartpole", "--out", str(tmp_path), *CONFIG_ARGS]) == 143
+    said = capsys.readouterr()
+    assert "stopped by SIGTERM before the first checkpoint: nothing trained is saved" in said.out
+    assert not (tmp_path / checkpoint.STATE_FILE).exists()
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handlers are put back
+
+
+def test_a_second_signal_exits_at_once(tmp_path):
+    code = ("import os, signal, time\nfrom agents.signals import StopSignals\nwith StopSignals() as stop:\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n    assert stop.requested == signal.SIGINT\n"
+            "    os.kill(os.getpid(), signal.SIGINT)\n    time.sleep(5)\nprint('not reached')\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 130 and "not reached" not in done.stdout
+    assert "SIGINT again: exiting now, without saving" in done.stderr
+
+
+def test_a_finished_run_is_not_replaced_without_overwrite(tmp_path, reference, capsys):
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), *CONFIG_ARGS]) == 2
+    assert "holds a run already (dqn on cartpole, finished," in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # nothing lost
+    with pytest.raises(ValueError, match="--overwrite"):
+        train_run("cartpole", CONFIG, out_dir=out, progress=False)
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--overwrite", *CONFIG_ARGS]) == 0
+
+
+@pytest.mark.parametrize("ranges,message", [
+    ("body_mass:pole=-1:2", "body_mass must be positive, and -1:2 reaches -1"),
+    ("body_mass:pole=0", "body_mass must be positive, and 0 reaches 0"),
+    ("body_mass:pole=x0:2", "body_mass must be positive, and scale factors x0:2 reaches 0"),
+    ("geom_friction:pole=-0.1:1", "geom_friction must be non-negative"),
+    ("dof_damping:slider=-0.5", "dof_damping must be non-negative"),
+])
+def test_randomisation_outside_a_fields_domain_is_refused(capsys, ranges, message):
+    assert cli_main(["train", "--env", "cartpole-mjx", "--randomize", ranges, *CONFIG_ARGS]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "keep the low end" in err
+
+
+def test_the_policy_refuses_non_finite_observations(reference):
+    from agents import load_policy
+
+    policy = load_policy(reference)
+    assert policy(np.zeros(4)).shape == ()
+    with pytest.raises(ValueError, match=r"non-finite observation \(1 NaN or inf values, first at index \[\[1, 2\]\]\)"):
+        policy(np.array([[0, 0, 0, 0], [0, 0, np.nan, 0]]))
+
+
+# ---- portable run directories (issue #42): a run trained with impl="warp" acts anywhere -------------
+@pytest.fixture(scope="module")
+def warp_run(tmp_path_factory):
+    """A cartpole-mjx run as one trained on a GPU with MuJoCo Warp records itself (impl and buffer
+    sizes in config.json), trained here with impl="jax", then copied to another folder."""
+    out = tmp_path_factory.mktemp("warp") / "trained"
+    assert cli_main(["train", "--env", "cartpole-mjx", "--out", str(out), *CONFIG_ARGS]) == 0
+    record = json.loads((out / checkpoint.CONFIG_FILE).read_text())
+    record["env_options"] = {"impl": "warp", "nconmax": 8, "njmax": 16}
+    (out / checkpoint.CONFIG_FILE).write_text(json.dumps(record))
+    moved = out.parent / "copied elsewhere"
+    shutil.copytree(out, moved)
+    shutil.rmtree(out)
+    return moved
+
+
+@pytest.mark.skipif(jax.default_backend() != "cpu", reason="the fallback is for machines that cannot run Warp")
+def test_a_warp_run_gives_its_policy_eval_and_rollout_on_the_cpu(warp_run, tmp_path, capsys):
+    from agents import load_policy
+
+    policy = load_policy(warp_run)
+    assert "its physics runs with impl='jax' here" in capsys.readouterr().err
+    assert policy(np.zeros(4)).shape == ()
+    assert cli_main(["eval", "--checkpoint", str(warp_run), "--episodes", "4"]) == 0
+    said = capsys.readouterr()
+    assert "impl='jax' here" in said.err and json.loads(said.out.splitlines()[-1])["env_options"] == {"impl": "jax"}
+    assert cli_main(["eval", "--checkpoint", str(warp_run), "--episodes", "4", "--impl", "jax"]) == 0
+    assert "impl='jax' here" not in capsys.readouterr().err  # asked for: no note
+    assert cli_main(["rollout", "--checkpoint", str(warp_run), "--rerun", str(tmp_path / "r.rrd")]) == 0
+    assert (tmp_path / "r.rrd").stat().st_size > 0
+    assert cli_main(["eval", "--checkpoint", str(warp_run), "--impl", "warp"]) == 2  # asked for Warp: refused
+    assert "--impl warp" in capsys.readouterr().err

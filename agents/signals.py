@@ -1,0 +1,66 @@
+"""Stopping a run on SIGINT (Ctrl-C) or SIGTERM (a cluster scheduler's warning) without raising
+inside a callback that XLA or MuJoCo Warp calls.
+
+Python runs a signal handler in the main thread at the next bytecode, wherever that is: inside
+MuJoCo Warp's JAX FFI callback, a KeyboardInterrupt aborted the process (`free(): invalid size`)
+and nothing was saved. So the handler only records the signal; the run's driver asks
+`stop.requested` where Python holds control (between chunks, before the final evaluation),
+saves, and returns. A second signal forces the exit at once, without saving.
+
+    with StopSignals() as stop:
+        for chunk in ...:
+            ...
+            if stop.requested:
+                break
+
+Outside the main thread (where Python cannot install handlers) it installs nothing and
+`requested` stays None: Ctrl-C then raises KeyboardInterrupt as usual.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def exit_status(signum: int) -> int:
+    """The shell's status for a process ended by `signum`: 130 for SIGINT, 143 for SIGTERM."""
+    return 128 + int(signum)
+
+
+class StopSignals:
+    """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
+    raising; a second one exits the process at once with `exit_status`."""
+
+    def __init__(self):
+        self.requested: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested is not None:
+            # Nothing else runs here: the process may be inside an XLA or Warp call.
+            os.write(2, f"\n{signal.Signals(signum).name} again: exiting now, without saving\n".encode())
+            os._exit(exit_status(signum))
+        self.requested = signum
+        # os.write, not print: print is not reentrant, and the signal may arrive inside a print.
+        os.write(2, f"\n{signal.Signals(signum).name}: stopping after the current step of work and saving "
+                    "(send it again to exit now, without saving)\n".encode())
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    @property
+    def name(self) -> str | None:
+        """The first signal's name ("SIGINT", "SIGTERM"), None before any."""
+        return None if self.requested is None else signal.Signals(self.requested).name
