@@ -18,8 +18,8 @@ import sys
 import warnings
 
 NAMESPACE = "mjxsuite"
-ENTRY_POINT = "envs.interop.gymnasium_vector:make_env"
-VECTOR_ENTRY_POINT = "envs.interop.gymnasium_vector:make_vector_env"
+ENTRY_POINT = "envs.interop.gymnasium:make_env"
+VECTOR_ENTRY_POINT = "envs.interop.gymnasium:make_vector_env"
 
 # Gymnasium id (within our namespace) -> (our registered name, max_episode_steps). The ten MuJoCo v5
 # tasks and the two classic-control ones carry Gymnasium's own ids and time limits (tests check them
