@@ -86,9 +86,10 @@ def test_a_discrete_env_is_refused():
 # ---- transitions -----------------------------------------------------------------------
 def collected(env, steps=7):
     sac = SAC(dataclasses.replace(SMALL, num_envs=1, min_replay_size=0), env)
-    ts = sac.init(jax.random.PRNGKey(0))
+    ts = jax.jit(sac.init)(jax.random.PRNGKey(0))
+    collect = jax.jit(sac.collect)
     for i in range(steps):
-        ts, _ = sac.collect(ts, jax.random.PRNGKey(i))
+        ts, _ = collect(ts, jax.random.PRNGKey(i))
     return unpack(ts.buffer.data[:steps], 2, 1)
 
 
@@ -178,3 +179,114 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
     for a, old, q in zip(jax.tree.leaves(new.target_q_params), jax.tree.leaves(target_q_params),
                          jax.tree.leaves(new.q_params), strict=True):
         np.testing.assert_allclose(np.asarray(a), np.asarray(old) * (1 - tau) + np.asarray(q) * tau, rtol=1e-6)
+
+
+# ---- seeds, the pure `train`, and exact resume -----------------------------------------------
+def run_chunks(sac, ts, chunks, batched=None):
+    """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge."""
+    train_steps, judge = sac.train_steps, sac.judge
+    if batched is not None:
+        train_steps, judge = batched(train_steps), batched(judge)
+    train_steps, judge = jax.jit(train_steps), jax.jit(judge)
+    history = []
+    for _ in range(chunks):
+        ts, trained, eval_key = train_steps(ts)
+        ts, judged = judge(ts, eval_key)
+        history.append({**trained, **judged})
+    return ts, history
+
+
+def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after another
+    return lambda *args: jax.lax.map(lambda a: fn(*a), args)
+
+
+def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
+    """Seeds mapped (train_run's way on the CPU) are one-seed runs bit for bit; vmapped (its way
+    on accelerators) up to the rounding of batched against plain matmuls and sums, as DQN's."""
+    env = drift()
+    sac = SAC(SMALL, env)
+    keys = jax.random.split(jax.random.PRNGKey(7), 2)
+    singles = [run_chunks(sac, jax.jit(sac.init)(key), SMALL.num_chunks)[0] for key in keys]
+    ts, _ = run_chunks(sac, jax.jit(mapped(sac.init))(keys), SMALL.num_chunks, mapped)
+    vmapped, history = run_chunks(sac, jax.jit(jax.vmap(sac.init))(keys), SMALL.num_chunks, jax.vmap)
+    for i, single in enumerate(singles):
+        assert_trees_equal(jax.tree.map(lambda x: x[i], ts), single)
+        for a, b in zip(jax.tree.leaves(jax.tree.map(lambda x: x[i], vmapped)), jax.tree.leaves(single), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-5)
+    assert int(singles[0].env_steps) == SMALL.total_steps
+    # No NaN in Drift: every step stored, and the buffer wrapped around.
+    assert int(singles[0].buffer.size) == SMALL.max_replay_size
+    assert int(singles[0].buffer.insert_pos) == SMALL.total_steps % SMALL.max_replay_size
+    # Independent keys give different agents.
+    first = [np.asarray(jax.tree.leaves(s.params[1])[0]) for s in singles]
+    assert not np.allclose(first[0], first[1])
+    assert {"critic_loss", "actor_loss", "alpha_loss", "alpha", "episodes", "train_return", "nan_episodes",
+            "overflow_contacts", "overflow_constraints", "env_steps", "eval_return", "best_return"} <= set(history[0])
+    assert all(np.isfinite(np.asarray(history[-1][k])).all() for k in ("critic_loss", "actor_loss", "eval_return"))
+
+
+@pytest.mark.slow  # one more compile of the whole run (~5 s)
+def test_the_pure_train_is_the_chunked_run():
+    env = drift()
+    sac = SAC(SMALL, env)
+    key = jax.random.PRNGKey(7)
+    single, _ = run_chunks(sac, jax.jit(sac.init)(key), SMALL.num_chunks)
+    best, metrics = jax.jit(lambda k: train(SMALL, env, k))(key)
+    assert_trees_equal((best, metrics["final_params"]), (single.best_params, single.params))
+    assert metrics["eval_return"].shape == (SMALL.num_chunks,) and int(metrics["solve_step"]) == -1
+
+
+def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
+    """The whole state of a seed, the replay buffer included, is the train state: copied to numpy
+    (as a checkpoint holds it) after a chunk and back, the run continues bit for bit."""
+    sac = SAC(SMALL, drift())
+    keys = jax.random.split(jax.random.PRNGKey(3), 2)
+    init = jax.jit(jax.vmap(sac.init))
+    whole, whole_history = run_chunks(sac, init(keys), SMALL.num_chunks, jax.vmap)
+    part, _ = run_chunks(sac, init(keys), 1, jax.vmap)
+    saved = jax.tree.map(np.asarray, part)
+    assert int(saved.buffer.size[0]) > SMALL.prefill_steps  # the buffer travels with it
+    resumed, resumed_history = run_chunks(sac, jax.tree.map(jnp.asarray, saved), SMALL.num_chunks - 1, jax.vmap)
+    assert_trees_equal(resumed, whole)
+    np.testing.assert_array_equal(resumed_history[-1]["eval_return"], whole_history[-1]["eval_return"])
+
+
+# ---- the policy, and evaluation ---------------------------------------------------------------------
+def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
+    """`params` has the layout of Brax's SAC parameters (what `agents.brax_agents` loads), and
+    `policy` acts as Brax's deterministic policy does, in [-1, 1]."""
+    from agents import brax_agents
+
+    env = drift()
+    config = dataclasses.replace(SMALL, hidden=(8, 8))
+    sac = SAC(config, env)
+    ts = jax.jit(sac.init)(jax.random.PRNGKey(0))
+    template = brax_agents.params_template(config, env.observation_size, env.action_size)
+    assert jax.tree.structure(template) == jax.tree.structure(ts.params)
+    for a, b in zip(jax.tree.leaves(template), jax.tree.leaves(ts.params), strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+    obs = 10 * jax.random.normal(jax.random.PRNGKey(1), (32, env.observation_size))
+    ours = jax.jit(sac.policy)(ts.params, obs)
+    brax = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)(ts.params, obs, None)
+    np.testing.assert_array_equal(np.asarray(ours), np.asarray(brax))
+    assert ours.shape == (32, env.action_size) and np.all(np.abs(np.asarray(ours)) <= 1.0)
+
+
+def test_evaluate_returns_deterministic_episodes_and_records_the_first():
+    env = drift(episode_length=20)
+    sac = SAC(SMALL, env)
+    ts = jax.jit(sac.init)(jax.random.PRNGKey(0))
+    key = jax.random.PRNGKey(5)
+    returns, episode = jax.jit(lambda p, k: sac.evaluate(p, k, num_episodes=5, record=True))(ts.params, key)
+    assert returns.shape == (5,)
+    assert int(episode.length) == 20 and episode.action.shape == (20, 1)
+    np.testing.assert_allclose(float(episode.reward.sum()), float(returns[0]), rtol=1e-5)
+    again = jax.jit(lambda p, k: sac.evaluate(p, k, num_episodes=5))(ts.params, key)
+    np.testing.assert_array_equal(np.asarray(again), np.asarray(returns))
+    # The judge keeps the best parameters and the first step that reached solve_return.
+    solving = SAC(dataclasses.replace(SMALL, solve_return=-1e9), env)
+    judged, metrics = jax.jit(solving.judge)(ts, key)
+    assert int(judged.solve_step) == int(ts.env_steps) and metrics["eval_episode"] is None
+    assert float(judged.best_return) == float(metrics["eval_return"])
+    never, _ = jax.jit(sac.judge)(ts, key)  # solve_return None: never solved
+    assert int(never.solve_step) == -1
