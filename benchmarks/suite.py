@@ -12,7 +12,10 @@ Sections (all by default; pick with `--sections`):
   a fresh persistent compilation cache, once cold and three times warm: compile_s of each;
 - `gym-mujoco` (only when named): env-steps/s of Gymnasium's MuJoCo tasks with impl "jax" (and
   "warp" where it runs) beside Brax's look-alikes and Gymnasium's own vector env
-  (`benchmarks.gym_mujoco`; `--batch` sets its sizes, default 4,096 and 32,768).
+  (`benchmarks.gym_mujoco`; `--batch` sets its sizes, default 4,096 and 32,768);
+- `gym-vector` (only when named): env-steps/s of `gymnasium.make_vec("mjxsuite/Hopper-v5")` in
+  Gymnasium's `JaxToTorch` with a torch MLP policy every step, beside our pure JAX loop and
+  Gymnasium's own vector env over every core (`benchmarks.gym_vector`; `--batch`, default 4,096).
 
 Records are a JSON list; every record has `kind`, `lib`, `device`; env-throughput records
 also `env`, `num_envs`, `steps_per_s`, `compile_s`. A peer or section that cannot run
@@ -20,7 +23,7 @@ is recorded with `skipped` and the reason. The first record (`kind: meta`) says 
 ran where. The bench itself does not use the persistent cache: its compile times are
 cold compiles.
 
-    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup gym-mujoco]
+    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup gym-mujoco gym-vector]
     mjxsuite bench --plot FILE.json [--out docs/throughput.png]   # the plot, from saved records
     mjxsuite bench --table FILE.json                               # markdown tables, from saved records
 """
@@ -37,8 +40,8 @@ import tempfile
 import time
 from pathlib import Path
 
-SECTIONS = ("env", "dqn", "logging", "startup", "gym-mujoco")
-DEFAULT_SECTIONS = ("env", "dqn", "logging", "startup")  # gym-mujoco takes long: run it by name
+SECTIONS = ("env", "dqn", "logging", "startup", "gym-mujoco", "gym-vector")
+DEFAULT_SECTIONS = ("env", "dqn", "logging", "startup")  # gym-mujoco takes long, gym-vector needs torch: run them by name
 
 
 def _cpu_model() -> str | None:
@@ -86,6 +89,18 @@ def gym_mujoco_section(quick: bool, batch=None, repeats=None) -> list[dict]:
     impls = ["jax", "warp"] if gym_mujoco.warp_available() else ["jax"]
     return gym_mujoco.run_benchmark(gym_mujoco.gymnasium_tasks(), batch or ([4096] if quick else [4096, 32768]),
                                     impls, repeats=repeats or 3)
+
+
+def gym_vector_section(quick: bool, batch=None, repeats=None) -> list[dict]:
+    from benchmarks import gym_vector
+
+    print("== Gymnasium's vector API: make_vec + JaxToTorch + a torch policy, beside our JAX loop and Gymnasium's ==")
+    records = []
+    for num_envs in batch or [4096]:
+        records += gym_vector.run_benchmark("mjxsuite/Hopper-v5", num_envs, steps=50 if quick else 200,
+                                            repeats=repeats or (3 if quick else 5),
+                                            gymnasium_steps=100 if quick else 300)
+    return records
 
 
 def dqn_section(quick: bool, peer_dqn: str | None = None) -> list[dict]:
@@ -162,6 +177,7 @@ def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=(
         "logging": lambda: logging_section(quick),
         "startup": startup_section,
         "gym-mujoco": lambda: gym_mujoco_section(quick, batch, repeats),
+        "gym-vector": lambda: gym_vector_section(quick, batch, repeats),
     }
     for section in sections:
         start = time.perf_counter()

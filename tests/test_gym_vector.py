@@ -257,3 +257,33 @@ def test_jax_to_torch():
         obs, reward, terminated, truncated, info = vector.step(torch.zeros(3, 1))
     assert isinstance(reward, torch.Tensor) and bool(truncated.all())
     assert isinstance(info["final_obs"], torch.Tensor) and bool(info["_final_obs"].all())
+
+
+# ---- the PyTorch example and the benchmark ---------------------------------------------------
+@pytest.mark.slow  # Hopper's MJX compile on a small CPU
+def test_torch_example_trains_and_plays_gymnasiums_hopper():
+    pytest.importorskip("torch")
+    sys.path.insert(0, str(ROOT / "examples"))
+    try:
+        import ppo_torch_hopper
+    finally:
+        sys.path.remove(str(ROOT / "examples"))
+    result = ppo_torch_hopper.main(["--num-envs", "8", "--num-steps", "8", "--total-timesteps", "128",
+                                    "--num-minibatches", "2", "--eval-episodes", "1", "--eval-max-steps", "20",
+                                    "--device", "cpu"])
+    assert result["env_steps"] == 128 and result["eval_env"] == "Hopper-v5"
+    assert np.isfinite(result["eval_mean_return"]) and len(result["eval_returns"]) == 1
+
+
+@pytest.mark.slow  # an MJX compile and Gymnasium's spawned workers
+def test_gym_vector_benchmark_runs_on_the_cpu():
+    from benchmarks import gym_vector
+
+    records = gym_vector.run_benchmark("mjxsuite/InvertedPendulum-v5", num_envs=2, steps=3, repeats=1,
+                                       gymnasium_steps=5)
+    loops = {r.get("loop"): r for r in records}
+    assert loops["jax"]["steps_per_s"] > 0 and loops["gymnasium"]["steps_per_s"] > 0
+    assert loops["gymnasium"]["env"] == "InvertedPendulum-v5"
+    torch_loop = loops["torch"]
+    assert torch_loop["steps_per_s"] > 0 if "skipped" not in torch_loop else "pip install" in torch_loop["skipped"]
+    assert records[-1]["kind"] == "gym-vector-ratio"
