@@ -171,6 +171,32 @@ class Hyperparams(NamedTuple):
         return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
 
 
+def scale_by_adam(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> optax.GradientTransformation:
+    """`optax.scale_by_adam()` (its state, its moments, its values), its divisions pinned.
+
+    Why: XLA rewrites optax's divisions by the scalar bias corrections one way in a one-seed
+    program (`m / (c1 * (sqrt(v / c2) + eps))`) and another in a vmapped one, where each seed has
+    its own correction (products with reciprocals): the two differ in the last bit. Here the
+    one-seed form is written out and its divisors held by an optimization barrier, so seed i of
+    a vmapped run is a one-seed run of seed i, bit for bit, and both are Brax's (test_ppo.py)."""
+    adam = optax.scale_by_adam(b1, b2, eps)
+
+    def update(grads, state, params=None):
+        del params
+        mu = optax.tree.update_moment(grads, state.mu, b1, 1)
+        nu = optax.tree.update_moment_per_elem_norm(grads, state.nu, b2, 2)
+        count = optax.safe_increment(state.count)
+        c1, c2 = 1 - b1**count, 1 - b2**count
+
+        def direction(m, v):
+            d1, d2 = jax.lax.optimization_barrier((jnp.broadcast_to(c1, m.shape), jnp.broadcast_to(c2, v.shape)))
+            return m / (d1 * (jnp.sqrt(v / d2) + eps))
+
+        return jax.tree.map(direction, mu, nu), optax.ScaleByAdamState(count=count, mu=mu, nu=nu)
+
+    return optax.GradientTransformation(adam.init, update)
+
+
 @struct.dataclass
 class TrainState:
     """The whole state of one seed: saving this pytree and loading it back resumes exactly."""
@@ -214,7 +240,7 @@ class PPO:
         # Adam's direction only; the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
         # would, so a sweep can trace the learning rate.
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm is not None else []
-        self.optimizer = optax.chain(*clip, optax.scale_by_adam())
+        self.optimizer = optax.chain(*clip, scale_by_adam())
         self.hyper = Hyperparams.of(config)
 
     def with_hyperparams(self, hyper: Hyperparams | None) -> "PPO":

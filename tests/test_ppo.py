@@ -111,3 +111,77 @@ def _nets(params):
     from brax.training.agents.ppo import losses
 
     return losses.PPONetworkParams(policy=params[1], value=params[2])
+
+
+def run_chunks(ppo, ts, chunks, batched=None):
+    """`chunks` chunks as train_run drives them: training steps, then the judge (`batched`: over seeds)."""
+    wrap = batched or (lambda f: f)
+    train_steps, judge = jax.jit(wrap(ppo.train_steps)), jax.jit(wrap(functools.partial(ppo.judge, record=False)))
+    records = []
+    for _ in range(chunks):
+        ts, trained, eval_key = train_steps(ts)
+        ts, judged = judge(ts, eval_key)
+        records.append({**trained, **judged})
+    return ts, records
+
+
+@pytest.mark.parametrize("batched", ["vmap", "map"])
+def test_seed_i_of_many_is_a_one_seed_run_of_seed_i(batched):
+    ppo = PPO(SMALL, slide(terminate_beyond=1.5))
+    keys = jax.random.split(jax.random.PRNGKey(7), 2)
+    over_seeds = jax.vmap if batched == "vmap" else (lambda f: lambda *a: jax.lax.map(lambda x: f(*x), a))
+    many, many_records = run_chunks(ppo, jax.jit(jax.vmap(ppo.init))(keys), 2, over_seeds)
+    for i in range(2):
+        one, one_records = run_chunks(ppo, jax.jit(ppo.init)(keys[i]), 2)
+        assert_trees_equal(jax.tree.map(lambda x: x[i], many), one)  # bit for bit, every leaf of the state
+        for a, b in zip(many_records, one_records):
+            assert {k: float(v[i]) for k, v in a.items() if v is not None} == {
+                k: float(v) for k, v in b.items() if v is not None}
+    assert not np.array_equal(np.asarray(jax.tree.leaves(many.params)[-1][0]), np.asarray(jax.tree.leaves(many.params)[-1][1]))
+
+
+def test_a_run_resumed_from_a_host_copy_ends_as_an_uninterrupted_one():
+    """The train state is the whole run: copied to numpy between chunks (what a checkpoint saves)
+    and back, the run goes on as if nothing happened."""
+    ppo = PPO(SMALL, slide(terminate_beyond=1.5))
+    start = jax.jit(ppo.init)(jax.random.PRNGKey(1))
+    whole, whole_records = run_chunks(ppo, start, 3)
+    part, _ = run_chunks(ppo, start, 1)
+    leaves, treedef = jax.tree.flatten(part)
+    saved = [np.array(leaf) for leaf in leaves]  # what a checkpoint holds
+    resumed, resumed_records = run_chunks(ppo, jax.tree.unflatten(treedef, [jnp.asarray(x) for x in saved]), 2)
+    assert_trees_equal(resumed, whole)
+    assert [float(r["eval_return"]) for r in resumed_records] == [float(r["eval_return"]) for r in whole_records[1:]]
+    assert int(resumed.env_steps) == SMALL.total_steps
+
+
+@pytest.mark.slow  # about 2 minutes of 2 CPU cores
+def test_inverted_pendulum_recipe_balances_gymnasiums_inverted_pendulum():
+    """The table's inverted-pendulum recipe (agents/brax_defaults.py, Brax's field names), trained
+    by our PPO: its best deterministic policy, mapped to Gymnasium's action space as
+    `load_policy` maps it, scores at least 950 on Gymnasium's own InvertedPendulum-v5 (C MuJoCo,
+    10 episodes)."""
+    import gymnasium
+
+    from agents import brax_defaults
+
+    config = PPOConfig(**brax_defaults.settings("inverted-pendulum", "ppo"))
+    env = envs.make("inverted-pendulum")
+    ppo = PPO(config, env)
+    ts, records = run_chunks(ppo, jax.jit(ppo.init)(jax.random.PRNGKey(0)), config.num_chunks)
+    print(config.rounding(), [round(float(r["eval_return"]), 1) for r in records])
+    assert float(ts.best_return) >= config.solve_return and int(ts.solve_step) > 0
+    low, high = env.action_low, env.action_high
+    act = jax.jit(lambda obs: ppo.policy(ts.best_params, obs))
+    gym_env = gymnasium.make(env.unwrapped.gymnasium_id)
+    returns = []
+    for episode in range(10):
+        obs, _ = gym_env.reset(seed=episode)
+        total, done = 0.0, False
+        while not done:
+            unit = np.asarray(act(jnp.asarray(obs, jnp.float32)))
+            obs, reward, terminated, truncated, _ = gym_env.step(0.5 * (high + low) + np.clip(unit, -1, 1) * 0.5 * (high - low))
+            total, done = total + float(reward), terminated or truncated
+        returns.append(total)
+    print("InvertedPendulum-v5 returns:", returns)
+    assert np.mean(returns) >= 950
