@@ -41,10 +41,6 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
-from brax.training import gradients, types
-from brax.training.acme import running_statistics, specs
-from brax.training.agents.sac import losses as sac_losses
-from brax.training.agents.sac import networks as sac_networks
 from flax import struct
 
 from agents import backend
@@ -52,6 +48,9 @@ from agents.dqn import EvalEpisode
 from agents.replay import UniformReplay
 from envs import Env, VmapWrapper, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
+
+# Brax is imported inside the functions that use it, so `import agents` stays light (as in
+# `agents.brax_agents`): importing it costs about a second of every command's start-up.
 
 # Brax's trainer: the log temperature's own Adam step size, whatever `learning_rate` is.
 ALPHA_LEARNING_RATE = 3e-4
@@ -170,9 +169,11 @@ def unpack(rows: jax.Array, obs_size: int, action_size: int) -> Transition:
                       discount=rows[..., a + 1], next_obs=rows[..., a + 2:])
 
 
-def brax_transitions(t: Transition) -> types.Transition:
+def brax_transitions(t: Transition):
     """`t` as the batch Brax's losses read. `truncation` is 0: the row's next observation is
     the true one, so the critic bootstraps through a time limit rather than dropping the row."""
+    from brax.training import types
+
     return types.Transition(observation=t.obs, action=t.action, reward=t.reward, discount=t.discount,
                             next_observation=t.next_obs,
                             extras={"state_extras": {"truncation": jnp.zeros_like(t.reward)}, "policy_extras": {}})
@@ -204,6 +205,11 @@ class SAC:
         """`platform`: the backend whose program shapes to use (`agents.backend`); None: JAX's
         default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
         interface has it)."""
+        from brax.training import gradients, types
+        from brax.training.acme import running_statistics
+        from brax.training.agents.sac import losses as sac_losses
+        from brax.training.agents.sac import networks as sac_networks
+
         if env.action_size is None:
             raise ValueError(f"SAC needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
                              "(train it with --agent dqn)")
@@ -228,7 +234,6 @@ class SAC:
         self.critic_update = gradients.gradient_update_fn(critic_loss, self.q_optimizer, pmap_axis_name=None)
         self.actor_update = gradients.gradient_update_fn(actor_loss, self.policy_optimizer, pmap_axis_name=None)
         self.buffer = UniformReplay(config.max_replay_size, vectorized=backend.vectorized_replay(platform))
-        self.unroll = backend.unrolled_inner_loops(platform)
 
     # ---- acting -------------------------------------------------------------
     def policy(self, params, obs):
@@ -239,6 +244,8 @@ class SAC:
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         """One step of every env with the stochastic policy: the normalizer sees the observations
         acted on (as Brax's), the transitions go to the buffer (NaN and overflow steps never do)."""
+        from brax.training.acme import running_statistics
+
         normalizer, policy_params = ts.params
         obs = ts.env_state.obs
         action, _ = self.make_policy(ts.params)(obs, key)
@@ -304,7 +311,7 @@ class SAC:
         if cfg.grad_updates_per_step == 1:
             (ts, _), stats = sgd_step((ts, sgd_key), jax.tree.map(lambda x: x[0], batches))
             return ts, stats
-        (ts, _), stats = jax.lax.scan(sgd_step, (ts, sgd_key), batches, unroll=self.unroll)
+        (ts, _), stats = jax.lax.scan(sgd_step, (ts, sgd_key), batches)
         return ts, jax.tree.map(jnp.mean, stats)
 
     # ---- evaluation -----------------------------------------------------------
@@ -353,10 +360,16 @@ class SAC:
         return (returns, episode) if record else returns
 
     # ---- a training run ---------------------------------------------------------
-    def init(self, key: jax.Array) -> TrainState:
+    def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
         """Fresh networks (as Brax initialises them), optimizers, temperature 1, envs, and the
         replay's first fill: `prefill_iterations` steps of every env with the untrained
-        stochastic policy, which also feed the normalizer (Brax's `prefill_replay_buffer`)."""
+        stochastic policy, which also feed the normalizer (Brax's `prefill_replay_buffer`).
+        `hyperparams`: DQN's sweep argument; SAC traces none of its settings yet."""
+        from brax.training.acme import running_statistics, specs
+
+        if hyperparams is not None:
+            raise ValueError("SAC cannot sweep settings within one program yet (no field of SACConfig is traced); "
+                             "run one `mjxsuite train --agent sac` per value instead")
         policy_key, q_key, env_key, fill_key, loop_key = jax.random.split(key, 5)
         policy_params = self.networks.policy_network.init(policy_key)
         q_params = self.networks.q_network.init(q_key)

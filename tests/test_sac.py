@@ -236,6 +236,17 @@ def test_the_pure_train_is_the_chunked_run():
     assert metrics["eval_return"].shape == (SMALL.num_chunks,) and int(metrics["solve_step"]) == -1
 
 
+@pytest.mark.slow  # compiles the accelerator's program shapes on the CPU (~10 s)
+def test_the_accelerator_program_trains_the_same_on_the_cpu():
+    """Off the CPU the replay writes with a scatter and reads with a gather (`agents.backend`):
+    the same agent as the CPU's loops, bit for bit."""
+    env = drift()
+    key = jax.random.PRNGKey(7)
+    cpu, gpu = SAC(SMALL, env, platform="cpu"), SAC(SMALL, env, platform="gpu")
+    assert gpu.buffer.vectorized and not cpu.buffer.vectorized
+    assert_trees_equal(run_chunks(gpu, jax.jit(gpu.init)(key), 2)[0], run_chunks(cpu, jax.jit(cpu.init)(key), 2)[0])
+
+
 def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
     """The whole state of a seed, the replay buffer included, is the train state: copied to numpy
     (as a checkpoint holds it) after a chunk and back, the run continues bit for bit."""
@@ -290,3 +301,36 @@ def test_evaluate_returns_deterministic_episodes_and_records_the_first():
     assert float(judged.best_return) == float(metrics["eval_return"])
     never, _ = jax.jit(sac.judge)(ts, key)  # solve_return None: never solved
     assert int(never.solve_step) == -1
+
+
+# ---- learning ---------------------------------------------------------------------------------
+def pendulum_recipe():
+    from agents import brax_defaults
+
+    return SACConfig(**brax_defaults.settings("pendulum-mjx", "sac"))  # solve_return -200 (Gymnasium's Pendulum-v1)
+
+
+@pytest.mark.slow  # about a minute on 2 CPU cores
+def test_sac_solves_pendulum_with_the_task_recipe():
+    config = pendulum_recipe()
+    best, metrics = jax.jit(lambda k: train(config, envs.make("pendulum-mjx"), k))(jax.random.PRNGKey(0))
+    assert float(np.max(metrics["eval_return"])) >= config.solve_return, metrics["eval_return"]
+    assert 0 < int(metrics["solve_step"]) <= config.total_steps
+    assert np.all(np.asarray(metrics["nan_episodes"]) == 0)
+
+
+@pytest.mark.slow  # Brax's own trainer on the same task and recipe (about two minutes on 2 CPU cores)
+def test_brax_sac_solves_pendulum_with_the_same_recipe_too():
+    """The recipe is Brax's: its own `sac.train` also reaches the threshold, so the test above
+    measures the same algorithm (our final evaluation is within a margin of Brax's)."""
+    from brax.training.agents.sac import train as brax_sac
+
+    from agents import brax_agents
+
+    config = pendulum_recipe()
+    env = envs.to_brax("pendulum-mjx")
+    _, _, brax_metrics = brax_sac.train(env, episode_length=env.episode_length, seed=0,
+                                        **brax_agents.trainer_kwargs(config))
+    _, ours = jax.jit(lambda k: train(config, envs.make("pendulum-mjx"), k))(jax.random.PRNGKey(0))
+    brax_return, our_return = float(brax_metrics["eval/episode_reward"]), float(ours["eval_return"][-1])
+    assert brax_return >= config.solve_return and our_return >= config.solve_return, (brax_return, our_return)
