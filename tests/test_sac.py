@@ -201,8 +201,11 @@ def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after anoth
 
 
 def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
-    """Seeds mapped (train_run's way on the CPU) are one-seed runs bit for bit; vmapped (its way
-    on accelerators) up to the rounding of batched against plain matmuls and sums, as DQN's."""
+    """Seeds mapped (train_run's way on the CPU) are one-seed runs bit for bit. Vmapped (its way on
+    accelerators) they agree to the last bits only: XLA rewrites a division by a per-seed scalar
+    differently in a vmapped program, here in optax's Adam (its bias corrections) and in Brax's
+    normalizer update (its count). With agents.ppo's pinned Adam and the normalizer's update left
+    out, a vmapped chunk was a one-seed chunk bit for bit (tried by hand, not kept)."""
     env = drift()
     sac = SAC(SMALL, env)
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
