@@ -141,10 +141,11 @@ class PPOConfig:
 
 # ---- hyperparameters that may be traced: what a sweep may vary within one program ----
 # Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a
-# Python branch), in operations whose float32 result is the same for a Python float and a
-# traced float32 (a product, a negation): so a swept agent computes what a separate run of its
-# config computes. clipping_epsilon is left out: Brax's loss computes 1 - clipping_epsilon,
-# which rounds differently in Python's double precision than in float32.
+# Python branch), so one compiled program can run a different value per agent. A swept agent
+# equals a separate run of its config up to float rounding, not bit for bit as DQN's: XLA
+# simplifies Brax's loss and Adam's step around a constant differently than around a traced
+# value. clipping_epsilon is left out: Brax's loss computes 1 - clipping_epsilon, which rounds
+# differently in Python's double precision than in float32.
 SWEEPABLE = ("learning_rate", "entropy_cost", "discounting", "gae_lambda", "reward_scaling")
 
 

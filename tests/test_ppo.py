@@ -1,6 +1,7 @@
 """PPO (agents/ppo.py): Brax's training step reproduced, seeds vmapped, exact resume, faults kept
 from the learner, and a slow run judged on Gymnasium's InvertedPendulum-v5."""
 
+import dataclasses
 import functools
 
 import jax
@@ -125,19 +126,28 @@ def run_chunks(ppo, ts, chunks, batched=None):
     return ts, records
 
 
-@pytest.mark.parametrize("batched", ["vmap", "map"])
-def test_seed_i_of_many_is_a_one_seed_run_of_seed_i(batched):
-    ppo = PPO(SMALL, slide(terminate_beyond=1.5))
+def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after another
+    return lambda *args: jax.lax.map(lambda a: fn(*a), args)
+
+
+def test_seed_i_of_many_is_a_one_seed_run_of_seed_i():
+    env = slide(terminate_beyond=1.5)
+    ppo = PPO(SMALL, env)
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
-    over_seeds = jax.vmap if batched == "vmap" else (lambda f: lambda *a: jax.lax.map(lambda x: f(*x), a))
-    many, many_records = run_chunks(ppo, jax.jit(jax.vmap(ppo.init))(keys), 2, over_seeds)
-    for i in range(2):
-        one, one_records = run_chunks(ppo, jax.jit(ppo.init)(keys[i]), 2)
-        assert_trees_equal(jax.tree.map(lambda x: x[i], many), one)  # bit for bit, every leaf of the state
-        for a, b in zip(many_records, one_records):
-            assert {k: float(v[i]) for k, v in a.items() if v is not None} == {
-                k: float(v) for k, v in b.items() if v is not None}
-    assert not np.array_equal(np.asarray(jax.tree.leaves(many.params)[-1][0]), np.asarray(jax.tree.leaves(many.params)[-1][1]))
+    singles = [run_chunks(ppo, jax.jit(ppo.init)(key), 2) for key in keys]
+    for batched in (jax.vmap, mapped):
+        many, records = run_chunks(ppo, jax.jit(batched(ppo.init))(keys), 2, batched)
+        for i, (one, one_records) in enumerate(singles):
+            assert_trees_equal(jax.tree.map(lambda x: x[i], many), one)  # bit for bit, every leaf of the state
+            for a, b in zip(records, one_records, strict=True):
+                assert {k: float(v[i]) for k, v in a.items() if v is not None} == {
+                    k: float(v) for k, v in b.items() if v is not None}
+    first = [np.asarray(jax.tree.leaves(one.params[1])[0]) for one, _ in singles]
+    assert not np.allclose(first[0], first[1])  # independent keys, different agents
+    assert {"loss", "policy_loss", "v_loss", "entropy_loss", "episodes", "train_return", "nan_episodes",
+            "overflow_contacts", "overflow_constraints", "env_steps", "eval_return", "best_return"} <= set(records[0])
+    assert int(singles[0][0].env_steps) == 2 * SMALL.eval_every
+    assert float(records[-1]["episodes"][0]) > 0  # episodes end (|x| > 1.5 or the time limit) and are counted
 
 
 def test_a_run_resumed_from_a_host_copy_ends_as_an_uninterrupted_one():
@@ -185,3 +195,96 @@ def test_inverted_pendulum_recipe_balances_gymnasiums_inverted_pendulum():
         returns.append(total)
     print("InvertedPendulum-v5 returns:", returns)
     assert np.mean(returns) >= 950
+
+
+def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
+    """`params` has the layout of Brax's PPO parameters (what `agents.brax_agents` loads), and
+    `policy` acts as Brax's deterministic policy does, in [-1, 1]."""
+    from agents import brax_agents
+
+    env = slide()
+    ppo = PPO(SMALL, env)
+    ts = jax.jit(ppo.init)(jax.random.PRNGKey(0))
+    brax_config = brax_agents.PPOConfig(policy_hidden=SMALL.policy_hidden, value_hidden=SMALL.value_hidden)
+    template = brax_agents.params_template(brax_config, env.observation_size, env.action_size)
+    assert jax.tree.structure(template) == jax.tree.structure(ts.params)
+    for a, b in zip(jax.tree.leaves(template), jax.tree.leaves(ts.params), strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype
+    obs = 10 * jax.random.normal(jax.random.PRNGKey(1), (32, env.observation_size))
+    ours = jax.jit(ppo.policy)(ts.params, obs)
+    brax = brax_agents.deterministic_policy(brax_config, env.observation_size, env.action_size)(ts.params, obs, None)
+    np.testing.assert_array_equal(np.asarray(ours), np.asarray(brax))
+    assert ours.shape == (32, 1) and np.all(np.abs(np.asarray(ours)) <= 1.0)
+
+
+def test_truncation_reaches_the_loss_and_a_physics_fault_is_a_truncation():
+    """The unroll keeps Brax's meaning: `truncation` 1 where the time limit ended an episode
+    (Brax's GAE bootstraps there), `discount` 0 wherever an episode ended. A step whose physics
+    failed (`info["nan"]`, MJX's `info["overflow"]`) is marked a truncation, so it teaches no
+    value and no advantage, and is counted."""
+    ppo = PPO(SMALL, slide(episode_length=3))
+    ts = ppo.init(jax.random.PRNGKey(0))
+    _, data = ppo.collect(ts, jax.random.PRNGKey(1))
+    assert data.observation.shape == (SMALL.batch_size * SMALL.num_minibatches, SMALL.unroll_length, 2)
+    truncation = np.asarray(data.extras["state_extras"]["truncation"])
+    # Row r is unroll r // num_envs of env r % num_envs; each env's unrolls follow one another, and
+    # every third step of an env ends its episode by the time limit.
+    rows, steps = np.arange(truncation.shape[0])[:, None], np.arange(SMALL.unroll_length)[None, :]
+    env_step = rows // SMALL.num_envs * SMALL.unroll_length + steps
+    np.testing.assert_array_equal(truncation, (env_step % 3 == 2).astype(np.float32))
+    np.testing.assert_array_equal(np.asarray(data.discount), 1.0 - truncation)
+    extras = dict(data.extras["state_extras"])
+    nan = np.zeros_like(truncation)
+    nan[0, 0] = 1.0
+    overflow = np.zeros_like(truncation)
+    overflow[1, 1], overflow[2, 1] = 1.0, 3.0
+    faulty = data._replace(extras={**data.extras, "state_extras": {**extras, "nan": jnp.asarray(nan),
+                                                                   "overflow": jnp.asarray(overflow)}})
+    learned, stats = ppo.without_faults(faulty)
+    marked = np.asarray(learned.extras["state_extras"]["truncation"])
+    assert set(learned.extras["state_extras"]) == {"truncation"}
+    assert marked[0, 0] == marked[1, 1] == marked[2, 1] == 1.0
+    np.testing.assert_array_equal(np.delete(marked.ravel(), [0, SMALL.unroll_length + 1, 2 * SMALL.unroll_length + 1]),
+                                  np.delete(truncation.ravel(), [0, SMALL.unroll_length + 1, 2 * SMALL.unroll_length + 1]))
+    assert (float(stats["nan_episodes"]), int(stats["overflow_contacts"]), int(stats["overflow_constraints"])) == (1, 2, 1)
+    assert float(stats["episodes"]) == truncation.sum()
+
+
+def test_judge_keeps_the_best_parameters_and_the_first_solving_step():
+    ppo = PPO(dataclasses.replace(SMALL, solve_return=-1e9), slide())  # any evaluation solves it
+    ts = jax.jit(ppo.init)(jax.random.PRNGKey(0))
+    ts = ts.replace(env_steps=jnp.int32(256))
+    judged, metrics = jax.jit(ppo.judge)(ts, jax.random.PRNGKey(1))
+    assert int(judged.solve_step) == 256 and float(judged.best_return) == float(metrics["eval_return"])
+    assert metrics["eval_episode"].length > 0 and metrics["eval_episode"].action.shape == (20, 1)
+    returns = ppo.evaluate(ts.params, jax.random.PRNGKey(1))
+    assert returns.shape == (SMALL.eval_episodes,) and float(returns.mean()) == float(metrics["eval_return"])
+    later, _ = jax.jit(ppo.judge)(judged.replace(env_steps=jnp.int32(512), best_return=jnp.float32(1e9)),
+                                  jax.random.PRNGKey(1))
+    assert int(later.solve_step) == 256  # the first solving step stays
+    assert_trees_equal(later.best_params, judged.best_params)  # not better than 1e9: the best stays
+    unsolvable, _ = jax.jit(PPO(SMALL, slide()).judge)(ts, jax.random.PRNGKey(1))  # solve_return None
+    assert int(unsolvable.solve_step) == -1
+
+
+def test_a_sweep_agent_is_a_separate_run_of_its_config():
+    """`hyperparams` (a sweep's traced values) give each agent the run of its own config, up to
+    float rounding: XLA simplifies products with a constant learning rate or discount
+    differently from products with a traced one (a last-bit difference per update)."""
+    from agents.ppo import Hyperparams
+
+    env = slide(terminate_beyond=1.5)
+    configs = [dataclasses.replace(SMALL, learning_rate=1e-3, entropy_cost=1e-2, discounting=0.9),
+               dataclasses.replace(SMALL, gae_lambda=0.8, reward_scaling=0.5)]
+    ppo = PPO(SMALL, env)
+    key = jax.random.PRNGKey(2)
+    swept, _ = run_chunks(ppo, jax.jit(jax.vmap(ppo.init, in_axes=(None, 0)))(key, Hyperparams.stacked(configs)), 1,
+                          jax.vmap)
+    for i, config in enumerate(configs):
+        alone, _ = run_chunks(PPO(config, env), jax.jit(PPO(config, env).init)(key), 1)
+        for a, b in zip(jax.tree.leaves(jax.tree.map(lambda x: x[i], swept.replace(hyperparams=None))),
+                        jax.tree.leaves(alone), strict=True):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+    other, _ = run_chunks(PPO(configs[1], env), jax.jit(PPO(configs[1], env).init)(key), 1)
+    assert not np.allclose(np.asarray(swept.params[1]["params"]["hidden_0"]["kernel"][0]),
+                           np.asarray(other.params[1]["params"]["hidden_0"]["kernel"]), rtol=1e-4, atol=1e-6)
