@@ -1,14 +1,15 @@
-"""mjxsuite agents: DQN with uniform and prioritized replay, Brax's PPO and SAC behind the same
-driver steps, and `load_policy` for any run directory."""
+"""mjxsuite agents: DQN (uniform and prioritized replay), PPO and SAC, each a pure
+`train(config, env, key)` driven chunk by chunk by one run lifecycle (`train_run`), and
+`load_policy` for any run directory."""
 
 import importlib
 
 from agents.dqn import DQN, DQNConfig, train
 from agents.run import load_policy, train_run
 
-# Brax's agents are imported on first use (PEP 562 `__getattr__` below), so DQN's command line
+# PPO and SAC are imported on first use (PEP 562 `__getattr__` below), so DQN's command line
 # starts without their modules; `from agents import PPOConfig` works as before.
-_LAZY = {"PPOConfig": "agents.brax_agents", "SACConfig": "agents.brax_agents", "train_brax": "agents.brax_run"}
+_LAZY = {"PPO": "agents.ppo", "PPOConfig": "agents.ppo", "SAC": "agents.sac", "SACConfig": "agents.sac"}
 
 
 def __getattr__(name: str):
@@ -23,4 +24,4 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["DQN", "DQNConfig", "PPOConfig", "SACConfig", "load_policy", "train", "train_brax", "train_run"]
+__all__ = ["DQN", "DQNConfig", "PPO", "PPOConfig", "SAC", "SACConfig", "load_policy", "train", "train_run"]

@@ -1,7 +1,7 @@
 """Per-task settings of Brax's PPO and SAC: the one table `mjxsuite train --agent ppo|sac` reads.
 
 `SETTINGS[task][agent][preset]` holds the fields that differ from the agent's base recipe
-(`PPOConfig()` / `SACConfig()` in `agents/brax_agents.py`, sized for small tasks on a CPU);
+(`PPOConfig()` in `agents/ppo.py`, `SACConfig()` in `agents/sac.py`, sized for small tasks on a CPU);
 `--FIELD VALUE` options then change the result. A task without a row trains with the base
 recipe. Rows are keyed by name only, so a row for a task that is not registered (yet) costs
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default".
@@ -25,10 +25,11 @@ from typing import Any
 _BRAX_NOTEBOOK_PENDULUMS = dict(num_evals=20, reward_scaling=10.0, unroll_length=5, num_minibatches=32,
                                 num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
                                 num_envs=2048, batch_size=1024)
-# Playground's dm_control PPO recipe (60M steps over 2048 envs) and SAC recipe.
+# Playground's dm_control PPO recipe (60M steps over 2048 envs) and SAC recipe. Playground's
+# num_resets_per_eval=10 is left out: our envs draw a fresh episode at every auto-reset already.
 _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10.0, unroll_length=30,
                        num_minibatches=32, num_updates_per_batch=16, discounting=0.995, learning_rate=1e-3,
-                       entropy_cost=1e-2, num_envs=2048, batch_size=1024, num_resets_per_eval=10)
+                       entropy_cost=1e-2, num_envs=2048, batch_size=1024)
 _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, learning_rate=1e-3, num_envs=128,
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 

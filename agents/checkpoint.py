@@ -3,12 +3,12 @@
 A run directory (`mjxsuite train --out DIR`) holds:
 - config.json: the agent ("dqn", "ppo", "sac"), env, env options, seeds, seed and the agent's
   config (DQNConfig, PPOConfig, SACConfig), written when the run starts;
-- train_state.msgpack: DQN: the whole seed-batched train state (replay buffer included) and the
-  number of chunks it has done: everything a resume needs. PPO/SAC: what Brax's trainers let a
-  run restart from (`agents.brax_run` says what that is) and the evaluations done;
+- train_state.msgpack: the whole seed-batched train state of any agent (parameters, optimizer
+  states, normalizer, envs, replay buffer, key) and the number of chunks it has done:
+  everything an exact resume needs;
 - best_params.msgpack: the best parameters of each seed and their greedy returns (eval, rollout);
-- metrics.jsonl: one record per chunk (DQN) or evaluation (PPO, SAC); progress.json: chunks or
-  evaluations done and best returns, for people.
+- metrics.jsonl: one record per chunk (its training steps, then an evaluation); progress.json:
+  chunks done and best returns, for people.
 
 Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
 kill at any moment leaves the previous complete file. Each msgpack file is self-contained (its
@@ -29,8 +29,7 @@ import jax
 import numpy as np
 from flax import serialization
 
-from agents.brax_agents import CONFIGS as BRAX_CONFIGS
-from agents.dqn import DQNConfig
+from agents import registry
 
 CONFIG_FILE = "config.json"
 STATE_FILE = "train_state.msgpack"
@@ -38,7 +37,6 @@ POLICY_FILE = "best_params.msgpack"
 PROGRESS_FILE = "progress.json"
 METRICS_FILE = "metrics.jsonl"
 FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
-CONFIGS = {"dqn": DQNConfig, **BRAX_CONFIGS}  # each agent's config class, by the name config.json records
 
 
 class CheckpointError(Exception):
@@ -108,9 +106,7 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
     try:
         record = json.loads(path.read_text())
         agent = record.get("agent", "dqn")  # runs from before PPO and SAC existed are DQN's
-        if agent not in CONFIGS:
-            raise ValueError(f"unknown agent {agent!r} (this mjxsuite knows {', '.join(CONFIGS)})")
-        config = config_from_record(CONFIGS[agent], record["config"])
+        config = config_from_record(registry.config_class(agent), record["config"])
         return SavedRun(record["env"], record["seeds"], config, record.get("env_options", {}),
                         record.get("seed", 0), record.get("sweep"), agent)
     except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
@@ -242,6 +238,19 @@ def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any
 def load_best_returns(out_dir: str | os.PathLike) -> list[float]:
     out = Path(out_dir)
     return _read(out / POLICY_FILE, "best_params", load_config(out).env, POLICY_FIX)["meta"]["best_return"]
+
+
+def best_seed(out_dir: str | os.PathLike) -> int:
+    """The seed a run's policy acts with by default: the finished run's choice (eval.json's
+    `best_seed`: the best final evaluation, ties broken by a longer one), else, for a run still
+    under way, the seed with the best evaluation during training."""
+    finished = Path(out_dir) / "eval.json"
+    if finished.is_file():
+        try:
+            return int(json.loads(finished.read_text())["best_seed"])
+        except (ValueError, KeyError, TypeError):  # an eval.json of an older mjxsuite
+            pass
+    return int(np.argmax(load_best_returns(out_dir)))
 
 
 def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:

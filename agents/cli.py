@@ -24,8 +24,8 @@ from pathlib import Path
 
 from agents import env_options
 from agents import sweep as sweeps
-from agents.dqn import PRESETS, SWEEPABLE, DQNConfig, sweep_configs
-from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
+from agents.dqn import PRESETS, DQNConfig
+from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 
@@ -109,6 +109,14 @@ def config_from_args(base, pairs: list[str], **given):
 
 
 AGENTS = ("dqn", "ppo", "sac")
+POLICY_NAMES = {"dqn": "greedy", "ppo": "deterministic", "sac": "deterministic"}  # what each agent judges
+
+
+def sweep_fields() -> tuple[str, ...]:
+    """The options of `mjxsuite sweep`: every agent's sweepable fields."""
+    from agents import registry
+
+    return tuple(dict.fromkeys(name for agent in AGENTS for name in registry.sweepable(agent)))
 
 
 def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
@@ -129,26 +137,31 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
     return agent
 
 
-def _brax_config(env_name: str, agent: str, preset: str | None, extra: list[str], steps: int | None):
-    """PPOConfig/SACConfig: the base recipe, the task's row of agents/brax_defaults.py, then --FIELD VALUE."""
-    from agents import brax_defaults
-    from agents.brax_agents import CONFIGS
+def _agent_config(env_name: str, agent: str, preset: str | None, extra: list[str], steps: int | None,
+                  replay: str | None):
+    """The agent's config: DQN's preset, or PPO's/SAC's base recipe with the task's row of
+    agents/brax_defaults.py (`--preset` picks another); then --FIELD VALUE and the command's own
+    options (`--steps`: env steps per seed for every agent)."""
+    from agents import brax_defaults, registry
 
+    if agent == "dqn":
+        return config_from_args(_dqn_preset(preset), extra, total_steps=steps, replay=replay)
+    if replay is not None:
+        raise UsageError(f"--replay chooses DQN's replay; --agent {agent} has "
+                         + ("none (drop --replay)" if agent == "ppo" else "a uniform one (drop --replay)"))
     try:
-        base = CONFIGS[agent](**brax_defaults.settings(env_name, agent, preset or "default"))
+        base = registry.config_class(agent)(**brax_defaults.settings(env_name, agent, preset or "default"))
     except ValueError as err:
         raise UsageError(str(err))
     return config_from_args(base, extra, num_timesteps=steps)
 
 
-def _refuse_for_brax(args, agent: str) -> None:
-    """Options that DQN's driver has and Brax's trainers do not."""
-    given = [flag for flag, value in (("--seeds", args.seeds if args.seeds not in (None, 1) else None),
-                                      ("--replay", args.replay), ("--devices", args.devices),
-                                      ("--distributed", args.distributed or None)) if value is not None]
-    if given:
-        raise UsageError(f"--agent {agent} trains one seed on this machine's devices as Brax's trainer places it; "
-                         f"drop {' '.join(given)} (they are DQN's options)")
+def _say_rounding(config) -> None:
+    """Say, before anything compiles, how the agent rounded --steps (whole training steps per chunk)."""
+    rounding = getattr(config, "rounding", None)
+    said = rounding() if callable(rounding) else ""
+    if said:
+        print(f"note: {said}", file=sys.stderr)
 
 
 def _require_registered(env_name: str) -> None:
@@ -162,10 +175,6 @@ def _require_registered(env_name: str) -> None:
 def cmd_train(args, extra: list[str]) -> int:
     if args.resume:
         saved = _saved_run(args, extra, sweep=False)
-        if saved.agent != "dqn":
-            _refuse_for_brax(args, saved.agent)
-            return _report_brax(args, saved.config, _train_brax(args, saved.config, resume=True,
-                                                                env_options=saved.env_options))
         result = _train(args, saved.config, resume=True, env_options=saved.env_options)
         return _report(args, saved.config, result)
     if args.env is None:
@@ -173,13 +182,9 @@ def cmd_train(args, extra: list[str]) -> int:
     _require_registered(args.env)
     options = env_options.from_args(args.env, args)
     agent = _choose_agent(args.env, args.agent, options)
-    if agent != "dqn":
-        _refuse_for_brax(args, agent)
-        args.seed = args.seed or 0
-        config = _brax_config(args.env, agent, args.preset, extra, args.steps)
-        return _report_brax(args, config, _train_brax(args, config, env_options=options))
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
-    config = config_from_args(_dqn_preset(args.preset), extra, total_steps=args.steps, replay=args.replay)
+    config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay)
+    _say_rounding(config)
     result = _train(args, config, env_options=options)
     return _report(args, config, result)
 
@@ -188,41 +193,6 @@ def _dqn_preset(preset: str | None) -> DQNConfig:
     if (preset or "default") not in PRESETS:
         raise UsageError(f"--preset {preset!r} does not exist for --agent dqn; choose one of {', '.join(sorted(PRESETS))}")
     return PRESETS[preset or "default"]
-
-
-def _train_brax(args, config, **kwargs):
-    """train_brax, writing a Rerun file with --rerun (its path is checked before training starts)."""
-    from agents.brax_run import agent_name, train_brax
-
-    kwargs.update(seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
-                  checkpoint_seconds=args.checkpoint_seconds, overwrite=args.overwrite)
-    if agent_name(config) == "sac" and not args.out:
-        default = "" if args.agent else f" ({args.env}'s default agent)"
-        raise UsageError(f"--agent sac{default} needs --out: SAC's parameters reach mjxsuite through Brax's "
-                         "checkpoint folder")
-    if not args.rerun:
-        return train_brax(args.env, config, **kwargs)
-    from agents.recording import BRAX_CURVES, TrainingLogger
-
-    logger = TrainingLogger(args.rerun, args.env, config, overwrite=args.overwrite, rollout_every=args.rerun_every,
-                            env_options=kwargs.get("env_options"), curves=BRAX_CURVES[agent_name(config)])
-    try:
-        return train_brax(args.env, config, on_eval=logger, **kwargs)
-    finally:
-        logger.close()
-        print(f"wrote Rerun recording {args.rerun}")
-
-
-def _report_brax(args, config, result) -> int:
-    if result.interrupted:
-        return _report_stop(args, result)
-    solve = result.solve_step[0]
-    reached = "" if config.solve_return is None else (
-        f"; Brax's evaluation first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
-    print(f"deterministic policy: mean return {result.mean_return[0]:.1f} over {result.eval_episodes} episodes{reached}")
-    print(f"wall {result.wall_s:.1f}s (to the first evaluation {result.compile_s:.1f}s)"
-          + (f"; wrote {args.out}" if args.out else ""))
-    return 0
 
 
 def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ()):
@@ -251,7 +221,7 @@ def _saved_run(args, extra: list[str], sweep: bool, swept: tuple[str, ...] = ())
     return saved
 
 
-def _train(args, config: DQNConfig, **kwargs):
+def _train(args, config, **kwargs):
     """train_run, writing a Rerun file with --rerun (its path is checked before training starts)."""
     from agents.run import train_run
 
@@ -263,14 +233,15 @@ def _train(args, config: DQNConfig, **kwargs):
 
     if not sharding.is_writer():  # process 0 writes the file; the others still gather their agents' episodes for it
         return train_run(args.env, config, on_chunk=lambda *_: None, **kwargs)
-    from agents.recording import TrainingLogger
+    from agents import registry
+    from agents.recording import CURVES, TrainingLogger
 
     grid = kwargs.get("sweep")
-    agents = args.seeds * (len(sweep_configs(config, grid)) if grid else 1)
+    agents = args.seeds * (len(registry.sweep_configs(config, grid)) if grid else 1)
     logger = TrainingLogger(args.rerun, args.env, config, seeds=agents, overwrite=args.overwrite,
                             rollout_every=args.rerun_every,
                             agent_paths=sweeps.agent_paths(config, grid, args.seeds) if grid else None,
-                            env_options=kwargs.get("env_options"))
+                            env_options=kwargs.get("env_options"), curves=CURVES[registry.name_of(config)])
     try:
         return train_run(args.env, config, on_chunk=logger, **kwargs)
     finally:
@@ -278,17 +249,20 @@ def _train(args, config: DQNConfig, **kwargs):
         print(f"wrote Rerun recording {args.rerun}")
 
 
-def _report(args, config: DQNConfig, result) -> int:
-    from agents import sharding
+def _report(args, config, result) -> int:
+    from agents import registry, sharding
 
     if result.interrupted:
         return _report_stop(args, result)
     if not sharding.is_writer():  # process 0 reports for every host
         return 0
     _report_devices(result)
+    policy = POLICY_NAMES[registry.name_of(config)]
     for i, (ret, solve) in enumerate(zip(result.mean_return, result.solve_step)):
-        print(f"seed {i}: greedy mean return {ret:.1f} over {config.eval_episodes} episodes; "
-              f"first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
+        reached = "" if config.solve_return is None else (
+            f"; first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
+        best = " (the best seed: load_policy's default)" if len(result.mean_return) > 1 and i == result.best_seed else ""
+        print(f"seed {i}: {policy} policy's mean return {ret:.1f} over {config.eval_episodes} episodes{reached}{best}")
     print(wall_line(result) + (f"; wrote {args.out}" if args.out else ""))
     return 0
 
@@ -347,7 +321,9 @@ def _report_devices(result) -> None:
 
 def cmd_sweep(args, extra: list[str]) -> int:
     """A grid over the sweepable config fields (comma-separated values) times --seeds, as one program."""
-    grid = {name: getattr(args, name) for name in SWEEPABLE if getattr(args, name) is not None}
+    from agents import registry
+
+    grid = {name: getattr(args, name) for name in sweep_fields() if getattr(args, name) is not None}
     if args.resume:
         saved = _saved_run(args, extra, sweep=True, swept=tuple(grid))
         config, grid = saved.config, saved.sweep
@@ -356,20 +332,19 @@ def cmd_sweep(args, extra: list[str]) -> int:
         if args.env is None:
             raise UsageError("sweep needs --env (or --resume with the --out of a saved sweep)")
         _require_registered(args.env)
-        try:
-            _choose_agent(args.env, "dqn", {})
-        except UsageError as err:
-            raise UsageError(f"mjxsuite sweep trains DQN only: {err}")
-        _refuse_fixed_field_lists(extra)
+        agent = _choose_agent(args.env, args.agent, {})
+        sweepable = registry.sweepable(agent)
+        _refuse_fixed_field_lists(extra, agent, sweepable)
         if not grid:
             raise UsageError("sweep needs at least one field with several values, e.g. --learning_rate 5e-4,1e-3; "
-                             f"sweepable fields: {', '.join(SWEEPABLE)}")
+                             f"sweepable fields of --agent {agent}: {', '.join(sweepable) or 'none'}")
         args.seeds, args.seed = args.seeds or 1, args.seed or 0
-        config = config_from_args(_dqn_preset(args.preset), extra, total_steps=args.steps, replay=args.replay)
+        config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay)
         try:
-            sweep_configs(config, grid)  # every combination in range, before anything compiles
+            registry.sweep_configs(config, grid)  # every combination in range, before anything compiles
         except ValueError as err:
             raise UsageError(str(err))
+        _say_rounding(config)
         result = _train(args, config, sweep=grid)
     from agents import sharding
 
@@ -391,15 +366,18 @@ def cmd_sweep(args, extra: list[str]) -> int:
     return 0
 
 
-def _refuse_fixed_field_lists(pairs: list[str]) -> None:
+def _refuse_fixed_field_lists(pairs: list[str], agent: str, sweepable: tuple[str, ...]) -> None:
     """A comma-separated list given to a config field that cannot be swept: name the ones that can."""
-    fields = {f.name: f for f in dataclasses.fields(DQNConfig)}
+    from agents import registry
+
+    fields = {f.name: f for f in dataclasses.fields(registry.config_class(agent))}
     for flag, value in zip(pairs, pairs[1:] + [""]):
         name, _, inline = flag[2:].partition("=") if flag.startswith("--") else ("", "", "")
         name = name.replace("-", "_")
-        if name in fields and name != "hidden" and "," in (inline or value):
+        if name in fields and "hidden" not in name and "," in (inline or value):
             raise UsageError(f"--{name} cannot be swept: one compiled program has one set of array shapes and loops; "
-                             f"sweepable fields: {', '.join(SWEEPABLE)} (run one sweep per value of --{name})")
+                             f"sweepable fields of --agent {agent}: {', '.join(sweepable) or 'none'} "
+                             f"(run one sweep per value of --{name})")
 
 
 def float_list(text: str) -> list[float]:
@@ -411,10 +389,9 @@ def float_list(text: str) -> list[float]:
 
 
 def cmd_eval(args, extra: list[str]) -> int:
+    """Every seed's policy (DQN's greedy one, PPO's and SAC's deterministic one) over fresh episodes."""
     import jax
     import numpy as np
-
-    import envs
 
     from agents import checkpoint
     from agents.run import compile_cached, load_agent
@@ -424,38 +401,18 @@ def cmd_eval(args, extra: list[str]) -> int:
     # Given env options judge the policy on other ones, e.g. across --randomize ranges, or --impl jax.
     saved = checkpoint.load_config(args.checkpoint)
     env_name, env, options = checkpoint.saved_env(args.checkpoint, env_options.from_args(saved.env, args))
-    if saved.agent != "dqn":
-        return _eval_brax(args, env, options)
-    _, _, dqn, params = load_agent(args.checkpoint, env)
+    _, _, agent, params = load_agent(args.checkpoint, env)
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
-    evaluate = compile_cached(f"DQN.evaluate, {args.episodes} episodes",
-                              jax.vmap(lambda p, k: dqn.evaluate(p, k, args.episodes)), (params, keys), dqn, seeds,
+    evaluate = compile_cached(f"{type(agent).__name__}.evaluate, {args.episodes} episodes",
+                              jax.vmap(lambda p, k: agent.evaluate(p, k, args.episodes)), (params, keys), agent, seeds,
                               env_name, options)
     returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
     for i, mean in enumerate(means):
-        print(f"seed {i}: greedy mean return {mean:.1f} over {args.episodes} episodes")
+        print(f"seed {i}: {POLICY_NAMES[saved.agent]} policy's mean return {mean:.1f} over {args.episodes} episodes")
     print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes,
                       "mean_return": means.tolist()}))
-    return 0
-
-
-def _eval_brax(args, env, options: dict) -> int:
-    """`mjxsuite eval` of a PPO/SAC run: its deterministic policy in `env`, one episode per env."""
-    import jax
-    import numpy as np
-
-    from agents import brax_agents, brax_run
-    from agents.rollouts import collect_rollout_cached
-
-    env_name, env, config, params = brax_run.load_agent(args.checkpoint, env)
-    policy = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)
-    rollout = collect_rollout_cached(env, env_name, options, policy, {"deterministic": config}, jax.random.PRNGKey(args.seed),
-                                     num_envs=args.episodes, steps=env.episode_length, params=params, scene_envs=0)
-    mean = float(np.mean(brax_run.first_episode_returns(rollout)))
-    print(f"deterministic policy: mean return {mean:.1f} over {args.episodes} episodes")
-    print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes, "mean_return": [mean]}))
     return 0
 
 
@@ -482,7 +439,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
         trained_on, env, options = checkpoint.saved_env(args.checkpoint,
                                                         None if other_env else env_options.from_args(saved.env, args))
         _, env, policy, params = load_greedy(args.checkpoint, env=env)
-        policy_name = {"greedy": saved.config} if saved.agent == "dqn" else {"deterministic": saved.config}
+        policy_name = {POLICY_NAMES[saved.agent]: saved.config}
         env_name = trained_on
         if other_env:
             other = envs.make(args.env, **env_options.from_args(args.env, args))
@@ -571,23 +528,24 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                         help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
                              "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
 
-    from agents.brax_agents import PPOConfig, SACConfig
+    from agents import registry
 
-    train = sub.add_parser("train", help="train DQN, or Brax's PPO or SAC (--agent); any field of the agent's config "
-                                         "can be set with --FIELD VALUE", parents=[cached, tasks, spread],
-                           epilog="; ".join(f"{cls.__name__} fields (--agent {agent}): "
-                                            + ", ".join(f.name for f in dataclasses.fields(cls))
-                                            for agent, cls in (("dqn", DQNConfig), ("ppo", PPOConfig), ("sac", SACConfig)))
+    train = sub.add_parser("train", help="train DQN, PPO or SAC (--agent), many seeds at once; any field of the "
+                                         "agent's config can be set with --FIELD VALUE", parents=[cached, tasks, spread],
+                           epilog="; ".join(f"{registry.config_class(agent).__name__} fields (--agent {agent}): "
+                                            + ", ".join(f.name for f in dataclasses.fields(registry.config_class(agent)))
+                                            for agent in AGENTS)
                                   + ". PPO/SAC defaults per task: agents/brax_defaults.py")
     train.add_argument("--env", help="registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)")
     train.add_argument("--agent", choices=AGENTS,
-                       help="dqn (ours) for discrete tasks, Brax's ppo or sac for continuous ones "
+                       help="dqn for discrete tasks, ppo or sac for continuous ones "
                             "(default: dqn for a discrete task; for a continuous one, ppo or the task's choice in "
                             "agents/brax_defaults.py: sac for half-cheetah and walker2d)")
     train.add_argument("--seeds", type=ranged(int, COUNT), help="agents trained at once (default 1)")
     train.add_argument("--seed", type=int, help="random seed (default 0)")
     train.add_argument("--steps", type=ranged(int, COUNT),
-                       help="env steps per seed (DQNConfig.total_steps; PPO/SAC: num_timesteps)")
+                       help="env steps per seed, for every agent (DQNConfig.total_steps; PPO/SAC: num_timesteps, "
+                            "rounded up to whole training steps per chunk, as the run says before it compiles)")
     env_options.add_arguments(train)
     train.add_argument("--replay", choices=["uniform", "prioritized"])
     train.add_argument("--preset",
@@ -611,10 +569,12 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
 
     sweep = sub.add_parser("sweep", parents=[cached, tasks, spread],
                            help="train a grid of configs x seeds as one program; swept fields take comma-separated "
-                                "values, other DQNConfig fields --FIELD VALUE",
-                           epilog=f"sweepable fields: {', '.join(SWEEPABLE)}; writes sweep.json and sweep.png to --out")
+                                "values, other config fields --FIELD VALUE",
+                           epilog="sweepable fields: " + "; ".join(f"--agent {agent}: {', '.join(registry.sweepable(agent))}"
+                                                                  for agent in AGENTS if registry.sweepable(agent))
+                                  + "; writes sweep.json and sweep.png to --out")
     # The options train and sweep share are train's own (one definition; argparse's parents do the same).
-    shared = {"env", "seeds", "seed", "steps", "replay", "preset", "out", "resume", "checkpoint_every",
+    shared = {"env", "agent", "seeds", "seed", "steps", "replay", "preset", "out", "resume", "checkpoint_every",
               "checkpoint_seconds", "rerun", "overwrite"}
     for action in train._actions:
         if action.dest in shared:
@@ -623,11 +583,11 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                        help="chunks between logged evaluation rollouts of every agent (default 0: curves only)")
     sweep.add_argument("--plot", metavar="FILE.png", help="solve rate and steps to solve per config "
                                                           "(default: sweep.png in --out; needs matplotlib)")
-    for name in SWEEPABLE:
+    for name in sweep_fields():
         sweep.add_argument(f"--{name}", *([f"--{name.replace('_', '-')}"] if "_" in name else []), dest=name,
                            type=float_list, metavar="V1,V2,...", help="values to sweep")
 
-    evaluate = sub.add_parser("eval", help="greedy evaluation of a saved agent", parents=[cached, tasks])
+    evaluate = sub.add_parser("eval", help="evaluate a saved run's policies, every seed", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=ranged(int, COUNT), default=64)
     evaluate.add_argument("--seed", type=int, default=123)

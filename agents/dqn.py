@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import itertools
 import math
 from typing import Any, ClassVar, NamedTuple
 
@@ -139,22 +138,6 @@ class Hyperparams(NamedTuple):
         """One float32 array per field, one entry per config: a sweep's traced values."""
         rows = [cls.of(c) for c in configs]
         return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
-
-
-def sweep_configs(base: "DQNConfig", sweep: dict[str, list[float]] | None) -> list["DQNConfig"]:
-    """Every combination of `sweep`'s values over `base` (the last field varying fastest);
-    `[base]` without a sweep. ValueError for a field outside `SWEEPABLE` or a value out of range."""
-    if not sweep:
-        return [base]
-    fixed = [name for name in sweep if name not in SWEEPABLE]
-    if fixed:
-        raise ValueError(f"cannot sweep {', '.join(fixed)}: one compiled program has one set of array shapes and "
-                         f"loops, so only the fields used as plain numbers can vary: {', '.join(SWEEPABLE)}. Run "
-                         "one sweep per value of the others")
-    empty = [name for name, values in sweep.items() if not values]
-    if empty:
-        raise ValueError(f"sweep of {', '.join(empty)} has no values")
-    return [dataclasses.replace(base, **dict(zip(sweep, values))) for values in itertools.product(*sweep.values())]
 
 
 def linear_schedule(span, end, steps: int, count):
@@ -327,6 +310,10 @@ class DQN:
     # ---- acting -------------------------------------------------------------
     def q_values(self, params, obs):
         return self.network.apply(params, obs)
+
+    def policy(self, params, obs):
+        """The greedy action (one observation or a batch): what `load_policy` acts with."""
+        return greedy(self.q_values(params, obs))[0]
 
     def batch_q_values(self, params, obs):
         """Q-values of many rows per agent (a replayed batch, in the update's forward and backward

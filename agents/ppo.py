@@ -24,10 +24,6 @@ from typing import Any, ClassVar, NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
-from brax.training import acting, gradients
-from brax.training.acme import running_statistics, specs
-from brax.training.agents.ppo import losses as ppo_losses
-from brax.training.agents.ppo import networks as ppo_networks
 from flax import struct
 
 from agents.dqn import EvalEpisode
@@ -44,8 +40,8 @@ class PPOConfig:
     `num_updates_per_batch * num_minibatches` gradient steps on them. As in Brax, the
     `num_evals - 1` evaluations after training steps split `num_timesteps`, rounded up to
     whole training steps (`rounding()` says how); Brax's first evaluation, of the untrained
-    policy, is not a chunk. The defaults are `agents.brax_agents.PPOConfig`'s, sized for small
-    tasks on a CPU (they balance inverted-pendulum)."""
+    policy, is not a chunk. The defaults are sized for small tasks on a CPU (they balance
+    inverted-pendulum); agents/brax_defaults.py holds the per-task recipes."""
 
     num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
     num_envs: int = 64
@@ -224,6 +220,8 @@ class PPO:
     def __init__(self, config: PPOConfig, env: Env, platform: str | None = None, agents: int = 1):
         """`env`: one env with its time limit (`envs.make`); `platform` and `agents` as in
         `agents.dqn.DQN` (no program shape depends on them yet)."""
+        from brax.training.acme import running_statistics
+        from brax.training.agents.ppo import networks as ppo_networks
         if env.action_size is None:
             raise ValueError(f"PPO acts with a tanh-Gaussian policy and needs a continuous-action env; "
                              f"{env!r} has {env.num_actions} discrete actions (train it with DQN)")
@@ -232,8 +230,8 @@ class PPO:
         self.platform, self.agents = platform, agents
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         preprocess = running_statistics.normalize if config.normalize_observations else (lambda obs, _: obs)
-        # Brax's networks as `agents.brax_agents.network_factory` makes them: a checkpoint's
-        # params load with `brax_agents.params_template` and act with its `deterministic_policy`.
+        # Brax's networks as Brax's trainer makes them (`benchmarks.brax_trainers.network_factory`):
+        # the params are what Brax's ppo.train returns.
         self.networks = ppo_networks.make_ppo_networks(
             env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
             policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
@@ -262,6 +260,7 @@ class PPO:
         """One training step's data: `unrolls_per_training_step` unrolls of `unroll_length` steps
         of every env with the stochastic policy, as Brax's training step collects them.
         Returns the envs' new state and the transitions, leading axes (unrolls * num_envs, unroll_length)."""
+        from brax.training import acting
         cfg = self.config
         policy = self.make_policy(ts.params)
         fields = ("truncation", *STAT_FIELDS) + (("overflow",) if "overflow" in ts.env_state.info else ())
@@ -304,6 +303,8 @@ class PPO:
     def loss_and_grad(self, nets, normalizer, minibatch, key):
         """Brax's PPO loss (`compute_ppo_loss`, value coefficient 0.5, normalized advantages)
         and its gradient with respect to `nets` (PPONetworkParams)."""
+        from brax.training import gradients
+        from brax.training.agents.ppo import losses as ppo_losses
         loss = functools.partial(
             ppo_losses.compute_ppo_loss, ppo_network=self.networks, entropy_cost=self.hyper.entropy_cost,
             discounting=self.hyper.discounting, reward_scaling=self.hyper.reward_scaling,
@@ -333,6 +334,8 @@ class PPO:
         """Brax's training step: collect, update the normalizer with the new observations, then
         `num_updates_per_batch` passes of minibatch SGD. Its keys are split as Brax splits
         them, so from the same state it gives Brax's parameters."""
+        from brax.training.acme import running_statistics
+        from brax.training.agents.ppo import losses as ppo_losses
         cfg = self.config
         key_sgd, key_unroll, key = jax.random.split(ts.key, 3)
         env_state, data = self.collect(ts, key_unroll)
@@ -395,12 +398,15 @@ class PPO:
     # ---- a training run ---------------------------------------------------------
     def init_params(self, policy_key: jax.Array, value_key: jax.Array):
         """Fresh (normalizer, policy, value) params, initialised as Brax's ppo.train does."""
+        from brax.training.acme import running_statistics
+        from brax.training.acme import specs
         obs_spec = specs.Array((self.env.observation_size,), jnp.dtype("float32"))
         return (running_statistics.init_state(obs_spec), self.networks.policy_network.init(policy_key),
                 self.networks.value_network.init(value_key))
 
     def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
         """Fresh parameters, optimizer and envs; `hyperparams`: a sweep agent's own values."""
+        from brax.training.agents.ppo import losses as ppo_losses
         param_key, env_key, loop_key = jax.random.split(key, 3)
         params = self.init_params(*jax.random.split(param_key))
         return TrainState(

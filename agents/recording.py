@@ -3,7 +3,7 @@
 `TrainingLogger` is an `on_chunk(index, train_state, record)` callback for
 `agents.run.train_run`. After every chunk it sends, on the `train_step` timeline,
 
-  train/seed_<s>/loss, mean_q, epsilon, eval_return, train_return, env_steps_per_s
+  train/seed_<s>/loss, mean_q, epsilon, eval_return, train_return, env_steps_per_s  (DQN)
   train/env_steps_per_s                     all seeds together
 
 and every `rollout_every` chunks the first episode of that chunk's greedy
@@ -13,10 +13,8 @@ logging it costs no extra rollout or compile), drawn like `mjxsuite rollout` und
 other on that prefix's `step` timeline; `eval/seed_<s>/train_step` marks where each
 one starts and the train step it shows.
 
-It is also `agents.brax_run.train_brax`'s `on_eval` callback for Brax's PPO and SAC, with
-`curves=BRAX_CURVES[agent]`: after every evaluation, train/seed_0/eval_return and Brax's
-losses, and every `rollout_every` evaluations one episode of the deterministic policy
-(collected after the evaluation, one jitted rollout compiled once).
+PPO and SAC log the same way with their own curves (`CURVES[agent]`: their losses instead of
+DQN's loss, mean_q and epsilon) and their deterministic policy's episodes.
 """
 
 from __future__ import annotations
@@ -32,14 +30,16 @@ import envs
 from agents.dqn import DQNConfig, EvalEpisode
 from envs import recording
 
-SEED_CURVES = {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", "eval_return": "eval_return",
-               "train_return": "train_return"}
-# Brax's PPO and SAC (`agents.brax_run` records): their evaluation and Brax's training losses.
-BRAX_CURVES = {
-    "ppo": {"eval_return": "eval_return", "policy_loss": "policy_loss", "v_loss": "v_loss",
-            "entropy_loss": "entropy_loss"},
-    "sac": {"eval_return": "eval_return", "actor_loss": "actor_loss", "critic_loss": "critic_loss", "alpha": "alpha"},
+# Each agent's curves: {record key: curve name}; every agent's chunk also records its evaluation.
+CURVES = {
+    "dqn": {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", "eval_return": "eval_return",
+            "train_return": "train_return"},
+    "ppo": {"eval_return": "eval_return", "train_return": "train_return", "policy_loss": "policy_loss",
+            "v_loss": "v_loss", "entropy_loss": "entropy_loss"},
+    "sac": {"eval_return": "eval_return", "train_return": "train_return", "actor_loss": "actor_loss",
+            "critic_loss": "critic_loss", "alpha": "alpha"},
 }
+SEED_CURVES = CURVES["dqn"]
 
 
 class TrainingLogger:
@@ -54,8 +54,7 @@ class TrainingLogger:
                  agent_paths: tuple[list[str], list[str]] | None = None, curves: dict[str, str] = SEED_CURVES):
         """`agent_paths`: (entity path, series label) of every agent, for a sweep's
         `config_<c>/seed_<s>` (`agents.sweep.agent_paths`); default `seed_<s>`, "seed <s>".
-        `curves`: {record key: curve name} (default DQN's; `BRAX_CURVES` for PPO and SAC, whose
-        records carry their greedy episode as "eval_rollout", a function that collects it)."""
+        `curves`: {record key: curve name} (default DQN's; `CURVES[agent]` for the others)."""
         if rollout_every < 0:
             raise ValueError(f"rollout_every must be >= 0 (0: no evaluation rollouts), got {rollout_every}")
         self.rec = recording.open_recording(path, overwrite)
@@ -77,12 +76,10 @@ class TrainingLogger:
         train_step = int(np.atleast_1d(record["env_steps"])[0])
         self._log_curves(train_step, record)
         if self.rollout_every and index % self.rollout_every == 0:
-            if "eval_episode" in record:  # DQN: recorded inside the training chunk, per seed
+            if record.get("eval_episode") is not None:  # recorded inside the training chunk, per seed
                 episode = jax.device_get(record["eval_episode"])
                 self._log_episodes(train_step, [episode_rollout(jax.tree.map(lambda x: x[s], episode))
                                                 for s in range(self.seeds)])
-            elif record.get("eval_rollout") is not None:  # PPO/SAC: collected now, one seed
-                self._log_episodes(train_step, [record["eval_rollout"]()])
 
     def _send(self, path: str, train_step: int, value: float) -> None:
         self.rec.send_columns(path, indexes=[rr.TimeColumn("train_step", sequence=[train_step])],
@@ -94,8 +91,6 @@ class TrainingLogger:
                 continue
             for s, value in enumerate(np.atleast_1d(record[key])):
                 self._send(f"train/{self.paths[s]}/{name}", train_step, value)
-        if record.get("steps_per_s") is None:  # Brax's first evaluation comes before any training
-            return
         self._send("train/env_steps_per_s", train_step, record["steps_per_s"])
         for s in range(self.seeds):
             self._send(f"train/{self.paths[s]}/env_steps_per_s", train_step, record["steps_per_s"] / self.seeds)

@@ -11,33 +11,21 @@ import numpy as np
 
 import envs
 from agents import export_cache
-from agents.dqn import DQN, greedy
 from envs import rollouts
 
 
-def greedy_policy(dqn: DQN) -> rollouts.PolicyFn:
-    """`(params, obs, key) -> argmax_a Q(obs, a)`, jittable, for `envs.rollouts.collect_rollout`."""
-    return lambda params, obs, key: greedy(dqn.q_values(params, obs))[0]
-
-
 def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None, env: envs.Env | None = None):
-    """The env and jittable greedy policy saved by `mjxsuite train --out DIR`: `(env_name, env, policy, params)`.
+    """The env and jittable policy of a run directory, whatever the agent: `(env_name, env,
+    policy, params)`, `policy(params, obs, key)` for `envs.rollouts.collect_rollout` (DQN's greedy
+    action; PPO's and SAC's deterministic one, in [-1, 1] as our envs take it).
 
-    With several trained seeds it takes the one with the best greedy evaluation unless `seed_index` picks one.
-    A PPO/SAC run's policy is the mode of Brax's policy, acting in [-1, 1] as our envs take it.
+    With several trained seeds it takes the run's best seed unless `seed_index` picks one.
     `env`: the saved env made here (`agents.checkpoint.saved_env`, the default) or one with other options.
     """
-    from agents import checkpoint
     from agents.run import load_agent, pick_seed
 
-    if checkpoint.load_config(out_dir).agent != "dqn":
-        from agents import brax_agents, brax_run
-
-        env_name, env, config, params = brax_run.load_agent(out_dir, env)
-        return env_name, env, brax_agents.deterministic_policy(config, env.observation_size, env.action_size), params
-
-    env_name, env, dqn, params = load_agent(out_dir, env)
-    return env_name, env, greedy_policy(dqn), pick_seed(out_dir, params, seed_index)
+    env_name, env, agent, params = load_agent(out_dir, env)
+    return env_name, env, lambda params, obs, key: agent.policy(params, obs), pick_seed(out_dir, params, seed_index)
 
 
 def checked_observations(obs, env_name: str, size: int) -> np.ndarray:

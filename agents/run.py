@@ -1,7 +1,9 @@
-"""Host-side driver: runs `DQN.chunk` (as two programs: its training steps and its judge) under
-jit(vmap) for many seeds (spread over devices by
-`agents.sharding`, several configs at once for a sweep), with a progress
-bar, metrics files, checkpoints and Ctrl-C handling between chunks."""
+"""The run lifecycle, one for every agent (DQN, PPO, SAC): `train_run` drives an agent's pure
+chunks (`init`, then `train_steps` and `judge` as two programs) under jit(vmap) for many seeds
+(spread over devices by `agents.sharding`, several configs at once for a sweep), and between
+chunks owns the run directory, the progress bar, metrics, checkpoints, signals and the final
+evaluation (`agents.run_steps` holds those steps). `load_agent` and `load_policy` read any
+run directory back."""
 
 from __future__ import annotations
 
@@ -17,11 +19,12 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import checkpoint, driver, export_cache, sharding, signals
+from agents import checkpoint, export_cache, registry, run_steps, sharding, signals
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
-from agents.dqn import DQN, DQNConfig, Hyperparams, greedy, sweep_configs
+from agents.dqn import DQNConfig
+from agents.registry import per_agent, sweep_configs
 from agents.rollouts import checked_observations
-from agents.driver import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
@@ -62,6 +65,7 @@ class RunResult:
     total_chunks: int = 0  # chunks of the whole run
     chunk_unit: str = "chunks"
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
+    best_seed: int = 0  # the seed `load_policy` acts with (`break_ties`)
 
 
 def seed_keys(seed: int, seeds: int) -> jax.Array:
@@ -117,27 +121,27 @@ def _aside(work: Callable[[], Any], name: str) -> Future:
         pool.shutdown(wait=False)  # its one thread ends with its one task
 
 
-def compile_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
+def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                    env_options: dict | None, donate: bool = False) -> Callable:
-    """A DQN program (`fn`, for `seeds` seeds of `dqn`) compiled for `args` with the training
-    programs' XLA options: `lower_cached(...).compile()`."""
-    return lower_cached(program, fn, args, dqn, seeds, env_name, env_options, donate).compile()
+    """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) compiled for `args` with the
+    training programs' XLA options: `lower_cached(...).compile()`."""
+    return lower_cached(program, fn, args, learner, seeds, env_name, env_options, donate).compile()
 
 
-def lower_cached(program: str, fn: Callable, args: tuple, dqn: DQN, seeds: int, env_name: str,
+def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                  env_options: dict | None, donate: bool = False) -> export_cache.LoweredProgram:
-    """A DQN program (`fn`, for `seeds` seeds of `dqn`) lowered for `args`, to compile with the
+    """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) lowered for `args`, to compile with the
     training programs' XLA options; with the export cache on (`agents.compile_cache.enable()`),
     its traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
     the training chunk and the evaluation) is most of a warm start."""
-    return export_cache.lower_env_program(program, fn, args, dqn.env, env_name, env_options,
-                                          extra=dqn_key_parts(dqn, seeds), donate=donate,
+    return export_cache.lower_env_program(program, fn, args, learner.env, env_name, env_options,
+                                          extra=key_parts(learner, seeds), donate=donate,
                                           compiler_options=training_compiler_options())
 
 
-def dqn_key_parts(dqn: DQN, seeds: int) -> dict:
-    """What a DQN program's export-cache key holds besides the env and the arguments' shapes."""
-    return {"config": dqn.config, "seeds": seeds}
+def key_parts(learner: Any, seeds: int) -> dict:
+    """What an agent's program's export-cache key holds besides the env and the arguments' shapes."""
+    return {"config": learner.config, "seeds": seeds}
 
 
 def _host(tree) -> dict:
@@ -146,7 +150,7 @@ def _host(tree) -> dict:
 
 def train_run(
     env_name: str,
-    config: DQNConfig = DQNConfig(),
+    config: Any = DQNConfig(),  # DQNConfig, PPOConfig or SACConfig: the agent to train
     seeds: int = 1,
     seed: int = 0,
     out_dir: str | Path | None = None,
@@ -161,10 +165,11 @@ def train_run(
     checkpoint_seconds: float = CHECKPOINT_SECONDS,  # ...and at least these seconds, or SAVE_COST_FACTOR x the
     # last save's duration if longer (0: every checkpoint_every chunks)
     devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
-    sweep: dict[str, list[float]] | None = None,  # a grid over `dqn.SWEEPABLE` fields: every config x `seeds`
+    sweep: dict[str, list[float]] | None = None,  # a grid over the agent's SWEEPABLE fields: every config x `seeds`
     overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
 ) -> RunResult:
-    """Train `seeds` DQN agents on `env_name` at once; see docs/training.md for the files written to `out_dir`.
+    """Train `seeds` agents (DQN, PPO or SAC, as `config` says) on `env_name` at once; see
+    docs/training.md for the files written to `out_dir`.
 
     With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
     options, else ValueError) from its last checkpoint, or from the start if it was killed
@@ -177,7 +182,7 @@ def train_run(
     with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
         start = time.perf_counter()
         COUNT.check("seeds", seeds)
-        clock = driver.SaveClock(checkpoint_every, checkpoint_seconds)
+        clock = run_steps.SaveClock(checkpoint_every, checkpoint_seconds)
         sweep = sweep or None
         configs = sweep_configs(config, sweep)
         agents = seeds * len(configs)
@@ -185,10 +190,11 @@ def train_run(
         mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
         placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
         writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
-        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep)
-        out = driver.open_run_dir(out_dir, run, resume, writer, overwrite)
-        dqn = DQN(config, env, agents=agents // placement.count)
-        init = jax.jit(placement.spread(jax.vmap(dqn.init)), compiler_options=init_compiler_options())
+        agent = registry.name_of(config)
+        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent)
+        out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
+        learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
+        init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
 
         def run_inputs():  # the init program's arguments and the final evaluation's keys
             keys, eval_keys = run_keys(seed, seeds)
@@ -229,7 +235,7 @@ def train_run(
         # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
         record_episode = on_chunk is not None
         per_device = agents // placement.count
-        judge = partial(dqn.judge, record=record_episode)
+        judge = partial(learner.judge, record=record_episode)
         # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
         # device: each holds a copy of the env's step, and together were one program that XLA compiled
         # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
@@ -237,13 +243,14 @@ def train_run(
         # on 2 CPU cores: traced on two threads at once, both compiles waited for both traces;
         # docs/results.md). Several devices: one sharded program of both took 251.4 ms a chunk of
         # 2 x 1,024 agents on two H100s, the two 245.8 ms (docs/scaling.md).
-        train_fn = seed_batched(dqn.train_steps, per_device, seed_axis)
+        train_fn = seed_batched(learner.train_steps, per_device, seed_axis)
         judge_fn = seed_batched(judge, per_device, seed_axis)
+        kind = type(learner).__name__  # names its programs in the export cache
         if placement.mesh is None:
-            judged = f"DQN.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
-            train_program = _aside(lower_cached(f"DQN.train_steps over seeds by {seed_axis}", train_fn, (ts,),
-                                                dqn, agents, env_name, env_options, donate=True).compile, "train")
-            judge_program = lower_cached(judged, judge_fn, (ts, ts.key), dqn, agents,
+            judged = f"{kind}.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+            train_program = _aside(lower_cached(f"{kind}.train_steps over seeds by {seed_axis}", train_fn, (ts,),
+                                                learner, agents, env_name, env_options, donate=True).compile, "train")
+            judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
                                          env_name, env_options, donate=True).compile()
         else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
             options = training_compiler_options()
@@ -266,14 +273,15 @@ def train_run(
         if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
             params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
                                         ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = _aside(partial(compile_cached, "DQN.evaluate", jax.vmap(dqn.evaluate),
-                                              (params_shape, eval_keys), dqn, agents, env_name, env_options),
+            final_evaluation = _aside(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+                                              (params_shape, eval_keys), learner, agents, env_name, env_options),
                                       "evaluation")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
-        bar = driver.progress_bar(config.num_chunks * config.eval_every, chunks_done * config.eval_every, env_name,
-                                  enabled=progress and writer)
+        prefill = getattr(config, "prefill_steps", 0)  # SAC's first fill of its replay, in `init`
+        bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
+                                  prefill + chunks_done * config.eval_every, env_name, enabled=progress and writer)
         last = clock.last = chunks_done
         solved_early = False
         overflow_told = False
@@ -299,13 +307,13 @@ def train_run(
                 last = index + 1
                 now = time.perf_counter() - start
                 for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
-                    if solve >= config.solve_return and result.solve_wall_s[i] is None:
+                    if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
                         result.solve_wall_s[i] = now
                 if writer:
-                    driver.append_metrics(out, record)
+                    run_steps.append_metrics(out, record)
                 if on_chunk is not None:
                     on_chunk(index, ts, {**record, "eval_episode": eval_episode})
-                driver.show(bar, config.eval_every, record)
+                run_steps.show(bar, config.eval_every, record)
                 if stop_when_solved and None not in result.solve_wall_s:
                     solved_early = True
                     break
@@ -343,16 +351,18 @@ def train_run(
         if final_evaluation is not None:
             evaluate = final_evaluation.result()
         elif placement.mesh is None:
-            evaluate = compile_cached("DQN.evaluate", jax.vmap(dqn.evaluate), (ts.best_params, eval_keys), dqn, agents,
+            evaluate = compile_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (ts.best_params, eval_keys), learner, agents,
                                       env_name, env_options)
         else:
-            evaluate = jax.jit(placement.spread(jax.vmap(dqn.evaluate)))
+            evaluate = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
+        result.best_seed = break_ties(learner, env_name, env_options, result.params, result.mean_return, seed)
         result.eval_s = time.perf_counter() - eval_start
         result.finish(start)
         if writer:
-            driver.write_eval(out, {"env": env_name, "seeds": seeds, "mean_return": result.mean_return,
+            run_steps.write_eval(out, {"agent": agent, "env": env_name, "seeds": seeds, "best_seed": result.best_seed,
+                                    "mean_return": result.mean_return,
                                     "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                                     "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
                                     "wall_parts_s": result.wall_parts()})
@@ -360,16 +370,37 @@ def train_run(
 
 
 def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
-    """`driver.check_overflow` for a chunk's record (the most any agent's steps overflowed)."""
-    return driver.check_overflow(env, int(np.max(record.get("overflow_contacts", 0))),
+    """`run_steps.check_overflow` for a chunk's record (the most any agent's steps overflowed)."""
+    return run_steps.check_overflow(env, int(np.max(record.get("overflow_contacts", 0))),
                                  int(np.max(record.get("overflow_constraints", 0))), chunk_steps, "env-steps",
                                  f"chunk {record['chunk']}", "they ended their episodes and stayed out of the replay",
                                  bar, told)
 
 
-def per_agent(configs: list[DQNConfig], seeds: int) -> Hyperparams:
-    """Each config's sweepable values repeated for its `seeds` agents (config-major)."""
-    return jax.tree.map(lambda values: jnp.repeat(values, seeds), Hyperparams.stacked(configs))
+TIE_BREAK_LENGTH = 4  # a tie-break's episodes are this many time limits long...
+TIE_BREAK_EPISODES = 4  # ...and this many times as many as an evaluation's
+
+
+def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any, returns: list[float],
+               seed: int) -> int:
+    """The best seed by the final evaluation; seeds that tie there (many CartPole seeds hold every
+    episode to its time limit) are told apart by a longer evaluation: more episodes, each
+    TIE_BREAK_LENGTH time limits long where the task takes `episode_length`, so a policy that only
+    holds out to the limit loses to one that keeps balancing. Ties after that go to the first."""
+    returns = np.asarray(returns)
+    tied = np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
+    if len(tied) == 1:
+        return int(tied[0])
+    options = dict(env_options or {})
+    length = getattr(agent.env, "episode_length", None)
+    if length is not None and "episode_length" in envs.options(env_name):
+        options["episode_length"] = TIE_BREAK_LENGTH * length
+    longer = registry.make(agent.config, envs.make(env_name, **options))
+    episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
+    candidates = jax.tree.map(lambda x: jnp.asarray(x)[tied], jax.device_get(params))
+    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 2), len(tied))
+    longer_returns = jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))(candidates, keys)
+    return int(tied[int(np.argmax(np.asarray(longer_returns)))])
 
 
 def save(out: Path, env_name: str, placement: sharding.Placement, ts: Any, chunks_done: int) -> None:
@@ -379,46 +410,59 @@ def save(out: Path, env_name: str, placement: sharding.Placement, ts: Any, chunk
         checkpoint.save_state(out, env_name, host, chunks_done)
 
 
-def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, DQN, Any]:
-    """`(env_name, env, dqn, best_params)` from a `mjxsuite train --out` directory;
-    `best_params` has a leading seed axis. `env`: the saved env made here
-    (`checkpoint.saved_env`, the default), or one with other options."""
+def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:
+    """`(env_name, env, agent, best_params)` from a `mjxsuite train --out` directory, whatever
+    the agent (DQN, PPO, SAC); `best_params` has a leading seed axis. `env`: the saved env made
+    here (`checkpoint.saved_env`, the default), or one with other options."""
     saved = checkpoint.load_config(out_dir)
     env = env or checkpoint.saved_env(out_dir)[1]
-    dqn = DQN(saved.config, env)
+    agent = registry.make(saved.config, env)
     agents = saved.seeds * len(sweep_configs(saved.config, saved.sweep))
-    template = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, agents)).best_params
-    return saved.env, env, dqn, checkpoint.load_best_params(out_dir, template)
+    template = jax.eval_shape(jax.vmap(agent.init), seed_keys(0, agents)).best_params
+    return saved.env, env, agent, checkpoint.load_best_params(out_dir, template)
 
 
 def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -> Any:
-    """One seed's parameters: `seed_index`, or the seed with the best greedy evaluation."""
-    best_returns = checkpoint.load_best_returns(out_dir)
+    """One seed's parameters: `seed_index`, or the run's best seed (`checkpoint.best_seed`)."""
+    seeds = jax.tree.leaves(params)[0].shape[0]
     if seed_index is None:
-        seed_index = int(np.argmax(best_returns))
-    if not 0 <= seed_index < len(best_returns):
-        raise ValueError(f"{out_dir} holds {len(best_returns)} seeds; seed index {seed_index} is out of range")
+        seed_index = checkpoint.best_seed(out_dir)
+    if not 0 <= seed_index < seeds:
+        raise ValueError(f"{out_dir} holds {seeds} seeds; seed index {seed_index} is out of range")
     return jax.tree.map(lambda x: x[seed_index], params)
 
 
+def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
+    """Gymnasium's action space of a continuous `env` (`Env.action_low`/`action_high`: for an MJX
+    task each actuator's ctrlrange, which `MjxEnv.action_to_ctrl` scales [-1, 1] to)."""
+    return np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32)
+
+
+def to_action_space(action: jax.Array, low: np.ndarray, high: np.ndarray) -> jax.Array:
+    """A policy action in [-1, 1] as the control the task applies: `MjxEnv.action_to_ctrl`'s
+    arithmetic (centre + a * half-range), so the two agree to the bit."""
+    return 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
+
+
 def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
-    """A greedy policy from a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
+    """The policy of a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
 
-    Takes one observation or a batch (numpy or JAX), returns integer actions as numpy.
-    With several trained seeds it uses the one with the best greedy evaluation
-    unless `seed_index` picks one. A PPO/SAC run gives its deterministic policy, whose
-    float32 actions are in the task's Gymnasium action space (`agents.brax_run.load_policy`).
+    Takes one observation or a batch (numpy or JAX). DQN's greedy policy returns integer
+    actions; PPO's and SAC's deterministic policy (the mode) float32 actions in the task's
+    Gymnasium action space. With several trained seeds it uses the run's best seed
+    (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused.
     """
-    if checkpoint.load_config(out_dir).agent != "dqn":
-        from agents import brax_run
-
-        return brax_run.load_policy(out_dir)
-    env_name, env, dqn, params = load_agent(out_dir)
+    env_name, env, agent, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
-    act = jax.jit(lambda obs: greedy(dqn.q_values(params, obs))[0])
+    if env.num_actions is not None:
+        act = jax.jit(lambda obs: agent.policy(params, obs))
+        to_numpy = lambda action: np.asarray(action).astype(np.int64)  # noqa: E731
+    else:
+        low, high = action_bounds(env)
+        act = jax.jit(lambda obs: to_action_space(agent.policy(params, obs), low, high))
+        to_numpy = lambda action: np.asarray(action, np.float32)  # noqa: E731
 
     def policy(obs):
-        obs = checked_observations(obs, env_name, env.observation_size)
-        return np.asarray(act(obs)).astype(np.int64)
+        return to_numpy(act(checked_observations(obs, env_name, env.observation_size)))
 
     return policy

@@ -49,8 +49,8 @@ from agents.replay import UniformReplay
 from envs import Env, VmapWrapper, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
 
-# Brax is imported inside the functions that use it, so `import agents` stays light (as in
-# `agents.brax_agents`): importing it costs about a second of every command's start-up.
+# Brax is imported inside the functions that use it, so `import agents` stays light: importing
+# it costs about a second of every command's start-up.
 
 # Brax's trainer: the log temperature's own Adam step size, whatever `learning_rate` is.
 ALPHA_LEARNING_RATE = 3e-4
@@ -145,7 +145,7 @@ class SACConfig:
         return self.prefill_steps + self.num_chunks * self.eval_every
 
     @property
-    def steps_per_epoch(self) -> int:  # the name `agents.brax_agents.SACConfig` gives it
+    def steps_per_epoch(self) -> int:  # Brax's name for it
         return self.eval_every
 
 
@@ -217,8 +217,8 @@ class SAC:
         self.env = env
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.obs_size, self.action_size = env.observation_size, env.action_size
-        # Brax's trainer builds its networks the same way (`agents.brax_agents.network_factory`),
-        # so `params` is what Brax's SAC returns and `load_policy` reads.
+        # Brax's trainer builds its networks the same way (`benchmarks.brax_trainers.network_factory`),
+        # so `params` is what Brax's SAC returns.
         normalize = running_statistics.normalize if config.normalize_observations else types.identity_observation_preprocessor
         self.networks = sac_networks.make_sac_networks(self.obs_size, self.action_size,
                                                        preprocess_observations_fn=normalize,

@@ -3,7 +3,7 @@ inside a callback that XLA or MuJoCo Warp calls.
 
 Python runs a signal handler in the main thread at the next bytecode, wherever that is: inside
 MuJoCo Warp's JAX FFI callback, a KeyboardInterrupt aborted the process (`free(): invalid size`)
-and nothing was saved. So the handler only records the signal; the run's driver asks
+and nothing was saved. So the handler only records the signal; the run asks
 `stop.requested` where Python holds control (between chunks, before the final evaluation),
 saves, and returns. A second signal forces the exit at once, without saving.
 

@@ -1,7 +1,7 @@
 """`mjxsuite sweep`'s results: a hyperparameter grid times seeds, trained as one program by
 `agents.run.train_run(..., sweep=grid)`, summarised per config.
 
-Agent `c * seeds + s` of the run is config `c` of the grid (`agents.dqn.sweep_configs`: every
+Agent `c * seeds + s` of the run is config `c` of the grid (`agents.registry.sweep_configs`: every
 combination, the last field varying fastest) with seed `s`'s key, the key seed `s` of
 `mjxsuite train --seeds SEEDS` gets: that agent ends with the parameters of that separate run's
 seed `s` (tests/test_sharding.py).
@@ -12,16 +12,17 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from agents.dqn import DQNConfig, sweep_configs
+from agents.registry import sweep_configs
 
 SUMMARY_FILE = "sweep.json"
 PLOT_FILE = "sweep.png"
 
 
-def summarize(env: str, config: DQNConfig, grid: dict[str, list[float]], seeds: int, result) -> dict:
+def summarize(env: str, config: Any, grid: dict[str, list[float]], seeds: int, result) -> dict:
     """One record per config: its swept values, per seed the final greedy return of its best
     parameters, the best evaluation seen in training and the first step that reached
     `solve_return` (None: never); then the medians and spreads over seeds."""
@@ -101,7 +102,7 @@ def plot(summary: dict, path: str | Path) -> Path | None:
     steps.set_ylim(bottom=0)
     steps.set_xticks(positions, labels, rotation=60, ha="right", fontsize=8)
     rate.set_title(f"{summary['env']}: {len(records)} configs x {summary['seeds']} seeds "
-                   f"(solved: greedy return >= {summary['solve_return']:g})")
+                   + ("" if summary["solve_return"] is None else f"(solved: return >= {summary['solve_return']:g})"))
     figure.tight_layout()
     path = Path(path)
     figure.savefig(path, dpi=100)
@@ -109,7 +110,7 @@ def plot(summary: dict, path: str | Path) -> Path | None:
     return path
 
 
-def agent_paths(config: DQNConfig, grid: dict[str, list[float]], seeds: int) -> tuple[list[str], list[str]]:
+def agent_paths(config: Any, grid: dict[str, list[float]], seeds: int) -> tuple[list[str], list[str]]:
     """Rerun entity paths and series labels of every agent of a sweep: `config_<c>/seed_<s>`."""
     paths, labels = [], []
     for c, member in enumerate(sweep_configs(config, grid)):

@@ -6,8 +6,8 @@ runs it, in its own process, timed from start to exit. The saved policy (`agents
 then drives Gymnasium's own env of the task (`gymnasium.make(gymnasium_id)`: C MuJoCo, float64,
 its `max_episode_steps`) for `--episodes` episodes with deterministic actions, reset with seeds
 0, 1, ...; the record holds that mean return beside the run's own final evaluation (eval.json),
-on our env, and the run's evaluation curve (env steps, Brax's evaluation return, seconds since
-the start). A run still training after `--timeout` seconds gets Ctrl-C, so it saves its
+on our env, and the run's evaluation curve (env steps, evaluation return per seed, env-steps/s);
+with several seeds every seed is judged on Gymnasium. A run still training after `--timeout` seconds gets Ctrl-C, so it saves its
 checkpoint; its saved policy is judged all the same and the record says "interrupted". Records are JSON (`--json FILE`, kind "gym-training"), written run by run.
 
     python -m benchmarks.gym_training --run "--env inverted-pendulum --agent ppo" \\
@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 
-def gymnasium_returns(out_dir: Path, env_name: str, episodes: int) -> list[float] | None:
-    """Returns of the run's saved policy on Gymnasium's own env of its task `env_name` (None: the
-    task has no Gymnasium twin)."""
+def gymnasium_returns(out_dir: Path, env_name: str, episodes: int, seed_index: int | None = None) -> list[float] | None:
+    """Returns of the run's saved policy (`seed_index`, default the run's best seed) on
+    Gymnasium's own env of its task `env_name` (None: the task has no Gymnasium twin)."""
     import gymnasium
 
     import agents
@@ -40,7 +40,7 @@ def gymnasium_returns(out_dir: Path, env_name: str, episodes: int) -> list[float
     gymnasium_id = getattr(envs.make(env_name).unwrapped, "gymnasium_id", None)
     if gymnasium_id is None:
         return None
-    policy = agents.load_policy(out_dir)
+    policy = agents.load_policy(out_dir, seed_index)
     env = gymnasium.make(gymnasium_id)
     returns = []
     for episode in range(episodes):
@@ -59,7 +59,7 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     """Train, then judge. A training still running after `timeout` s gets Ctrl-C (it saves its
     checkpoint and stops); its saved policy is judged all the same, marked "interrupted"."""
     record = {"kind": "gym-training", "command": "mjxsuite train " + shlex.join(train_args)}
-    command = [sys.executable, "-m", "benchmarks.cli", "train", *train_args, "--out", str(out_dir)]
+    command = [sys.executable, "-m", "benchmarks.cli", "train", *train_args, "--out", str(out_dir), "--overwrite"]
     start = time.perf_counter()
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
         # A shell ignores SIGINT in background jobs and the child would inherit that, so Python
@@ -88,24 +88,26 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     record.update(env=saved.env, agent=saved.agent, env_options=saved.env_options)
     metrics = out_dir / "metrics.jsonl"
     evaluations = [json.loads(text) for text in metrics.read_text().splitlines()] if metrics.exists() else []
-    curve_keys = ("env_steps", "eval_return", "wall_s", "eval_overflow_contacts", "eval_overflow_constraints")
+    curve_keys = ("env_steps", "eval_return", "steps_per_s", "overflow_contacts", "overflow_constraints")
     record["evaluations"] = [{key: r.get(key) for key in curve_keys} for r in evaluations]
-    # The largest share of an evaluation's episodes that MuJoCo Warp's overflow ended (None: not an MJX task).
-    shares = [r[key] for r in evaluations for key in curve_keys[3:] if r.get(key) is not None]
-    record["most_overflowing_evaluation"] = max(shares) if shares else None
+    # Training env-steps (of the most-overflowing seed, summed over chunks) that MuJoCo Warp's buffers could not hold.
+    record["overflowed_steps"] = int(sum(np.max(r.get(key, 0)) for r in evaluations for key in curve_keys[3:]))
     if (out_dir / "eval.json").exists():
         summary = json.loads((out_dir / "eval.json").read_text())
         record.update(return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
                       compile_s=summary.get("compile_s"))
-    else:  # interrupted: the best of Brax's evaluations stands in for our final one
-        record["return_here"] = max((r["eval_return"] for r in evaluations), default=None)
-    if not (out_dir / checkpoint.POLICY_FILE).exists():  # stopped before Brax's first trained evaluation
+    else:  # interrupted: the best evaluation during training stands in for the final one
+        record["return_here"] = max((float(np.max(r["eval_return"])) for r in evaluations), default=None)
+    if not (out_dir / checkpoint.POLICY_FILE).exists():  # stopped before its first checkpoint
         return {**record, "skipped": "stopped before any trained parameters were evaluated and saved"}
-    returns = gymnasium_returns(out_dir, saved.env, episodes)
-    if returns is not None:
-        record.update(gymnasium_returns=returns, return_on_gymnasium=float(np.mean(returns)))
+    best = checkpoint.best_seed(out_dir)
+    per_seed = [gymnasium_returns(out_dir, saved.env, episodes, i) for i in range(saved.seeds)]
+    if per_seed[0] is not None:
+        means = [float(np.mean(returns)) for returns in per_seed]
+        record.update(gymnasium_returns=per_seed[best], return_on_gymnasium=means[best], best_seed=best,
+                      seeds_on_gymnasium=means, median_on_gymnasium=float(np.median(means)))
         if record["return_here"]:
-            record["gymnasium_over_here"] = float(np.mean(returns)) / record["return_here"]
+            record["gymnasium_over_here"] = means[best] / record["return_here"]
     return record
 
 
@@ -115,10 +117,11 @@ def line(r: dict) -> str:
     gym = f"{r['return_on_gymnasium']:.1f}" if "return_on_gymnasium" in r else "-"
     here = f"{r['return_here']:.1f}" if r.get("return_here") is not None else "-"
     stopped = f" [{r['interrupted']}]" if "interrupted" in r else ""
-    overflow = r.get("most_overflowing_evaluation")
-    overflow = "" if overflow is None else f"  overflowed <= {overflow:.0%} of eval episodes"
+    overflow = f"  {r['overflowed_steps']:,} training steps overflowed" if r.get("overflowed_steps") else ""
+    seeds = (f"  seeds on Gymnasium {', '.join(f'{m:.0f}' for m in r['seeds_on_gymnasium'])}"
+             if len(r.get("seeds_on_gymnasium", [])) > 1 else "")
     return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {here:>9}  "
-            f"on Gymnasium {gym:>9}{overflow}   ({r['command']}){stopped}")
+            f"on Gymnasium {gym:>9}{seeds}{overflow}   ({r['command']}){stopped}")
 
 
 def main(argv=None) -> None:

@@ -13,7 +13,7 @@ import pytest
 import envs
 from agents import compile_cache, export_cache
 from agents.dqn import DQN, DQNConfig
-from agents.run import dqn_key_parts, seed_keys, train_run
+from agents.run import key_parts as agent_key_parts, seed_keys, train_run
 
 TINY = DQNConfig(total_steps=200, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                  eval_episodes=4, hidden=(16,))
@@ -76,7 +76,7 @@ def chunk_file(cache_dir, env_name, config=TINY, seeds=1, env_options=None):
     dqn = DQN(config, env)
     ts = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds))
     ts = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), ts)  # concrete arguments, as train_run passes
-    key_parts = export_cache.program_key_parts("DQN.chunk", env, env_name, env_options, dqn_key_parts(dqn, seeds))
+    key_parts = export_cache.program_key_parts("DQN.chunk", env, env_name, env_options, agent_key_parts(dqn, seeds))
     return export_cache.cache_file(cache_dir, key_parts, (ts,))
 
 

@@ -253,7 +253,7 @@ def test_resume_refuses_another_run(tmp_path, reference, capsys):
 
 
 class _FakeTime:
-    """`time` for agents.run and agents.driver (the save clock): a clock that moves only when told (and 1 us per reading, so no interval
+    """`time` for agents.run and agents.run_steps (the save clock): a clock that moves only when told (and 1 us per reading, so no interval
     is zero), so a test fakes slow chunks and saves exactly, without sleeping or depending on load."""
 
     def __init__(self):
@@ -267,7 +267,7 @@ class _FakeTime:
 def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int], dict]:
     """Make every chunk take `chunk_s` and every save `save_s` on agents.run's clock (saving nothing);
     the chunks each save was called at, and `on_chunk` for train_run."""
-    from agents import driver, run
+    from agents import run, run_steps
 
     clock, saves = _FakeTime(), []
 
@@ -276,7 +276,7 @@ def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int],
         saves.append(chunks_done)
 
     monkeypatch.setattr(run, "time", clock)
-    monkeypatch.setattr(driver, "time", clock)
+    monkeypatch.setattr(run_steps, "time", clock)
     monkeypatch.setattr(run, "save", slow_save)
     return saves, {"on_chunk": lambda index, ts, record: setattr(clock, "now", clock.now + chunk_s)}
 
@@ -286,7 +286,7 @@ def test_a_slow_save_spaces_the_next_ones_out(tmp_path, monkeypatch, save_s, che
     """After a save that took D seconds the next periodic one waits max(checkpoint_seconds,
     SAVE_COST_FACTOR x D) (a large sweep's state takes long to write: saving must not take over the
     run); saves faster than checkpoint_seconds / SAVE_COST_FACTOR keep the checkpoint_seconds rhythm."""
-    from agents.driver import SAVE_COST_FACTOR
+    from agents.run_steps import SAVE_COST_FACTOR
 
     config = DQNConfig(total_steps=3000, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                        eval_episodes=4, hidden=(16,))

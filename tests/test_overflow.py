@@ -103,27 +103,12 @@ if "test-always-overflowing-pendulum" not in envs.names():
     envs.register("test-always-overflowing-pendulum", AlwaysOverflowingPendulum, episode_length=50)
 
 
-def test_a_brax_run_whose_evaluation_episodes_overflow_stops():
-    """The flag reaches Brax's evaluator as a metric (envs.to_brax) and the PPO/SAC driver's record."""
-    from agents import brax_run
-    from agents.brax_agents import PPOConfig
+def test_a_ppo_run_that_overflows_on_most_steps_stops():
+    """PPO's chunks count the overflowing steps as DQN's do, and the one lifecycle stops the run."""
+    from agents.ppo import PPOConfig
 
     config = PPOConfig(num_timesteps=512, num_envs=8, batch_size=8, num_minibatches=4, unroll_length=8,
                        num_updates_per_batch=1, num_evals=3, num_eval_envs=4, policy_hidden=(16,), value_hidden=(16,))
-    with pytest.raises(RuntimeError, match=r"MuJoCo Warp ran out of its constraint rows .* on 4 of 4 evaluation "
-                                           r"episodes.* Most evaluation episodes of evaluation 0 overflowed"):
-        brax_run.train_brax("test-always-overflowing-pendulum", config, progress=False)
-
-
-def test_a_brax_run_says_once_when_some_evaluation_episodes_overflowed():
-    from agents import brax_run
-
-    lines = []
-    bar = type("Bar", (), {"write": lambda self, line: lines.append(line)})()
-    record = lambda index, share: {"evaluation": index, "eval_overflow_contacts": share, "eval_overflow_constraints": 0.0}
-    told = brax_run._check_overflow(envs.CartPoleMjx(), record(1, 0.0), 8, bar, False)
-    assert not told and not lines
-    for index in (2, 3):
-        told = brax_run._check_overflow(envs.CartPoleMjx(), record(index, 0.25), 8, bar, told)
-    assert told and len(lines) == 1 and "evaluation 2: MuJoCo Warp ran out of its contact pool" in lines[0]
-    assert "on 2 of 8 evaluation episodes" in lines[0]
+    with pytest.raises(RuntimeError, match=r"MuJoCo Warp ran out of its constraint rows .* Most env-steps of chunk 0 "
+                                           r"overflowed: the run stops"):
+        train_run("test-always-overflowing-pendulum", config, progress=False)

@@ -198,21 +198,21 @@ def test_inverted_pendulum_recipe_balances_gymnasiums_inverted_pendulum():
 
 
 def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
-    """`params` has the layout of Brax's PPO parameters (what `agents.brax_agents` loads), and
+    """`params` has the layout of Brax's PPO parameters (what `benchmarks.brax_trainers` builds), and
     `policy` acts as Brax's deterministic policy does, in [-1, 1]."""
-    from agents import brax_agents
+    from benchmarks import brax_trainers
 
     env = slide()
     ppo = PPO(SMALL, env)
     ts = jax.jit(ppo.init)(jax.random.PRNGKey(0))
-    brax_config = brax_agents.PPOConfig(policy_hidden=SMALL.policy_hidden, value_hidden=SMALL.value_hidden)
-    template = brax_agents.params_template(brax_config, env.observation_size, env.action_size)
+    brax_config = SMALL
+    template = brax_trainers.params_template(brax_config, env.observation_size, env.action_size)
     assert jax.tree.structure(template) == jax.tree.structure(ts.params)
     for a, b in zip(jax.tree.leaves(template), jax.tree.leaves(ts.params), strict=True):
         assert a.shape == b.shape and a.dtype == b.dtype
     obs = 10 * jax.random.normal(jax.random.PRNGKey(1), (32, env.observation_size))
     ours = jax.jit(ppo.policy)(ts.params, obs)
-    brax = brax_agents.deterministic_policy(brax_config, env.observation_size, env.action_size)(ts.params, obs, None)
+    brax = brax_trainers.deterministic_policy(brax_config, env.observation_size, env.action_size)(ts.params, obs, None)
     np.testing.assert_array_equal(np.asarray(ours), np.asarray(brax))
     assert ours.shape == (32, 1) and np.all(np.abs(np.asarray(ours)) <= 1.0)
 

@@ -90,9 +90,8 @@ def command_lines(program: str) -> list[tuple[Path, str]]:
 
 def test_every_documented_mjxsuite_command_line_parses():
     """Subcommand, options and config fields are all accepted (nothing runs)."""
-    from agents.brax_agents import CONFIGS
+    from agents import registry
     from agents.cli import config_from_args
-    from agents.dqn import DQNConfig
     from benchmarks.cli import build_parser
 
     commands = command_lines("mjxsuite")
@@ -102,8 +101,7 @@ def test_every_documented_mjxsuite_command_line_parses():
         try:
             args, extra = build_parser().parse_known_args(shlex.split(command)[1:])
             if args.command in ("train", "sweep"):
-                agent = getattr(args, "agent", None)
-                config_from_args(CONFIGS[agent]() if agent in CONFIGS else DQNConfig(), extra)
+                config_from_args(registry.config_class(getattr(args, "agent", None) or "dqn")(), extra)
             else:
                 assert not extra, f"{where}: unknown arguments {extra}"
         except SystemExit as err:  # argparse's and config_from_args's way to refuse

@@ -115,7 +115,7 @@ def brax_first_update(monkeypatch, config, env, seed=0):
     from brax.training import gradients
     from brax.training.agents.sac import train as brax_sac
 
-    from agents import brax_agents
+    from benchmarks import brax_trainers
 
     caught = {}
     original = gradients.gradient_update_fn
@@ -132,7 +132,7 @@ def brax_first_update(monkeypatch, config, env, seed=0):
         return f
 
     monkeypatch.setattr(gradients, "gradient_update_fn", catching)
-    kwargs = brax_agents.trainer_kwargs(config)
+    kwargs = brax_trainers.trainer_kwargs(config)
     kwargs.update(num_timesteps=config.prefill_steps + config.num_envs, num_evals=2, seed=seed)
     brax_env = envs.to_brax(env)
     _, params, metrics = brax_sac.train(brax_env, episode_length=brax_env.episode_length, **kwargs)
@@ -267,21 +267,21 @@ def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_r
 
 # ---- the policy, and evaluation ---------------------------------------------------------------------
 def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
-    """`params` has the layout of Brax's SAC parameters (what `agents.brax_agents` loads), and
+    """`params` has the layout of Brax's SAC parameters (what `benchmarks.brax_trainers` builds), and
     `policy` acts as Brax's deterministic policy does, in [-1, 1]."""
-    from agents import brax_agents
+    from benchmarks import brax_trainers
 
     env = drift()
     config = dataclasses.replace(SMALL, hidden=(8, 8))
     sac = SAC(config, env)
     ts = jax.jit(sac.init)(jax.random.PRNGKey(0))
-    template = brax_agents.params_template(config, env.observation_size, env.action_size)
+    template = brax_trainers.params_template(config, env.observation_size, env.action_size)
     assert jax.tree.structure(template) == jax.tree.structure(ts.params)
     for a, b in zip(jax.tree.leaves(template), jax.tree.leaves(ts.params), strict=True):
         assert a.shape == b.shape and a.dtype == b.dtype
     obs = 10 * jax.random.normal(jax.random.PRNGKey(1), (32, env.observation_size))
     ours = jax.jit(sac.policy)(ts.params, obs)
-    brax = brax_agents.deterministic_policy(config, env.observation_size, env.action_size)(ts.params, obs, None)
+    brax = brax_trainers.deterministic_policy(config, env.observation_size, env.action_size)(ts.params, obs, None)
     np.testing.assert_array_equal(np.asarray(ours), np.asarray(brax))
     assert ours.shape == (32, env.action_size) and np.all(np.abs(np.asarray(ours)) <= 1.0)
 
@@ -328,12 +328,12 @@ def test_brax_sac_solves_pendulum_with_the_same_recipe_too():
     measures the same algorithm (our final evaluation is within a margin of Brax's)."""
     from brax.training.agents.sac import train as brax_sac
 
-    from agents import brax_agents
+    from benchmarks import brax_trainers
 
     config = pendulum_recipe()
     env = envs.to_brax("pendulum-mjx")
     _, _, brax_metrics = brax_sac.train(env, episode_length=env.episode_length, seed=0,
-                                        **brax_agents.trainer_kwargs(config))
+                                        **brax_trainers.trainer_kwargs(config))
     _, ours = jax.jit(lambda k: train(config, envs.make("pendulum-mjx"), k))(jax.random.PRNGKey(0))
     brax_return, our_return = float(brax_metrics["eval/episode_reward"]), float(ours["eval_return"][-1])
     assert brax_return >= config.solve_return and our_return >= config.solve_return, (brax_return, our_return)

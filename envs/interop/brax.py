@@ -63,7 +63,7 @@ def _with_overflow_metrics(state: State) -> State:
     """The state with MuJoCo Warp's overflow flags of its step (`info["overflow"]`, an MJX
     task's) as two 0/1 metrics. Brax's evaluator sums each metric over an episode, and an
     overflow ends its episode, so `eval/episode_overflow_contacts` is the share of evaluation
-    episodes that a contact-pool overflow ended (`agents.brax_run` reports it)."""
+    episodes that a contact-pool overflow ended."""
     if "overflow" not in state.info:
         return state
     code = state.info["overflow"]  # envs.mjx_env: 1 contact pool, 2 constraint rows, 3 both

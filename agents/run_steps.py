@@ -1,12 +1,11 @@
-"""The host-side steps every training driver takes between its jitted work, in one place:
-`agents.run` (DQN) and `agents.brax_run` (Brax's PPO and SAC) both call them, so a run
-directory, its progress bar and its periodic saves behave the same whatever the agent.
+"""The host-side steps of a run's lifecycle (`agents.run.train_run`) between its jitted chunks,
+whatever the agent: the run directory, the progress bar, the save clock, metrics and eval.json.
 
     out = open_run_dir(out_dir, run, resume)      # checked before anything compiles
     bar = progress_bar(total, done, env_name)
-    ... for each evaluation:
+    ... after each chunk:
         append_metrics(out, record); show(bar, steps, record)
-        if clock.due(evaluations): save(...); clock.saved(evaluations, seconds)
+        if clock.due(chunks): save(...); clock.saved(chunks, seconds)
     write_eval(out, summary)
 
 The files themselves (config.json, the checkpoints, metrics.jsonl) are `agents.checkpoint`'s.
@@ -24,7 +23,7 @@ from tqdm.auto import tqdm
 from agents import checkpoint
 from envs.ranges import COUNT, NON_NEGATIVE
 
-# Periodic checkpoints: after every CHECKPOINT_EVERY chunks (DQN) or evaluations (PPO, SAC), once
+# Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once
 # CHECKPOINT_SECONDS have passed since the last save. On the 2-core CPU a default 50k-step
 # CartPole run saves every ~5 s, so a kill loses at most ~5 s of training, and saving costs ~1%
 # of the wall time (docs/reliability.md has the measurements).
@@ -100,7 +99,7 @@ class SaveClock:
 
 
 def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> tqdm:
-    """The progress bar over env steps every driver shows."""
+    """The progress bar over env steps (per seed) a run shows."""
     return tqdm(total=total, initial=initial, unit="step", disable=not enabled, desc=desc, dynamic_ncols=True)
 
 

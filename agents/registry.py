@@ -1,0 +1,81 @@
+"""The agents by name ("dqn", "ppo", "sac"): the name config.json records, the config class and
+the agent class behind it. Every agent has DQN's interface (`agents.dqn.DQN`):
+`init(key)`, `train_steps(ts)`, `judge(ts, eval_key)`, `evaluate(params, key)` and
+`policy(params, obs)`, all pure; its config has `eval_every`, `num_chunks`, `total_steps`,
+`eval_episodes` and `solve_return`. `agents.run` drives any of them the same way.
+
+The modules load on first use: DQN's command line starts without Brax.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import itertools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from envs import Env
+
+# name -> (module, config class, agent class)
+AGENTS = {"dqn": ("agents.dqn", "DQNConfig", "DQN"), "ppo": ("agents.ppo", "PPOConfig", "PPO"),
+          "sac": ("agents.sac", "SACConfig", "SAC")}
+
+
+def module(name: str):
+    if name not in AGENTS:
+        raise ValueError(f"unknown agent {name!r}; choose one of {', '.join(AGENTS)}")
+    return importlib.import_module(AGENTS[name][0])
+
+
+def config_class(name: str) -> type:
+    return getattr(module(name), AGENTS[name][1])
+
+
+def name_of(config: Any) -> str:
+    """The agent a config belongs to."""
+    for name, (module_name, config_name, _) in AGENTS.items():
+        if type(config).__name__ == config_name and type(config).__module__ == module_name:
+            return name
+    raise TypeError(f"{type(config).__name__} is not the config of an agent ({', '.join(AGENTS)})")
+
+
+def make(config: Any, env: Env, platform: str | None = None, agents: int = 1) -> Any:
+    """The agent `config` configures, for `env` (`platform`, `agents`: as `agents.dqn.DQN` takes them)."""
+    name = name_of(config)
+    return getattr(module(name), AGENTS[name][2])(config, env, platform=platform, agents=agents)
+
+
+def sweepable(name: str) -> tuple[str, ...]:
+    """The config fields a sweep of this agent may vary within one program (none: no sweeps)."""
+    return tuple(getattr(module(name), "SWEEPABLE", ()))
+
+
+def sweep_configs(base: Any, sweep: dict[str, list[float]] | None) -> list[Any]:
+    """Every combination of `sweep`'s values over `base` (the last field varying fastest);
+    `[base]` without a sweep. ValueError for a field outside the agent's `SWEEPABLE` or a value
+    out of range."""
+    if not sweep:
+        return [base]
+    name = name_of(base)
+    valid = sweepable(name)
+    fixed = [field for field in sweep if field not in valid]
+    if fixed:
+        if not valid:
+            raise ValueError(f"{name} runs cannot be swept in one program; run one per config")
+        raise ValueError(f"cannot sweep {', '.join(fixed)}: one compiled program has one set of array shapes and "
+                         f"loops, so only the fields used as plain numbers can vary: {', '.join(valid)}. Run "
+                         "one sweep per value of the others")
+    empty = [field for field, values in sweep.items() if not values]
+    if empty:
+        raise ValueError(f"sweep of {', '.join(empty)} has no values")
+    return [dataclasses.replace(base, **dict(zip(sweep, values))) for values in itertools.product(*sweep.values())]
+
+
+def per_agent(configs: list[Any], seeds: int) -> Any:
+    """Each config's sweepable values repeated for its `seeds` agents (config-major): the
+    agent's `Hyperparams` with one entry per agent."""
+    stacked = module(name_of(configs[0])).Hyperparams.stacked(configs)
+    return jax.tree.map(lambda values: jnp.repeat(values, seeds), stacked)
