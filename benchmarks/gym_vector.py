@@ -15,7 +15,7 @@ the issue asks for: torch / jax (at least 0.5) and torch / gymnasium (at least 3
 and a warm-up are kept out of the timed runs; each figure is the median of `--repeats` runs.
 
     python -m benchmarks.gym_vector [--id mjxsuite/Hopper-v5] [--num-envs 4096] [--steps 200]
-        [--repeats 5] [--gymnasium-steps 300] [--no-gymnasium] [--json FILE]
+        [--repeats 5] [--gymnasium-steps 300] [--no-gymnasium] [--impl jax|warp] [--json FILE]
     mjxsuite bench --sections gym-vector [--batch 4096] [--json FILE]
 """
 
@@ -37,7 +37,8 @@ def _record(loop: str, gymnasium_id: str, num_envs: int, steps: int, **extra) ->
             "steps_per_s": None, **extra}
 
 
-def torch_loop_speed(gymnasium_id: str, num_envs: int, steps: int, repeats: int, hidden: int = 256) -> dict:
+def torch_loop_speed(gymnasium_id: str, num_envs: int, steps: int, repeats: int, hidden: int = 256,
+                     env_options: dict | None = None) -> dict:
     """make_vec + JaxToTorch + a torch MLP's forward pass every step (its actions drive the envs)."""
     try:
         import torch
@@ -48,7 +49,7 @@ def torch_loop_speed(gymnasium_id: str, num_envs: int, steps: int, repeats: int,
     import gymnasium
 
     device = torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    vector = JaxToTorch(gymnasium.make_vec(gymnasium_id, num_envs=num_envs), device=device)
+    vector = JaxToTorch(gymnasium.make_vec(gymnasium_id, num_envs=num_envs, **(env_options or {})), device=device)
     obs_size, action_size = vector.single_observation_space.shape[0], vector.single_action_space.shape[0]
     low = torch.as_tensor(vector.single_action_space.low, device=device)
     high = torch.as_tensor(vector.single_action_space.high, device=device)
@@ -76,8 +77,9 @@ def torch_loop_speed(gymnasium_id: str, num_envs: int, steps: int, repeats: int,
                    policy=f"MLP {obs_size}-{hidden}-{hidden}-{action_size} tanh")
 
 
-def jax_loop_speed(task: str, gymnasium_id: str, num_envs: int, steps: int, repeats: int) -> dict:
-    run = env_throughput.rollout_fn(task, num_envs, steps)
+def jax_loop_speed(task: str, gymnasium_id: str, num_envs: int, steps: int, repeats: int,
+                   env_options: dict | None = None) -> dict:
+    run = env_throughput.rollout_fn(task, num_envs, steps, env_options)
     key = jax.random.PRNGKey(0)
     start = time.perf_counter()
     compiled = run.lower(key).compile()
@@ -89,20 +91,26 @@ def jax_loop_speed(task: str, gymnasium_id: str, num_envs: int, steps: int, repe
 
 
 def run_benchmark(gymnasium_id: str = "mjxsuite/Hopper-v5", num_envs: int = 4096, steps: int = 200, repeats: int = 5,
-                  gymnasium: bool = True, gymnasium_steps: int = 300) -> list[dict]:
+                  gymnasium: bool = True, gymnasium_steps: int = 300, impl: str | None = None) -> list[dict]:
+    """The three loops' records and the ratio record; `impl` ("jax" or "warp", None: the task's
+    default) steps MJX in both of our loops alike."""
     from envs.interop.gymnasium_ids import IDS, NAMESPACE
 
     local_id = gymnasium_id.removeprefix(f"{NAMESPACE}/")
     task = IDS[local_id][0]
-    records = [torch_loop_speed(gymnasium_id, num_envs, steps, repeats),
-               jax_loop_speed(task, gymnasium_id, num_envs, steps, repeats)]
+    env_options = {} if impl is None else {"impl": impl}
+    records = [torch_loop_speed(gymnasium_id, num_envs, steps, repeats, env_options=env_options),
+               jax_loop_speed(task, gymnasium_id, num_envs, steps, repeats, env_options)]
+    for r in records:
+        r["impl"] = impl or "default"
     if gymnasium:
         result = gym_mujoco.gymnasium_vector_speed(local_id, gymnasium_steps, repeats)
         records.append(_record("gymnasium", local_id, result["num_envs"], gymnasium_steps,
                                steps_per_s=result["steps_per_s"], run_s=result["run_s"], solver=result["solver"]))
     speed = {r["loop"]: r["steps_per_s"] for r in records}
     ratio = {"kind": "gym-vector-ratio", "lib": "mjxsuite", "env": gymnasium_id, "num_envs": num_envs,
-             "device": env_throughput.device_name(),
+             "device": env_throughput.device_name(), "impl": impl or "default",
+             "gymnasium_num_envs": next((r["num_envs"] for r in records if r["loop"] == "gymnasium"), None),
              "torch_over_jax": speed["torch"] / speed["jax"] if speed.get("torch") and speed.get("jax") else None,
              "torch_over_gymnasium": (speed["torch"] / speed["gymnasium"]
                                       if speed.get("torch") and speed.get("gymnasium") else None)}
@@ -112,6 +120,7 @@ def run_benchmark(gymnasium_id: str = "mjxsuite/Hopper-v5", num_envs: int = 4096
     for name, need in (("torch_over_jax", 0.5), ("torch_over_gymnasium", 30.0)):
         if ratio[name] is not None:
             print(f"   {name}: {ratio[name]:.2f}x (issue 45 asks at least {need}x)", flush=True)
+    print(json.dumps(ratio), flush=True)
     return records + [ratio]
 
 
@@ -123,10 +132,12 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--gymnasium-steps", type=int, default=300, help="vector steps per timed run of Gymnasium's")
     parser.add_argument("--no-gymnasium", action="store_true", help="leave out Gymnasium's own vector env")
+    parser.add_argument("--impl", choices=["jax", "warp"], help="MJX's implementation in both of our loops "
+                        "(default: the task's, jax; warp needs the [warp] extra and an NVIDIA GPU)")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args(argv)
     records = run_benchmark(args.id, args.num_envs, args.steps, args.repeats, not args.no_gymnasium,
-                            args.gymnasium_steps)
+                            args.gymnasium_steps, args.impl)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(records, f, indent=1)
