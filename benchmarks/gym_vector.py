@@ -94,10 +94,12 @@ def run_benchmark(gymnasium_id: str = "mjxsuite/Hopper-v5", num_envs: int = 4096
                   gymnasium: bool = True, gymnasium_steps: int = 300, impl: str | None = None) -> list[dict]:
     """The three loops' records and the ratio record; `impl` ("jax" or "warp", None: the task's
     default) steps MJX in both of our loops alike."""
-    from envs.interop.gymnasium_ids import IDS, NAMESPACE
+    import gymnasium
 
-    local_id = gymnasium_id.removeprefix(f"{NAMESPACE}/")
-    task = IDS[local_id][0]
+    # Our ids are in Gymnasium's registry (the installed package registers them): the spec names
+    # our task, and the id without its namespace is Gymnasium's own env of the task.
+    task = gymnasium.spec(gymnasium_id).kwargs["task"]
+    local_id = gymnasium_id.split("/", 1)[-1]
     env_options = {} if impl is None else {"impl": impl}
     records = [torch_loop_speed(gymnasium_id, num_envs, steps, repeats, env_options=env_options),
                jax_loop_speed(task, gymnasium_id, num_envs, steps, repeats, env_options)]
