@@ -254,14 +254,27 @@ def test_jax_to_torch():
     torch = pytest.importorskip("torch")
     from gymnasium.wrappers.vector import JaxToTorch
 
-    vector = JaxToTorch(gymnasium.make_vec("mjxsuite/InvertedPendulum-v5", num_envs=3, max_episode_steps=4,
-                                           autoreset_mode=AutoresetMode.SAME_STEP))
+    inner = gymnasium.make_vec("mjxsuite/InvertedPendulum-v5", num_envs=3, max_episode_steps=4,
+                               autoreset_mode=AutoresetMode.SAME_STEP)
+    vector = JaxToTorch(inner)
+    actions = [[[0.5], [-3.0], [2.0]], [[1.0], [0.0], [-0.25]]] * 2  # forces in Gymnasium's [-3, 3]
     obs, _ = vector.reset(seed=0)
     assert isinstance(obs, torch.Tensor) and obs.shape == (3, 4) and obs.dtype == torch.float32
-    for _ in range(4):
-        obs, reward, terminated, truncated, info = vector.step(torch.zeros(3, 1))
-    assert isinstance(reward, torch.Tensor) and bool(truncated.all())
-    assert isinstance(info["final_obs"], torch.Tensor) and bool(info["_final_obs"].all())
+    through_torch = [obs.numpy().copy()]
+    for action in actions:
+        obs, reward, terminated, truncated, info = vector.step(torch.tensor(action))
+        through_torch += [obs.numpy().copy(), reward.numpy().copy(), info["final_obs"].numpy().copy()]
+    assert isinstance(reward, torch.Tensor) and bool(truncated.any())
+    assert isinstance(info["final_obs"], torch.Tensor) and torch.equal(info["_final_obs"], terminated | truncated)
+    # The same env through JaxToNumpy: torch's actions reached the envs as the numpy ones do.
+    numpy_vector = JaxToNumpy(inner)
+    through_numpy = [numpy_vector.reset(seed=0)[0]]
+    for action in actions:
+        obs, reward, _, _, info = numpy_vector.step(np.array(action, np.float32))
+        through_numpy += [obs, reward, info["final_obs"]]
+    for ours, theirs in zip(through_torch, through_numpy, strict=True):
+        np.testing.assert_array_equal(ours, theirs)
+    assert np.any(through_torch[1] != through_torch[4])  # the actions moved the carts differently
 
 
 # ---- the PyTorch example and the benchmark ---------------------------------------------------
