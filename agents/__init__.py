@@ -4,12 +4,12 @@
 
 import importlib
 
-from agents.dqn import DQN, DQNConfig, train
-from agents.run import load_policy, train_run
-
-# PPO and SAC are imported on first use (PEP 562 `__getattr__` below), so DQN's command line
-# starts without their modules; `from agents import PPOConfig` works as before.
-_LAZY = {"PPO": "agents.ppo", "PPOConfig": "agents.ppo", "SAC": "agents.sac", "SACConfig": "agents.sac"}
+# Every name is imported on first use (PEP 562 `__getattr__` below): `import agents.signals`, the
+# first line of the `mjxsuite` command, loads no JAX, and DQN's command line starts without PPO
+# and SAC; `from agents import PPOConfig` works as ever.
+_LAZY = {"DQN": "agents.dqn", "DQNConfig": "agents.dqn", "train": "agents.dqn", "load_policy": "agents.run",
+         "train_run": "agents.run", "PPO": "agents.ppo", "PPOConfig": "agents.ppo", "SAC": "agents.sac",
+         "SACConfig": "agents.sac"}
 
 
 def __getattr__(name: str):

@@ -162,32 +162,19 @@ def training_compiler_options(platform: str | None = None) -> dict:
 DETERMINISTIC_XLA_FLAG = "--xla_gpu_deterministic_ops=true"
 
 
-def make_deterministic() -> list[str]:
+def make_deterministic() -> None:
     """Ask for bit-for-bit repeatable programs (`mjxsuite train --deterministic`): XLA's
-    deterministic GPU ops, and Warp's run-to-run deterministic atomics where this warp-lang has
-    them (MuJoCo Warp's stepping stays non-deterministic otherwise: docs/reliability.md). Must
-    run before JAX starts its backends and before mujoco.mjx loads Warp. Returns what it set."""
+    deterministic GPU ops. Must run before JAX starts its backends. MuJoCo Warp offers nothing
+    that works here: Warp's own `DeterministicMode.RUN_TO_RUN` fails to compile MuJoCo Warp's
+    kernels (a WarpDeterminismError in `_qLD_acc`, warp-lang 1.19 with mujoco-warp 4.0), so runs
+    with impl="warp" stay non-deterministic (docs/reliability.md)."""
     import os
-    import sys
 
     from jax._src import xla_bridge
 
     if xla_bridge.backends_are_initialized():
         raise RuntimeError("make_deterministic() must run before JAX starts its backends (before the first "
                            "JAX computation); call it first, or set XLA_FLAGS=" + DETERMINISTIC_XLA_FLAG)
-    applied = []
     flags = os.environ.get("XLA_FLAGS", "")
     if DETERMINISTIC_XLA_FLAG.split("=")[0] not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_XLA_FLAG}".strip()
-    applied.append(DETERMINISTIC_XLA_FLAG)
-    if "mujoco.mjx" in sys.modules and "warp" in sys.modules:
-        raise RuntimeError("make_deterministic() must run before mujoco.mjx is imported (it loads Warp)")
-    try:
-        import warp
-    except ImportError:
-        return applied
-    mode = getattr(getattr(warp, "DeterministicMode", None), "RUN_TO_RUN", None)
-    if mode is not None:
-        warp.config.deterministic = mode
-        applied.append("warp.config.deterministic = RUN_TO_RUN")
-    return applied

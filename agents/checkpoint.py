@@ -146,6 +146,16 @@ def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[st
     return saved.env, envs.make(saved.env, **options), options
 
 
+def chunks_saved(out_dir: Path) -> int:
+    """Chunks the run directory's checkpoint holds (0: none yet)."""
+    if not (Path(out_dir) / STATE_FILE).is_file():
+        return 0
+    try:
+        return int(json.loads((Path(out_dir) / PROGRESS_FILE).read_text())["chunks_done"])
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
 def describe(out_dir: Path) -> str:
     """A run directory's run in a few words, for messages: "dqn on cartpole, 3 of 50 chunks saved"."""
     try:

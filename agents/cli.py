@@ -628,11 +628,18 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     from agents.checkpoint import CheckpointError
     from envs.mjx_options import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
 
+    from agents import signals
+
+    if args.command not in ("train", "sweep"):
+        signals.release_early()  # only a training run stops at a signal of its own accord
     try:
         if args.command in ("train", "sweep") and (args.deterministic or os.environ.get("MJXSUITE_DETERMINISTIC") == "1"):
             from agents.backend import make_deterministic
 
-            make_deterministic()  # before any JAX computation and before mujoco.mjx loads Warp
+            make_deterministic()  # before any JAX computation
+            if getattr(args, "impl", None) == "warp":
+                print("note: --deterministic makes XLA's ops deterministic; MuJoCo Warp's physics is not "
+                      "(docs/reliability.md): runs with --impl warp still differ from run to run", file=sys.stderr)
         if args.command in ("train", "sweep", "eval", "rollout"):
             _use_compile_cache(args)
             import_tasks(args.imports)

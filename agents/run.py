@@ -193,6 +193,11 @@ def train_run(
         agent = registry.name_of(config)
         run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent)
         out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
+        if placement.agree(stop.requested is not None):  # a signal while the command started: nothing to compile
+            saved = checkpoint.chunks_saved(out) if out is not None and resume else 0
+            return RunResult(params=None, train_state=None, interrupted=True, stop_signal=stop.name,
+                             saved_chunks=None if out is None else saved, total_chunks=config.num_chunks,
+                             wall_s=time.perf_counter() - start)
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
 

@@ -31,6 +31,40 @@ def exit_status(signum: int) -> int:
     return 128 + int(signum)
 
 
+# A signal that came before any run installed its handlers (`catch_early`): during the imports
+# and the checks of the command line. The run's `StopSignals` takes it over.
+_pending: int | None = None
+
+
+def _early(signum, frame) -> None:
+    global _pending
+    if _pending is not None:
+        os.write(2, f"\n{signal.Signals(signum).name} again: exiting now\n".encode())
+        os._exit(exit_status(signum))
+    _pending = signum
+    os.write(2, f"\n{signal.Signals(signum).name}: stopping before the run starts\n".encode())
+
+
+def catch_early() -> None:
+    """From the first line of the `mjxsuite` command: a signal during its imports (seconds: JAX,
+    CUDA's plugin, MuJoCo) is recorded instead of raising there. A KeyboardInterrupt raised
+    inside CUDA's plugin start made JAX fall back to the CPU, and one inside an import left a
+    traceback. `release_early` or the run's `StopSignals` then act on it."""
+    if threading.current_thread() is threading.main_thread():
+        for signum in STOP_SIGNALS:
+            signal.signal(signum, _early)
+
+
+def release_early() -> None:
+    """Give the signals back their usual meaning (for commands that are no training run); a
+    signal that came meanwhile exits now, with its status."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if _pending is not None:
+        os._exit(exit_status(_pending))
+
+
 class StopSignals:
     """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
     raising; a second one exits the process at once with `exit_status`."""
@@ -50,6 +84,8 @@ class StopSignals:
                     "(send it again to exit now, without saving)\n".encode())
 
     def __enter__(self) -> "StopSignals":
+        global _pending
+        self.requested, _pending = self.requested or _pending, None  # a signal before the run: stop at once
         if threading.current_thread() is threading.main_thread():
             for signum in STOP_SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._handle)

@@ -444,3 +444,21 @@ def test_a_warp_run_gives_its_policy_eval_and_rollout_on_the_cpu(warp_run, tmp_p
     assert (tmp_path / "r.rrd").stat().st_size > 0
     assert cli_main(["eval", "--checkpoint", str(warp_run), "--impl", "warp"]) == 2  # asked for Warp: refused
     assert "--impl warp" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("delay", [0.2, 0.6])
+def test_a_signal_while_the_command_starts_exits_cleanly(tmp_path, delay):
+    """The `mjxsuite` console script catches signals from its first line: one during the imports
+    (JAX, CUDA's plugin) neither raises inside them nor starts training (a KeyboardInterrupt inside
+    CUDA's plugin start made JAX fall back to the CPU on a GPU machine)."""
+    code = "import sys\nfrom benchmarks.entry import main\nsys.exit(main())\n"
+    process = subprocess.Popen([sys.executable, "-c", code, "train", "--env", "cartpole", "--out", str(tmp_path / "run"),
+                                *CONFIG_ARGS], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert "Traceback" not in err, err
+    assert process.returncode in (0, 130), err  # 0: a fast machine had finished the run
+    if "stopping before the run starts" in err:  # caught by the console script: nothing compiled or trained
+        assert process.returncode == 130 and not (tmp_path / "run" / checkpoint.STATE_FILE).exists()
+        assert "stopped by SIGINT before the first checkpoint" in out
