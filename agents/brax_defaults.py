@@ -7,13 +7,13 @@ recipe. Rows are keyed by name only, so a row for a task that is not registered 
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default".
 
 Where each row comes from:
-- "measured here": run with `mjxsuite train` on a 2-core CPU; docs/brax.md has the results.
+- "measured here": run with `mjxsuite train` on a 2-core CPU; docs/agents.md has the results.
 - "Brax notebook": the settings of Brax's training notebook (google/brax,
   notebooks/training.ipynb) for its look-alike of the Gymnasium task (same robot, its own
   MJCF and reward), as published; sized for an accelerator (thousands of envs).
 - "Playground": MuJoCo Playground's `dm_control_suite_params.py` (`brax_ppo_config`,
   `brax_sac_config`) for the dm_control look-alike.
-Rows run on a GPU (an H100, `python -m benchmarks.gym_training`, docs/brax.md) say so; the
+Rows run on a GPU (an H100, `python -m benchmarks.gym_training`, docs/agents.md) say so; the
 others have not been run here on the Gymnasium tasks: treat them as starting points.
 """
 
@@ -34,7 +34,7 @@ _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, 
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 
 # The agent `mjxsuite train` picks on a continuous task without --agent: "ppo" unless a row here
-# says otherwise. Measured on an H100 with impl="warp" (docs/brax.md): on Gymnasium's half-cheetah,
+# says otherwise. Measured on an H100 with impl="warp" (docs/agents.md): on Gymnasium's half-cheetah,
 # SAC's row scores 9,468 on HalfCheetah-v5 in 4 minutes where PPO's best was 2,607 after 56M steps;
 # on walker2d SAC's row scores 4,361 on Walker2d-v5; on swimmer SAC's row scores 333.9 on Swimmer-v5
 # where PPO stayed below 40.
