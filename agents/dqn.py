@@ -20,10 +20,11 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from agents import backend, fused_mlp
+from agents import backend, evaluation, fused_mlp
+from agents.evaluation import EvalEpisode  # noqa: F401 (agents.dqn.EvalEpisode, as before)
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
-from envs import Env, VmapWrapper, wrap_for_training
+from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
 
 
@@ -193,17 +194,6 @@ def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
         best_action = jnp.where(better, action, best_action)
         best = jnp.where(better, value, best)
     return best_action, best
-
-
-class EvalEpisode(NamedTuple):
-    """One greedy evaluation episode; row t: the observation seen, the action taken, the
-    reward it earned and the pose (`env.scene_qpos`) shown. Rows from `length` on are padding."""
-
-    obs: jax.Array
-    action: jax.Array
-    reward: jax.Array
-    scene_qpos: jax.Array | None
-    length: jax.Array
 
 
 class StepNoise(NamedTuple):
@@ -436,50 +426,11 @@ class DQN:
 
     # ---- evaluation -----------------------------------------------------------
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes.
-
-        With `record`, also returns the first episode step by step as an `EvalEpisode`
-        (rows past its `length` are padding), so a logger can show it without running
-        (and compiling) a rollout of its own.
-        """
-        env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
-        horizon = getattr(self.env, "episode_length", 1000)
-        scene_qpos = getattr(self.env, "scene_qpos", None)
-
-        def running(carry):
-            return ~carry[2].all()
-
-        def step(carry):
-            state, returns, finished, episode = carry
-            action, _ = greedy(self.batch_q_values(params, state.obs))
-            next_state = env.step(state, action)
-            if record:
-                t = episode.length
-                first = jax.tree.map(lambda x: x[0], state.pipeline_state)
-                episode = EvalEpisode(
-                    obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
-                    action=episode.action.at[t].set(action[0], mode="drop"),
-                    reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
-                    scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
-                    length=t + (~finished[0]).astype(jnp.int32),
-                )
-            returns = returns + next_state.reward * ~finished
-            return next_state, returns, finished | (next_state.done > 0), episode
-
-        state = env.reset(key)
-        zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
-        episode = None
-        if record:
-            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
-            episode = EvalEpisode(
-                obs=jnp.zeros((horizon, self.env.observation_size), state.obs.dtype),
-                action=jnp.zeros((horizon,), jnp.int32),
-                reward=jnp.zeros((horizon,), state.reward.dtype),
-                scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
-                length=jnp.zeros((), jnp.int32),
-            )
-        _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
-        return (returns, episode) if record else returns
+        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes; with `record`, also
+        the first episode step by step (`agents.evaluation.evaluate`)."""
+        act = lambda obs: greedy(self.batch_q_values(params, obs))[0]  # noqa: E731
+        return evaluation.evaluate(self.env, act, key, num_episodes or self.config.eval_episodes,
+                                   jax.ShapeDtypeStruct((), jnp.int32), record)
 
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
@@ -580,22 +531,9 @@ class DQN:
         """A chunk's greedy evaluation: keeps the best parameters and the step that solved the task."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
             return self.with_hyperparams(ts.hyperparams).judge(ts, eval_key, record)
-        if record:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
-        else:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
-        eval_return = eval_returns.mean()
-        better = eval_return > ts.best_return
-        solved_now = (eval_return >= self.config.solve_return) & (ts.solve_step < 0)
-        ts = ts.replace(
-            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
-            best_return=jnp.maximum(eval_return, ts.best_return),
-            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
-        )
-        metrics = {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
-                   "eval_episode": eval_episode}  # the episode is for loggers, not a scalar metric
-        return ts, metrics
-
+        returns, episode = self.evaluate(ts.params, eval_key, record=True) if record else (
+            self.evaluate(ts.params, eval_key), None)
+        return evaluation.judge(ts, returns, episode, self.config.solve_return)
 
 def repeat(step, ts, xs, unroll: bool = False):
     """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one

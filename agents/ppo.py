@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agents.dqn import EvalEpisode
-from envs import Env, VmapWrapper, wrap_for_training
+from agents import evaluation
+from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
 
@@ -353,47 +353,12 @@ class PPO:
 
     # ---- evaluation -----------------------------------------------------------
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """Deterministic-policy return of each of `num_episodes` fresh episodes (the config's
-        `num_eval_envs` when not given). With `record`, also the first episode step by step
-        as an `agents.dqn.EvalEpisode` (rows past its `length` are padding)."""
-        env = VmapWrapper(self.env, num_episodes or self.config.eval_episodes)
-        horizon = getattr(self.env, "episode_length", 1000)
-        scene_qpos = getattr(self.env, "scene_qpos", None)
-
-        def running(carry):
-            return ~carry[2].all()
-
-        def step(carry):
-            state, returns, finished, episode = carry
-            action = self.policy(params, state.obs)
-            next_state = env.step(state, action)
-            if record:
-                t = episode.length
-                first = jax.tree.map(lambda x: x[0], state.pipeline_state)
-                episode = EvalEpisode(
-                    obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
-                    action=episode.action.at[t].set(action[0], mode="drop"),
-                    reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
-                    scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
-                    length=t + (~finished[0]).astype(jnp.int32),
-                )
-            returns = returns + next_state.reward * ~finished
-            return next_state, returns, finished | (next_state.done > 0), episode
-
-        state = env.reset(key)
-        zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
-        episode = None
-        if record:
-            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
-            episode = EvalEpisode(
-                obs=jnp.zeros((horizon, self.env.observation_size), state.obs.dtype),
-                action=jnp.zeros((horizon, self.env.action_size), state.obs.dtype),
-                reward=jnp.zeros((horizon,), state.reward.dtype),
-                scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
-                length=jnp.zeros((), jnp.int32),
-            )
-        _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
-        return (returns, episode) if record else returns
+        """The deterministic policy's return of each of `num_episodes` fresh episodes (the config's
+        `num_eval_envs` when not given); with `record`, also the first episode step by step
+        (`agents.evaluation.evaluate`)."""
+        return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
+                                   num_episodes or self.config.eval_episodes,
+                                   jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
 
     # ---- a training run ---------------------------------------------------------
     def init_params(self, policy_key: jax.Array, value_key: jax.Array):
@@ -455,23 +420,9 @@ class PPO:
 
     def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
         """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        if record:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key, record=True)
-        else:
-            eval_returns, eval_episode = self.evaluate(ts.params, eval_key), None
-        eval_return = eval_returns.mean()
-        better = eval_return > ts.best_return
-        solve_return = self.config.solve_return
-        solved_now = (ts.solve_step < 0) & (False if solve_return is None else eval_return >= solve_return)
-        ts = ts.replace(
-            best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
-            best_return=jnp.maximum(eval_return, ts.best_return),
-            solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
-        )
-        metrics = {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
-                   "eval_episode": eval_episode}  # the episode is for loggers, not a scalar metric
-        return ts, metrics
-
+        returns, episode = self.evaluate(ts.params, eval_key, record=True) if record else (
+            self.evaluate(ts.params, eval_key), None)
+        return evaluation.judge(ts, returns, episode, self.config.solve_return)
 
 def train(config: PPOConfig, env: Env, key: jax.Array):
     """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.

@@ -27,7 +27,8 @@ import numpy as np
 import rerun as rr
 
 import envs
-from agents.dqn import DQNConfig, EvalEpisode
+from agents.dqn import DQNConfig
+from agents.evaluation import EvalEpisode
 from envs import recording
 
 # Each agent's curves: {record key: curve name}; every agent's chunk also records its evaluation.

@@ -51,7 +51,9 @@ def test_ids_are_registered_when_gymnasium_is_imported_without_importing_the_sui
 
 
 def test_every_id_names_a_task_with_gymnasiums_time_limit():
-    assert {task for task, _ in IDS.values()} == set(envs.names())  # every registered task has an id
+    # every task the suite registers has an id (other test files register their own tasks in this process)
+    ours = {name for name in envs.names() if not name.startswith(("test-", "my-")) and name != "puck"}
+    assert {task for task, _ in IDS.values()} == ours
     assert len([i for i in THEIRS if i.endswith("-v5")]) == 10  # Gymnasium's ten MuJoCo v5 tasks we have
     for gymnasium_id, (task, steps) in IDS.items():
         assert envs.options(task)["episode_length"] == steps, gymnasium_id

@@ -1,0 +1,87 @@
+"""What every agent's evaluation shares: fresh episodes of its deterministic policy (DQN's greedy
+one, PPO's and SAC's mode), the first recorded step by step for loggers, and the judge that keeps
+the best parameters and the step that solved the task."""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from envs import Env, VmapWrapper
+
+
+class EvalEpisode(NamedTuple):
+    """One evaluation episode; row t: the observation seen, the action taken, the reward it
+    earned and the pose (`env.scene_qpos`) shown. Rows from `length` on are padding."""
+
+    obs: jax.Array
+    action: jax.Array
+    reward: jax.Array
+    scene_qpos: jax.Array | None
+    length: jax.Array
+
+
+def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
+             action: jax.ShapeDtypeStruct, record: bool = False):
+    """The return of each of `num_episodes` fresh episodes of `env` (its time limit included) under
+    `act(obs batch) -> action batch`. With `record`, also the first episode step by step as an
+    `EvalEpisode` (its `action` rows shaped like `action`), so a logger can show it without running
+    (and compiling) a rollout of its own."""
+    batch = VmapWrapper(env, num_episodes)
+    horizon = getattr(env, "episode_length", 1000)
+    scene_qpos = getattr(env, "scene_qpos", None)
+
+    def running(carry):
+        return ~carry[2].all()
+
+    def step(carry):
+        state, returns, finished, episode = carry
+        actions = act(state.obs)
+        next_state = batch.step(state, actions)
+        if record:
+            t = episode.length
+            first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+            episode = EvalEpisode(
+                obs=episode.obs.at[t].set(state.obs[0], mode="drop"),
+                action=episode.action.at[t].set(actions[0], mode="drop"),
+                reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
+                scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
+                length=t + (~finished[0]).astype(jnp.int32),
+            )
+        returns = returns + next_state.reward * ~finished
+        return next_state, returns, finished | (next_state.done > 0), episode
+
+    state = batch.reset(key)
+    zeros = jnp.zeros(state.reward.shape, state.reward.dtype)
+    episode = None
+    if record:
+        first = jax.tree.map(lambda x: x[0], state.pipeline_state)
+        episode = EvalEpisode(
+            obs=jnp.zeros((horizon, env.observation_size), state.obs.dtype),
+            action=jnp.zeros((horizon, *action.shape), action.dtype),
+            reward=jnp.zeros((horizon,), state.reward.dtype),
+            scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
+            length=jnp.zeros((), jnp.int32),
+        )
+    _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
+    return (returns, episode) if record else returns
+
+
+def judge(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
+          solve_return: float | None) -> tuple[Any, dict]:
+    """A chunk's evaluation of `ts.params` applied to a train state with `best_params`,
+    `best_return`, `solve_step` and `env_steps`: the best parameters so far, and the first env
+    step whose mean return reached `solve_return` (None: never solved). Returns the state and the
+    chunk's evaluation metrics (the episode is for loggers, not a scalar metric)."""
+    eval_return = eval_returns.mean()
+    better = eval_return > ts.best_return
+    solved_now = (ts.solve_step < 0) & (False if solve_return is None else eval_return >= solve_return)
+    ts = ts.replace(
+        best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
+        best_return=jnp.maximum(eval_return, ts.best_return),
+        solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
+    )
+    return ts, {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
+                "eval_episode": eval_episode}
