@@ -531,9 +531,7 @@ class DQN:
         """A chunk's greedy evaluation: keeps the best parameters and the step that solved the task."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
             return self.with_hyperparams(ts.hyperparams).judge(ts, eval_key, record)
-        returns, episode = self.evaluate(ts.params, eval_key, record=True) if record else (
-            self.evaluate(ts.params, eval_key), None)
-        return evaluation.judge(ts, returns, episode, self.config.solve_return)
+        return evaluation.judge_chunk(self, ts, eval_key, record)
 
 def repeat(step, ts, xs, unroll: bool = False):
     """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one
@@ -545,13 +543,7 @@ def repeat(step, ts, xs, unroll: bool = False):
 
 
 def train(config: DQNConfig, env: Env, key: jax.Array):
-    """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.
-
-    `metrics` holds one entry per evaluation (leading axis: chunk) plus
-    `solve_step` (-1 if never solved) and `final_params`.
-    """
-    dqn = DQN(config, env)
-    ts = dqn.init(key)
-    ts, metrics = jax.lax.scan(lambda ts, _: dqn.chunk(ts), ts, None, config.num_chunks)
-    metrics.pop("eval_episode")
-    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}
+    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
+    vmap it over keys for seeds. `metrics` holds one entry per evaluation (leading axis: chunk)
+    plus `solve_step` (-1 if never solved) and `final_params`."""
+    return evaluation.whole_run(DQN(config, env), key)

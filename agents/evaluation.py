@@ -85,3 +85,20 @@ def judge(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
     )
     return ts, {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
                 "eval_episode": eval_episode}
+
+
+def judge_chunk(agent: Any, ts: Any, eval_key: jax.Array, record: bool) -> tuple[Any, dict]:
+    """`judge` of `agent.evaluate(ts.params, eval_key)`: an agent's `judge` method."""
+    returns, episode = agent.evaluate(ts.params, eval_key, record=True) if record else (
+        agent.evaluate(ts.params, eval_key), None)
+    return judge(ts, returns, episode, agent.config.solve_return)
+
+
+def whole_run(agent: Any, key: jax.Array):
+    """A whole run of `agent` as one pure function: `(best_params, metrics)` (its `train`); vmap it
+    over keys for seeds. `metrics` holds one entry per evaluation (leading axis: chunk) plus
+    `solve_step` (-1 if never solved) and `final_params`."""
+    ts = agent.init(key)
+    ts, metrics = jax.lax.scan(lambda ts, _: agent.chunk(ts, record=False), ts, None, agent.config.num_chunks)
+    metrics.pop("eval_episode")
+    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}

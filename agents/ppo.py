@@ -420,17 +420,10 @@ class PPO:
 
     def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
         """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        returns, episode = self.evaluate(ts.params, eval_key, record=True) if record else (
-            self.evaluate(ts.params, eval_key), None)
-        return evaluation.judge(ts, returns, episode, self.config.solve_return)
+        return evaluation.judge_chunk(self, ts, eval_key, record)
+
 
 def train(config: PPOConfig, env: Env, key: jax.Array):
-    """A whole run as one pure function: `(best_params, metrics)`; vmap it over keys for seeds.
-
-    `metrics` holds one entry per evaluation (leading axis: chunk) plus `solve_step` (-1 if
-    never solved) and `final_params`."""
-    ppo = PPO(config, env)
-    ts = ppo.init(key)
-    ts, metrics = jax.lax.scan(lambda ts, _: ppo.chunk(ts, record=False), ts, None, config.num_chunks)
-    metrics.pop("eval_episode")
-    return ts.best_params, {**metrics, "solve_step": ts.solve_step, "final_params": ts.params}
+    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
+    vmap it over keys for seeds."""
+    return evaluation.whole_run(PPO(config, env), key)
