@@ -512,18 +512,12 @@ class DQN:
         ts = ts.replace(key=key)
         totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
         (ts, totals), _ = jax.lax.scan(add_up, (ts, totals), self.draw_noise(noise_key))
-        episodes = totals["episodes"]
         iterations = cfg.iterations_per_chunk
         metrics = {
             "loss": totals["loss"] / iterations,
             "q": totals["q"] / iterations,
             "epsilon": totals["epsilon"],  # the last iteration's
-            "episodes": episodes,
-            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
-            "nan_episodes": totals["nan_episodes"],
-            # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
-            "overflow_contacts": totals["overflow_contacts"],
-            "overflow_constraints": totals["overflow_constraints"],
+            **evaluation.episode_metrics(totals),
         }
         return ts, metrics, eval_key
 

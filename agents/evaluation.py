@@ -69,6 +69,17 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
     return (returns, episode) if record else returns
 
 
+def episode_metrics(totals: dict) -> dict:
+    """A chunk's training episodes from its running totals (`episodes`, `return_sum`,
+    `nan_episodes`, `overflow_*`), as every agent reports them: episodes ended, their mean
+    return, and those that NaN physics ended; env-steps whose physics MuJoCo Warp could not hold
+    (they ended their episodes and never reached a learner; `agents.run` says which buffer to raise)."""
+    episodes = totals["episodes"]
+    return {"episodes": episodes, "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
+            "nan_episodes": totals["nan_episodes"], "overflow_contacts": totals["overflow_contacts"].astype(jnp.int32),
+            "overflow_constraints": totals["overflow_constraints"].astype(jnp.int32)}
+
+
 def judge(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
           solve_return: float | None) -> tuple[Any, dict]:
     """A chunk's evaluation of `ts.params` applied to a train state with `best_params`,

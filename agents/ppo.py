@@ -403,18 +403,12 @@ class PPO:
                                  length=self.config.training_steps_per_chunk)
         ts = ts.replace(key=key)
         totals = jax.tree.map(jnp.sum, stats)
-        episodes = totals["episodes"]
         metrics = {
             "loss": stats["total_loss"].mean(),
             "policy_loss": stats["policy_loss"].mean(),
             "v_loss": stats["v_loss"].mean(),
             "entropy_loss": stats["entropy_loss"].mean(),
-            "episodes": episodes,
-            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
-            "nan_episodes": totals["nan_episodes"],
-            # env-steps whose physics MuJoCo Warp could not hold (ended, never learned from; see agents.run)
-            "overflow_contacts": totals["overflow_contacts"].astype(jnp.int32),
-            "overflow_constraints": totals["overflow_constraints"].astype(jnp.int32),
+            **evaluation.episode_metrics(totals),
         }
         return ts, metrics, eval_key
 

@@ -399,16 +399,10 @@ class SAC:
         totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
         keys = jax.random.split(loop_key, cfg.iterations_per_chunk)
         (ts, totals), _ = jax.lax.scan(iteration, (ts, totals), keys)
-        episodes = totals["episodes"]
         iterations = cfg.iterations_per_chunk
         metrics = {
             **{name: totals[name] / iterations for name in ("critic_loss", "actor_loss", "alpha_loss", "alpha")},
-            "episodes": episodes,
-            "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
-            "nan_episodes": totals["nan_episodes"],
-            # env-steps whose physics MuJoCo Warp could not hold (ended, never stored; see agents.run)
-            "overflow_contacts": totals["overflow_contacts"],
-            "overflow_constraints": totals["overflow_constraints"],
+            **evaluation.episode_metrics(totals),
         }
         return ts, metrics, eval_key
 
