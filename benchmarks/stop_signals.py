@@ -33,6 +33,7 @@ def main(argv=None) -> None:
     parser.add_argument("--low", type=float, default=3.0)
     parser.add_argument("--high", type=float, default=90.0)
     parser.add_argument("--out", default="runs/stop-signals")
+    parser.add_argument("--wait", type=float, default=600.0, help="seconds to wait for each run's exit after its signal")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args(argv)
     root = Path(args.out) / args.env
@@ -54,7 +55,7 @@ def main(argv=None) -> None:
     results = []
     for run in runs:
         try:
-            status = run["process"].wait(timeout=600)
+            status = run["process"].wait(timeout=max(1.0, run["sent"] + args.wait - time.monotonic()))
         except subprocess.TimeoutExpired:
             run["process"].kill()
             status = None
