@@ -6,6 +6,7 @@ policy on the in-memory parameters through the env's own `action_to_ctrl`; a res
 against an uninterrupted one; the policies on Gymnasium's own env (slow).
 """
 
+import dataclasses
 import json
 import os
 import signal
@@ -149,6 +150,44 @@ def test_resume_is_exact(tmp_path, env_name, config):
     for a, b in zip(_leaves(tmp_path / "whole"), _leaves(tmp_path / "part"), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert resumed.mean_return == whole.mean_return
+
+
+SLOW_SAVES = """
+import os, sys, time
+rename = os.replace
+def slow_rename(src, dst):
+    time.sleep(0.2)
+    rename(src, dst)
+os.replace = slow_rename
+from agents.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.slow  # two compiling subprocesses; test_resume_is_exact keeps the same check in the default run
+@pytest.mark.parametrize("agent, config", [("ppo", TINY_PPO), ("sac", TINY_SAC)], ids=["ppo", "sac"])
+def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config):
+    """SIGKILL once a checkpoint exists (saves slowed down, so the kill lands mid-run), then
+    `mjxsuite train --out D --resume`: the uninterrupted run's train state, SAC's buffer included."""
+    config = dataclasses.replace(config, num_evals=7)
+    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False)
+    args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
+            for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
+    out = tmp_path / "killed"
+    process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", agent,
+                                "--out", str(out), "--checkpoint-seconds", "0", *args], env=_env(),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while checkpoint.chunks_saved(out) < 1 and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.01)
+    finally:
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+    assert 1 <= checkpoint.chunks_saved(out) < config.num_chunks and not (out / "eval.json").exists()
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 0
+    for a, b in zip(_leaves(tmp_path / "whole"), _leaves(out), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 def test_sigterm_stops_a_ppo_run_and_resume_ends_it_as_the_uninterrupted_run(tmp_path, capsys):
