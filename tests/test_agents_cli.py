@@ -139,8 +139,11 @@ def _leaves(out):
     return jax.tree.leaves(checkpoint.load_state(out, run.env, template)[0])
 
 
-@pytest.mark.parametrize("env_name, config", [("pendulum-mjx", TINY_PPO), ("pendulum-mjx", TINY_SAC)],
-                         ids=["ppo", "sac"])
+@pytest.mark.parametrize("env_name, config", [
+    ("pendulum-mjx", TINY_PPO),
+    # slow: its replay's first fill compiles into every program (tests/test_sac.py resumes SAC exactly in the default run)
+    pytest.param("pendulum-mjx", TINY_SAC, marks=pytest.mark.slow),
+], ids=["ppo", "sac"])
 def test_resume_is_exact(tmp_path, env_name, config):
     """Stopped after its first checkpoint, then resumed: the whole train state (Adam's moments,
     the normalizer, the envs, the key, SAC's replay buffer) and the returns of an uninterrupted run."""
