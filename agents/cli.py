@@ -283,9 +283,11 @@ def _report_stop(args, result, command: str = "train") -> int:
         elif result.saved_chunks:
             print(f"stopped by {name}; checkpoint saved in {args.out} ({result.saved_chunks} of "
                   f"{result.total_chunks} {result.chunk_unit} done); continue with {resume}")
-        else:
+        elif result.started:
             print(f"stopped by {name} before the first checkpoint: nothing trained is saved in {args.out}; "
                   f"{resume} starts the run from the beginning")
+        else:  # stopped while the command started: the directory holds what it held before
+            print(f"stopped by {name} before the run started: nothing was written to {args.out}")
     return exit_status(getattr(signal, name))
 
 

@@ -64,6 +64,7 @@ class RunResult:
     saved_chunks: int | None = None  # chunks the run directory's checkpoint holds (0: none; None: no directory)
     total_chunks: int = 0  # chunks of the whole run
     chunk_unit: str = "chunks"
+    started: bool = True  # False: stopped by a signal before the run touched its directory
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
     best_seed: int = 0  # the seed `load_policy` acts with (`break_ties`)
 
@@ -197,7 +198,7 @@ def train_run(
             saved = checkpoint.chunks_saved(out) if out is not None and resume else 0
             return RunResult(params=None, train_state=None, interrupted=True, stop_signal=stop.name,
                              saved_chunks=None if out is None else saved, total_chunks=config.num_chunks,
-                             wall_s=time.perf_counter() - start)
+                             wall_s=time.perf_counter() - start, started=False)
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
 

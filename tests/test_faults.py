@@ -351,22 +351,34 @@ def test_a_signal_stops_the_run_cleanly_and_resume_continues_it(tmp_path, refere
 
 
 def test_what_a_stopped_run_says_is_what_it_saved(tmp_path, capsys, monkeypatch):
-    """A signal before the first chunk: no checkpoint, and the CLI says so (not "saved")."""
+    """A signal once the run has written its config (its programs compiling): no checkpoint, and
+    the CLI says so (not "saved"); one before the run touched --out: nothing written, and it says so."""
+    started = checkpoint.start_run
+
+    def signalled_while_compiling(out, run):
+        started(out, run)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(checkpoint, "start_run", signalled_while_compiling)
+    assert cli_main(["train", "--env", "cartpole", "--out", str(tmp_path / "a"), *CONFIG_ARGS]) == 143
+    said = capsys.readouterr()
+    assert "stopped by SIGTERM before the first checkpoint: nothing trained is saved" in said.out
+    assert not (tmp_path / "a" / checkpoint.STATE_FILE).exists()
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handlers are put back
+
     from agents import signals
 
     entered = signals.StopSignals.__enter__
 
-    def signalled_at_once(self):  # the signal arrives while the programs compile
+    def signalled_at_once(self):  # as if the signal came during the command's imports
         entered(self)
         os.kill(os.getpid(), signal.SIGTERM)
         return self
 
     monkeypatch.setattr(signals.StopSignals, "__enter__", signalled_at_once)
-    assert cli_main(["train", "--env", "cartpole", "--out", str(tmp_path), *CONFIG_ARGS]) == 143
-    said = capsys.readouterr()
-    assert "stopped by SIGTERM before the first checkpoint: nothing trained is saved" in said.out
-    assert not (tmp_path / checkpoint.STATE_FILE).exists()
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the handlers are put back
+    assert cli_main(["train", "--env", "cartpole", "--out", str(tmp_path / "b"), *CONFIG_ARGS]) == 143
+    assert "stopped by SIGTERM before the run started: nothing was written" in capsys.readouterr().out
+    assert not (tmp_path / "b" / checkpoint.CONFIG_FILE).exists()
 
 
 def test_a_second_signal_exits_at_once(tmp_path):
@@ -461,4 +473,4 @@ def test_a_signal_while_the_command_starts_exits_cleanly(tmp_path, delay):
     assert process.returncode in (0, 130), err  # 0: a fast machine had finished the run
     if "stopping before the run starts" in err:  # caught by the console script: nothing compiled or trained
         assert process.returncode == 130 and not (tmp_path / "run" / checkpoint.STATE_FILE).exists()
-        assert "stopped by SIGINT before the first checkpoint" in out
+        assert "stopped by SIGINT before the run started: nothing was written" in out
