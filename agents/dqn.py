@@ -338,17 +338,9 @@ class DQN:
         info = env_state.info
         terminated = env_state.done * (1.0 - info["truncation"])
         rows = pack(Transition(obs, action, env_state.reward, info["final_obs"], terminated))
-        # MuJoCo Warp's overflow code (envs.mjx_env): 1 contact pool, 2 constraint rows, 3 both.
-        overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
+        overflow, stats = evaluation.step_stats(info)
         buffer = self.buffer.add(ts.buffer, rows, mask=(info["nan"] == 0) & (overflow == 0))
         ts = ts.replace(buffer=buffer, env_state=env_state, key=key, env_steps=ts.env_steps + self.config.num_envs)
-        stats = {
-            "episodes": info["episode_done"].sum(),
-            "return_sum": (info["last_return"] * info["episode_done"]).sum(),
-            "nan_episodes": info["nan"].sum(),
-            "overflow_contacts": (overflow % 2 == 1).sum(),
-            "overflow_constraints": (overflow >= 2).sum(),
-        }
         return ts, stats
 
     # ---- learning -----------------------------------------------------------

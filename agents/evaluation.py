@@ -69,6 +69,20 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
     return (returns, episode) if record else returns
 
 
+def step_stats(info: dict) -> tuple[jax.Array, dict]:
+    """MuJoCo Warp's overflow code of the steps in `info` (`envs.mjx_env`: 1 contact pool, 2
+    constraint rows, 3 both; zeros where the env has none) and the steps' episode statistics, as
+    every agent sums them over a chunk (`episode_metrics` reports the sums)."""
+    overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
+    return overflow, {
+        "episodes": info["episode_done"].sum(),
+        "return_sum": (info["last_return"] * info["episode_done"]).sum(),
+        "nan_episodes": info["nan"].sum(),
+        "overflow_contacts": (overflow % 2 == 1).sum(),
+        "overflow_constraints": (overflow >= 2).sum(),
+    }
+
+
 def episode_metrics(totals: dict) -> dict:
     """A chunk's training episodes from its running totals (`episodes`, `return_sum`,
     `nan_episodes`, `overflow_*`), as every agent reports them: episodes ended, their mean

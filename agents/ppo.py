@@ -285,16 +285,9 @@ class PPO:
         constraint buffer) ended its episode with reward 0; it must not teach the value that
         such a state is terminal. Marked as a truncation, Brax's GAE gives it no advantage and
         no value target, and bootstraps the step before it from its (finite) observation."""
-        extras = dict(data.extras["state_extras"])
-        overflow = extras.pop("overflow", jnp.zeros_like(extras["nan"]))
+        extras = data.extras["state_extras"]
+        overflow, stats = evaluation.step_stats(extras)
         fault = (extras["nan"] > 0) | (overflow > 0)
-        stats = {
-            "episodes": extras["episode_done"].sum(),
-            "return_sum": (extras["last_return"] * extras["episode_done"]).sum(),
-            "nan_episodes": extras["nan"].sum(),
-            "overflow_contacts": (overflow % 2 == 1).sum(),
-            "overflow_constraints": (overflow >= 2).sum(),
-        }
         truncation = jnp.where(fault, 1.0, extras["truncation"]).astype(extras["truncation"].dtype)
         data = data._replace(extras={**data.extras, "state_extras": {"truncation": truncation}})
         return data, stats
