@@ -17,7 +17,7 @@ from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPo
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 # Public names imported on first use (PEP 562 `__getattr__` below): their modules load mujoco.mjx,
-# which loads MuJoCo Warp and Warp (about 2.5 s), or serve Brax. `envs.make("cartpole")` and DQN on
+# which loads MuJoCo Warp and Warp (seconds of imports), or serve Brax. `envs.make("cartpole")` and DQN on
 # the analytic tasks then start without them; `from envs import HalfCheetah` works as before.
 _LAZY_MODULES = {
     "envs.mjx_env": ("MjxEnv",),

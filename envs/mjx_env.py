@@ -102,8 +102,8 @@ class MjxEnv(Env):
     # integrates. Tasks whose observation or reward at reset needs derived
     # quantities (site positions, sensors...) set this to run mjx.forward there.
     forward_on_reset: bool = False
-    # One MJX CartPole stepped unbatched ran 26% slower on an H200 than as a batch of one
-    # (21,041 against 28,366 env-steps/s), and MuJoCo Warp steps batches of worlds.
+    # A batch of one stays a batch: one MJX env stepped unbatched was slower on a GPU than as a
+    # batch of one (docs/results.md, "The GPU step"), and MuJoCo Warp steps batches of worlds.
     batch_of_one_as_scalars = False
 
     def __init__(self, xml: str | os.PathLike | None = None, action_bins: ActionBins | int | None = None):

@@ -21,8 +21,8 @@ import numpy as np
 
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, Range
 
-if TYPE_CHECKING:  # mujoco is imported where it is used: importing it (0.19 s on an H100 machine, most of
-    import mujoco  # it loading GLFW for rendering) would slow the start of every analytic task's run
+if TYPE_CHECKING:  # mujoco is imported where it is used: importing it (most of it loading GLFW for rendering)
+    import mujoco  # would slow the start of every analytic task's run (docs/bench-gpu.json, "startup-imports")
 
 # MjOption's enum fields, the name of their MuJoCo enum and its members' prefix (names are matched without it).
 ENUMS = {

@@ -50,8 +50,8 @@ if TYPE_CHECKING:  # mujoco and envs.mjx_env (mujoco.mjx) are imported where the
 PER = ("episode", "env")
 
 # The element type (a `mujoco.mjtObj` member's name) each field prefix indexes (a dof_ field is named
-# by its joint). Names, not the members: importing mujoco (0.19 s on an H100 machine, most of it
-# loading GLFW for rendering) would slow the start of every analytic task's run.
+# by its joint). Names, not the members: importing mujoco (most of it loading GLFW for rendering) would
+# slow the start of every analytic task's run (docs/bench-gpu.json, "startup-imports").
 ELEMENT_TYPES = {
     "body": "mjOBJ_BODY", "jnt": "mjOBJ_JOINT", "dof": "mjOBJ_JOINT", "geom": "mjOBJ_GEOM", "site": "mjOBJ_SITE",
     "cam": "mjOBJ_CAMERA", "light": "mjOBJ_LIGHT", "mat": "mjOBJ_MATERIAL", "pair": "mjOBJ_PAIR",

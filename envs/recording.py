@@ -187,8 +187,8 @@ def scene_from_model(model: mujoco.MjModel, groups: tuple[int, ...] = VISIBLE_GR
 def geom_poses(model: mujoco.MjModel, qpos: np.ndarray, geom_ids: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """World positions (T, G, 3) and row-major rotations (T, G, 9) of `geom_ids` for each qpos row.
 
-    C MuJoCo's `mj_kinematics` on the host: ~2.5 us a step with no compile, faster
-    overall than a vmapped `mjx.kinematics` unless one compiled shape is reused many times.
+    C MuJoCo's `mj_kinematics` on the host: no compile, so faster overall than a vmapped
+    `mjx.kinematics` unless one compiled shape is reused many times.
     """
     data = mujoco.MjData(model)
     qpos = np.asarray(qpos, np.float64).reshape(-1, model.nq)

@@ -128,8 +128,8 @@ class BatchedAutoReset(Wrapper):
     element, so a `[1]`-shaped step ran as two more kernels than a scalar one, and a step
     of one env is that many kernel launches (measured: docs/results.md, "The GPU step").
     Not `under_vmap` (a batch that is itself vmapped, e.g. over seeds, where the arrays
-    have more elements anyway and the scalar step made the DQN 8-10% slower at 16 and 256
-    seeds on an H200), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
+    have more elements anyway and the scalar step made the DQN slower at 16 and 256 seeds:
+    the same section), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
     """
 
     def __init__(self, env: Env, num_envs: int, max_resets: int | None = None, reset_by_index: bool | None = None,

@@ -4,7 +4,7 @@ The pole starts hanging down (plus a little noise); a continuous force on the
 cart must swing it up and balance it there, with the cart near the centre,
 little force and a slow pole. Model: assets/cartpole_swingup.xml (dm_control's
 cart-pole: dt = 0.01, RK4, the slider limited to +-1.8 m). Episodes are 1000 steps
-(10 s) and never terminate; each step's reward lies in [0, 1], so returns lie in
+(10 s simulated) and never terminate; each step's reward lies in [0, 1], so returns lie in
 [0, 1000].
 
 Observation (5): cart position, cos and sin of the pole angle (angle 0 = upright),

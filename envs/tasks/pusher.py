@@ -93,8 +93,8 @@ class Pusher(GymnasiumMujocoEnv):
 
     def forward_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         # The reset observation reads body positions only: kinematics, not the whole mj_forward
-        # (which adds the contacts and the constraint solve: reset's compile went from about 15 s
-        # to a few on a 2-core CPU, and a batch auto-resetting every env per step does less work).
+        # (which adds the contacts and the constraint solve: reset compiles several times faster on
+        # the CPU, and a batch auto-resetting every env per step does less work).
         return mjx.kinematics(model, data)
 
     def observation(self, data: mjx.Data) -> jax.Array:
