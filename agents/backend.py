@@ -43,24 +43,23 @@ def flat_optimizer(platform: str | None = None) -> bool:
 def batch_skips_idle_target_copies(platform: str | None = None) -> bool:
     """Whether a vmapped batch of agents with hard target updates skips the update's target
     select when no agent of the batch copies on it (`agents.dqn.copy_where`): elsewhere than
-    on the CPU. The select reads and writes every agent's target network on every update,
-    about 54 us of 249 in the update's Adam fusion for 2,048 agents of PureJaxRL's 120-84
-    network on an H100, to change it once in `target_period` updates; XLA:CPU runs a
-    `lax.cond` slower than the select."""
+    on the CPU. The select reads and writes every agent's target network on every update, a
+    fifth of the update's Adam fusion on a GPU (docs/bench-gpu.json, "dqn-target-copy"), to change
+    it once in `target_period` updates; XLA:CPU runs a `lax.cond` slower than the select."""
     return not on_cpu(platform)
 
 
 def unrolled_inner_loops(platform: str | None = None) -> bool:
     """Whether a training iteration's few env steps and gradient steps are unrolled rather
-    than looped inside the chunk's loop: with 4 updates per iteration an H100 sat idle
-    most of the time between them, and unrolling gave 10% more env-steps/s; the CPU keeps
-    its loops (smaller programs)."""
+    than looped inside the chunk's loop: a GPU sat idle most of the time between looped
+    updates, and unrolled they train faster (docs/results.md, "DQN on the GPU: what the profile
+    showed"); the CPU keeps its loops (smaller programs)."""
     return not on_cpu(platform)
 
 
 # Fewer agents than this on one device keep XLA's network: the fused kernels run one program
-# per agent, so a few agents leave most of a GPU's ~130 multiprocessors idle. On an H200 (default
-# config) 1 agent ran 8% slower fused, 16 agents the same, 256 and 2,048 agents 17% and 26% faster.
+# per agent, so a few agents leave most of a GPU's multiprocessors idle: one agent ran slower fused,
+# 16 the same, hundreds and thousands faster (docs/results.md, "DQN on the GPU").
 FUSED_MIN_AGENTS = 128
 
 
@@ -82,25 +81,23 @@ def transposed_kernel_gradient(platform: str | None = None) -> bool:
 # XLA's default command buffers (CUDA graphs) cover runs of plain kernels, not the
 # `while` loops and conditionals a training chunk is made of (its scan, the greedy
 # evaluation episode), so on a GPU every iteration launched its small kernels one by
-# one. With WHILE and CONDITIONAL added to XLA's default list, an H200 ran DQN 20-40%
-# faster and 16 seeds in 1.24-1.34x the time of one (1.42-1.89x without), training to
-# the same parameters. Set per program: env rollouts, which these loops would slow
-# down, keep XLA's defaults.
+# one. WHILE and CONDITIONAL are added to XLA's default list: DQN then trains faster, and
+# many seeds cost less beside one, to the same parameters (docs/bench-gpu.json,
+# "dqn-command-buffers"). Set per program: env rollouts, which these loops would slow down,
+# keep XLA's defaults.
 GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"
 
 # Inside those graphs, kernels that do not depend on each other run at the same time. XLA's
 # default (LHS) keeps a single-GPU program's kernels in a row, and most of a DQN iteration's ~50
 # kernels are too small to fill a GPU alone (the Adam updates and gradient norms of each layer,
-# the network's padded operands, acting): with CONCURRENT, the default config's iteration took
-# 222.7 against 260.6 us at 1,024 agents and 408.3 against 453.0 us at 2,048 on an H100, to the
-# same parameters bit for bit (docs/results.md, "Concurrent kernels"). XLA's intermediate
-# CONCURRENT_REGIONS gained 4% and 2%.
+# the network's padded operands, acting): CONCURRENT shortens the default config's iteration, to
+# the same parameters bit for bit, more than XLA's intermediate CONCURRENT_REGIONS does
+# (docs/results.md, "Concurrent kernels"; docs/bench-gpu.json, "dqn-command-buffer-scheduling").
 GPU_COMMAND_BUFFER_SCHEDULING = "CONCURRENT"
 
 
 # XLA:CPU's newer fusion emitters (its default in jax 0.10) took twice the compile time of its
-# classic ones for the DQN's training and evaluation programs, with no faster training: on the 2-core CPU, cartpole-mjx's
-# chunk 14.5 -> 7.6 s and its evaluation 6.0 -> 3.8 s of CPU time, chunks 0.21 -> 0.18 s
+# classic ones for the DQN's training and evaluation programs, with no faster training
 # (docs/results.md, "Compile time on the CPU"). They round a few operations differently.
 # XLA has since retired its classic CPU emitters (openxla/xla#48001): jax 0.11's XLA:CPU refuses the
 # option ("No such compile option"), so it is passed only where this XLA knows it (`cpu_accepts`).
@@ -126,11 +123,11 @@ def known_cpu_options(options: dict) -> dict:
 
 def init_compiler_options(platform: str | None = None) -> dict:
     """XLA options for a run's init program, which runs once, so its compile is all that counts:
-    no GEMM autotuning on a GPU (autotuning its one forward pass took most of its ~2 s compile on
-    an H100); LLVM's optimisation level 1 on the CPU (cartpole-mjx's init compiled in 0.7-0.8 s
-    against 1.3-1.5 s at XLA's default level, to the same values; it compiles beside the training
-    chunk's trace on a 2-core CPU). The CPU keeps XLA's default fusion emitters here: the classic
-    ones compiled cartpole-mjx's init in 5.2 s of CPU time against 3.2 s."""
+    no GEMM autotuning on a GPU (autotuning its one forward pass was most of its compile);
+    LLVM's optimisation level 1 on the CPU (the init compiles in about half the time of XLA's
+    default level, to the same values, beside the training chunk's trace). The CPU keeps XLA's
+    default fusion emitters here: the classic ones compiled the init slower
+    (docs/results.md, "Compile time on the CPU")."""
     platform = platform or jax.default_backend()
     if platform == "cpu":
         return known_cpu_options({"xla_backend_optimization_level": 1})
@@ -145,8 +142,8 @@ def training_compiler_options(platform: str | None = None) -> dict:
     (`CPU_COMPILER_OPTIONS`); nothing elsewhere.
 
     GEMM autotuning stays on: turning it off (`xla_gpu_autotune_level` 0) halved the chunk's
-    compile on an H100 (3.4 -> 1.9 s) but cost 13% of one seed's speed and half of 256
-    seeds' (10 envs per agent) in fresh processes."""
+    compile but cost a large part of the training speed (docs/results.md, "DQN on the GPU: what
+    the profile showed")."""
     platform = platform or jax.default_backend()
     if platform == "cpu":
         return known_cpu_options(CPU_COMPILER_OPTIONS)

@@ -7,14 +7,16 @@ recipe. Rows are keyed by name only, so a row for a task that is not registered 
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default".
 
 Where each row comes from:
-- "measured here": run with `mjxsuite train` on a 2-core CPU; docs/agents.md has the results.
+- "measured here": run with `mjxsuite train` on a CPU; docs/agents.md has the results.
 - "Brax notebook": the settings of Brax's training notebook (google/brax,
   notebooks/training.ipynb) for its look-alike of the Gymnasium task (same robot, its own
   MJCF and reward), as published; sized for an accelerator (thousands of envs).
 - "Playground": MuJoCo Playground's `dm_control_suite_params.py` (`brax_ppo_config`,
   `brax_sac_config`) for the dm_control look-alike.
-Rows run on a GPU (an H100, `python -m benchmarks.gym_training`, docs/agents.md) say so; the
-others have not been run here on the Gymnasium tasks: treat them as starting points.
+Rows run on a GPU (`python -m benchmarks.gym_training`) say "run"; docs/agents.md, "Per-task
+recipes", has each run (machine, time, steps, score on Gymnasium's env; records "gym-training" in
+docs/bench-gpu.json). The others have not been run here on the Gymnasium tasks: treat them as
+starting points.
 """
 
 from __future__ import annotations
@@ -34,10 +36,8 @@ _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, 
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 
 # The agent `mjxsuite train` picks on a continuous task without --agent: "ppo" unless a row here
-# says otherwise. Measured on an H100 with impl="warp" (docs/agents.md): on Gymnasium's half-cheetah,
-# SAC's row scores 9,468 on HalfCheetah-v5 in 4 minutes where PPO's best was 2,607 after 56M steps;
-# on walker2d SAC's row scores 4,361 on Walker2d-v5; on swimmer SAC's row scores 333.9 on Swimmer-v5
-# where PPO stayed below 40.
+# says otherwise: on half-cheetah, walker2d and swimmer SAC's row beat Gymnasium's goal where PPO's
+# fell far short or was not needed (docs/agents.md, "Per-task recipes").
 DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac"}
 
 SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
@@ -56,24 +56,23 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                 "playground": dict(_PLAYGROUND_SAC, solve_return=800.0)},
     },
     # Gymnasium's MuJoCo tasks (v5). Brax notebook rows; SAC rows from Playground's SAC recipe.
-    # default: the base recipe (64 envs), measured here: 1000 on Gymnasium's InvertedPendulum-v5 in
-    # about 2 minutes on a 2-core CPU. brax-notebook: Brax's GPU recipe (2,048 envs).
+    # default: the base recipe (64 envs), measured here: it solves Gymnasium's InvertedPendulum-v5 on
+    # a CPU. brax-notebook: Brax's GPU recipe (2,048 envs).
     "inverted-pendulum": {
         "ppo": {"default": dict(num_timesteps=300_000, num_evals=7, solve_return=950.0),
                 "brax-notebook": dict(_BRAX_NOTEBOOK_PENDULUMS, num_timesteps=2_000_000, solve_return=950.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, num_timesteps=1_000_000, solve_return=950.0)},
     },
-    "inverted-double-pendulum": {  # PPO, impl="warp", H100: 9,360 on Gymnasium after 12.6M steps (149 s)
+    "inverted-double-pendulum": {  # PPO run, impl="warp"
         "ppo": {"default": dict(_BRAX_NOTEBOOK_PENDULUMS, num_timesteps=20_000_000, solve_return=9100.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=9100.0)},
     },
-    "ant": {  # PPO, impl="warp", H200: 4,818 on Gymnasium (5,147 here) in 416 s
+    "ant": {  # PPO run, impl="warp"
         "ppo": {"default": dict(_BRAX_NOTEBOOK_PENDULUMS, num_timesteps=50_000_000, num_evals=10, num_envs=4096,
                                 batch_size=2048, solve_return=6000.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=6000.0)},
     },
-    "humanoid": {  # PPO, impl="warp", H100: 5,855 on Gymnasium (6,345 here) after 22M steps (Ctrl-C at
-        # 380 s). SAC (sharing a GPU with PPO, 450 s): 793 on Gymnasium after 0.56M steps, a starting point.
+    "humanoid": {  # PPO run, impl="warp"; SAC run once, a starting point.
         # PPO: Brax's training notebook recipe for its humanoid look-alike (google/brax
         # notebooks/training.ipynb, train_fn['humanoid'], read at commit 0b96d05: 50M steps,
         # reward_scaling 0.1, unroll 10, 8 updates per batch, entropy 1e-3, 2,048 envs); SAC: Playground's
@@ -82,33 +81,32 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 entropy_cost=1e-3, num_envs=2048, batch_size=1024)},
         "sac": {"default": dict(_PLAYGROUND_SAC)},
     },
-    "half-cheetah": {  # SAC, impl="warp", H100: 9,468 on Gymnasium in 247 s; PPO: best 2,607
+    "half-cheetah": {  # SAC run, impl="warp"; PPO's row fell far short of Gymnasium's goal
         "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=1.0, unroll_length=20,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.95, learning_rate=3e-4,
                                 entropy_cost=1e-3, num_envs=2048, batch_size=512, solve_return=4800.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=4800.0)},
     },
-    "hopper": {  # Brax's notebook trains its hopper with SAC. PPO, impl="warp", H100: 3,625 on Gymnasium in 300 s
+    "hopper": {  # Brax's notebook trains its hopper with SAC. PPO run, impl="warp"
         "ppo": {"default": dict(_PLAYGROUND_PPO, solve_return=3800.0)},
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
                                 max_replay_size=1048576, min_replay_size=8192, solve_return=3800.0)},
     },
-    "walker2d": {  # SAC, impl="warp", H100: 4,361 on Gymnasium (best evaluation at 2.8M steps, 231 s)
+    "walker2d": {  # SAC run, impl="warp"
         "ppo": {"default": dict(num_timesteps=7_864_320, num_evals=20, reward_scaling=5.0, unroll_length=20,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.97, learning_rate=6e-4,
                                 entropy_cost=1e-2, num_envs=128, batch_size=128)},
         "sac": {"default": dict(_PLAYGROUND_SAC)},
     },
-    "reacher": {  # PPO, impl="warp", H200: -4.1 on Gymnasium in 155 s. Brax's notebook also repeats
+    "reacher": {  # PPO run, impl="warp". Brax's notebook also repeats
         # each action 4 times (not offered here)
         "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=5.0, unroll_length=50,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.95, learning_rate=3e-4,
                                 entropy_cost=1e-3, num_envs=2048, batch_size=256, solve_return=-3.75)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=-3.75)},
     },
-    "pusher": {  # Starting points, run once (impl="warp", H100, PPO and SAC sharing it, Ctrl-C at 300 s):
-        # PPO -37.2 on Gymnasium (-37.0 here) after 35M steps, SAC -34.2 (-31.0 here) after 1.7M.
+    "pusher": {  # Starting points, PPO and SAC run once each (impl="warp").
         # PPO: Brax's notebook recipe for its pusher (Brax trains 1000-step episodes, Pusher-v5 truncates at 100).
         # Pusher-v5's reward_threshold is 0 (its returns are negative); no solve_return until measured
         "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=5.0, unroll_length=30,
@@ -116,8 +114,8 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 entropy_cost=1e-2, num_envs=2048, batch_size=512)},
         "sac": {"default": dict(_PLAYGROUND_SAC)},
     },
-    "swimmer": {  # SAC, impl="warp", discounting 0.9999 (as the SB3 zoo trains Swimmer), H200: 333.9 on
-        # Gymnasium after 325k steps (349 s). PPO (Playground's recipe, or SB3-like) stayed below 40
+    "swimmer": {  # SAC run, impl="warp", discounting 0.9999 (as the SB3 zoo trains Swimmer). PPO
+        # (Playground's recipe, or SB3-like) stayed far below Gymnasium's goal
         "ppo": {"default": dict(_PLAYGROUND_PPO, num_timesteps=100_000_000, solve_return=360.0)},
         "sac": {"default": dict(num_timesteps=480_000, num_evals=4, discounting=0.9999, learning_rate=3e-4,
                                 num_envs=32, batch_size=256, grad_updates_per_step=32, hidden=(256, 256),
