@@ -153,7 +153,7 @@ PRESETS = {
     "default": DQNConfig(),
     # Many envs per agent, large batches, several updates per iteration: on a GPU it solves
     # CartPole-v1 in far less wall time than the one-env default (docs/results.md), since an
-    # iteration costs about the same for 1 or 32 envs there. On a 2-core CPU the default is faster.
+    # iteration costs about the same for 1 or 32 envs there. On a CPU the default is faster.
     "many-envs": DQNConfig(num_envs=32, batch_size=512, gradient_steps=4, learning_rate=2e-3, learning_starts=4096,
                            exploration_steps=16_384, eval_every=4096, total_steps=300_000, polyak_tau=0.02),
 }
@@ -184,8 +184,8 @@ def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
     axis=-1)` and `q` there, as a chain of elementwise comparisons, one per action (ties go to the
     first action and a NaN wins, as in `jnp.argmax`). Why: XLA's argmax is a reduction to a
     (value, index) pair, which on a GPU does not vectorise over a short axis; for the TD target of
-    2,048 agents x 128 replayed rows x 2 actions it took 33 us of a 1,444 us iteration (H100,
-    2026-11-26), where the comparisons are a few us and fuse with the ops around them."""
+    many agents x replayed rows x 2 actions it was a visible part of an iteration, where the
+    comparisons fuse with the ops around them (docs/bench-gpu.json, "dqn-greedy")."""
     best_action = jnp.zeros(q.shape[:-1], jnp.int32)
     best = q[..., 0]
     for action in range(1, q.shape[-1]):
@@ -308,10 +308,10 @@ class DQN:
     def batch_q_values(self, params, obs):
         """Q-values of many rows per agent (a replayed batch, in the update's forward and backward
         passes; the judge's episodes): `fused_mlp`'s kernels where `fused_network` (interpreted
-        where a GPU-shaped program runs on the CPU, as in the tests). The judge's 64 episodes took
-        21.2 against 25.6 ms a chunk at 1,024 agents and 33.8 against 41.8 ms at 2,048 on an H100,
-        with the same mean returns. Acting, one row per env, keeps Flax: fused, the training
-        steps took 2.6% / 4.5% longer (docs/results.md, "Concurrent kernels")."""
+        where a GPU-shaped program runs on the CPU, as in the tests): the judge's episodes run
+        faster fused, with the same mean returns (docs/bench-gpu.json, "dqn-judge-fused-default").
+        Acting, one row per env, keeps Flax: fused, the training steps were slower (docs/results.md,
+        "Concurrent kernels")."""
         if self.fused_network:
             return fused_mlp.q_values(params, obs, interpret=backend.on_cpu())
         return self.q_values(params, obs)
@@ -468,7 +468,7 @@ class DQN:
 
     # What a chunk adds up over its iterations (`train_steps`): `collect`'s and `update`'s stats,
     # and the last epsilon, with their types, so that the loop's carry needs no extra trace of an
-    # iteration to learn them (one cost cartpole-mjx's first compile 0.2-0.3 s on 2 CPU cores).
+    # iteration to learn them (such a trace lengthened every MJX task's first compile).
     CHUNK_TOTALS = {
         "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
         "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
