@@ -78,8 +78,8 @@ def seed_keys(seed: int, seeds: int) -> jax.Array:
 def run_keys(seed: int, seeds: int) -> tuple[jax.Array, jax.Array]:
     """A run's keys for `seeds` agents: their training keys (`seed_keys`) and the keys of the
     final evaluation, the same as five random ops each run by itself give, from one small
-    program: on a GPU each of those ops compiled its own (0.55-0.94 s against 0.35-0.40 s on an
-    H100, 2026-11-26)."""
+    program: on a GPU each of those ops compiled its own, which slowed every run's start
+    (docs/bench-gpu.json, "dqn-run-keys")."""
     seed_key = jax.random.PRNGKey(seed)
     return jax.random.split(seed_key, seeds), jax.random.split(jax.random.fold_in(seed_key, 1), seeds)
 
@@ -91,9 +91,8 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     """`fn` over a leading seed axis, as `seed_axis` says: "vmap" runs the seeds as one
     batched program, "map" one after another (`lax.map`), each as the unbatched program.
     None picks "vmap" on accelerators and "map" on the CPU, whose XLA runs the plain
-    matmuls of one network faster than batched ones: on 2 cores, 16 vmapped seeds gave 0.4x
-    the env-steps/s of one seed, 16 mapped seeds 1.06x (docs/results.md). One seed is
-    always run unbatched."""
+    matmuls of one network faster than batched ones (docs/bench-cpu.json, "dqn-seed-scaling").
+    One seed is always run unbatched."""
     seed_axis = seed_axis or default_seed_axis()
     if seed_axis not in SEED_AXES:
         raise ValueError(f"unknown seed_axis {seed_axis!r}; choose one of {SEED_AXES}")
@@ -110,10 +109,9 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
 def _aside(work: Callable[[], Any], name: str) -> Future:
     """`work()` on another thread. XLA compiles, and a program runs, without holding Python's
     lock, so the run's inputs are made (on a GPU with the process's first allocation) while the
-    programs compile, a fresh run's init program (about 1 s on a 2-core CPU) compiles while this
-    thread traces and lowers the training chunk (0.5 s for the analytic CartPole, 1.8 s for
-    cartpole-mjx) and while XLA compiles the chunk, and the final evaluation's program (~5 s for
-    cartpole-mjx on 2 cores) while the agents train. The programs and options are those that
+    programs compile, a fresh run's init program compiles while this thread traces and lowers
+    the training chunk and while XLA compiles the chunk, and the final evaluation's program
+    compiles while the agents train: each of those is seconds of a short run's start. The programs and options are those that
     compiling them here would give: the same results, bit for bit."""
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mjxsuite-{name}")
     try:
@@ -211,8 +209,8 @@ def train_run(
         inputs = None  # on one device the inputs are made on another thread while the programs compile
         if placement.mesh is None:
             # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
-            # a GPU the first allocation, where XLA reserves most of the device's memory: 1.3 s of
-            # a fresh H100 process, now spent while XLA compiles.
+            # a GPU the first allocation, where XLA reserves most of the device's memory: spent while
+            # XLA compiles (docs/bench-gpu.json, "dqn-run-inputs").
             inputs = _aside(run_inputs, "inputs")
             init_args, eval_keys = jax.eval_shape(run_inputs)
         else:
@@ -237,18 +235,17 @@ def train_run(
             checkpoint.keep_metrics(out, chunks_done)
 
         seed_axis = seed_axis or default_seed_axis()
-        # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (cartpole-mjx:
-        # 0.2 s less compile on 2 CPU cores; the same train state and metrics).
+        # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (less to
+        # compile; the same train state and metrics).
         record_episode = on_chunk is not None
         per_device = agents // placement.count
         judge = partial(learner.judge, record=record_episode)
         # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
         # device: each holds a copy of the env's step, and together were one program that XLA compiled
         # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
-        # are traced first and compile on another thread while this one traces the judge (cartpole-mjx
-        # on 2 CPU cores: traced on two threads at once, both compiles waited for both traces;
-        # docs/results.md). Several devices: one sharded program of both took 251.4 ms a chunk of
-        # 2 x 1,024 agents on two H100s, the two 245.8 ms (docs/scaling.md).
+        # are traced first and compile on another thread while this one traces the judge (traced on
+        # two threads at once, both compiles waited for both traces; docs/results.md). Several
+        # devices: two sharded programs are faster than one (docs/bench-gpu.json, "dqn-sharded-programs").
         train_fn = seed_batched(learner.train_steps, per_device, seed_axis)
         judge_fn = seed_batched(judge, per_device, seed_axis)
         kind = type(learner).__name__  # names its programs in the export cache
