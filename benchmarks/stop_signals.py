@@ -52,18 +52,27 @@ def main(argv=None) -> None:
         time.sleep(max(0.0, start + run["at_s"] - time.monotonic()))
         run["process"].send_signal(signal.SIGINT)
         run["sent"] = time.monotonic()
+    # Poll every run, so that each exit time is the moment it exited, not when its turn to be waited on came.
+    deadline = {id(run): run["sent"] + args.wait for run in runs}
+    while any("exited" not in run for run in runs):
+        for run in runs:
+            if "exited" in run:
+                continue
+            if run["process"].poll() is not None:
+                run["exited"] = time.monotonic()
+            elif time.monotonic() > deadline[id(run)]:
+                run["process"].kill()
+                run["process"].wait()
+                run["exited"] = None
+        time.sleep(0.2)
     results = []
     for run in runs:
-        try:
-            status = run["process"].wait(timeout=max(1.0, run["sent"] + args.wait - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            run["process"].kill()
-            status = None
+        status = run["process"].returncode if run["exited"] is not None else None
         text = run["log"].read_text(errors="replace").replace("\r", "\n")
         said = [line for line in text.splitlines() if "stopped by" in line or "Traceback" in line or "free()" in line]
         progress = run["out"] / "progress.json"
         results.append({"signal_at_s": run["at_s"], "status": status,
-                        "exit_after_signal_s": None if status is None else round(time.monotonic() - run["sent"], 1),
+                        "exit_after_signal_s": None if status is None else round(run["exited"] - run["sent"], 1),
                         "saved": json.loads(progress.read_text()) if progress.is_file() else None,
                         "clean": status == 130 and "Traceback" not in text and "free()" not in text, "said": said[-2:]})
     summary = {"kind": "stop-signals", "env": args.env, "train_args": args.train_args, "runs": args.runs,
