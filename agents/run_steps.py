@@ -24,15 +24,14 @@ from agents import checkpoint
 from envs.ranges import COUNT, NON_NEGATIVE
 
 # Periodic checkpoints: after every CHECKPOINT_EVERY chunks, once
-# CHECKPOINT_SECONDS have passed since the last save. On the 2-core CPU a default 50k-step
-# CartPole run saves every ~5 s, so a kill loses at most ~5 s of training, and saving costs ~1%
-# of the wall time (docs/reliability.md has the measurements).
+# CHECKPOINT_SECONDS have passed since the last save: a kill loses at most that much training, and
+# saving a small run costs about 1% of its wall time (docs/reliability.md has the measurements).
 CHECKPOINT_EVERY = 1
 CHECKPOINT_SECONDS = 5.0
-# A save's cost grows with the agents (each DQN agent holds its replay buffer: 1,024 agents took
-# 26 s per save on 2 cores), so the next periodic save also waits SAVE_COST_FACTOR times the last
-# save's duration: saving then takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%)
-# however large the state, while runs whose saves take under 0.25 s keep the CHECKPOINT_SECONDS rhythm.
+# A save's cost grows with the agents (each DQN agent holds its replay buffer; docs/reliability.md),
+# so the next periodic save also waits SAVE_COST_FACTOR times the last save's duration: saving then
+# takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%) however large the state, while runs
+# whose saves are shorter than CHECKPOINT_SECONDS / SAVE_COST_FACTOR keep the CHECKPOINT_SECONDS rhythm.
 SAVE_COST_FACTOR = 20.0
 
 
