@@ -201,7 +201,7 @@ class StepNoise(NamedTuple):
 
     A chunk draws them for all its iterations in one `jax.random.bits` call before its
     scan: XLA:CPU runs each `jax.random` call as a loop of tiny kernels, so drawing
-    inside the loop cost ~10% of a training step.
+    inside the loop was a visible part of a training step.
     """
 
     act: jax.Array  # (train_every, 2, num_envs): explore-or-not coin, random action
