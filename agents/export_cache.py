@@ -2,7 +2,7 @@
 
 JAX's persistent compilation cache (`agents.compile_cache`) skips XLA's compile on a
 second run, but not what comes before it: tracing the Python function and lowering it
-to StableHLO. For an MJX training chunk that is ~3 s of tracing `mjx.step`. This cache
+to StableHLO. For an MJX training chunk that is seconds of tracing `mjx.step`. This cache
 stores the lowered program (`jax.export`'s serialized `Exported`) in a file named by a
 hash of everything that could change it; a later process deserializes it in
 milliseconds, and the compile that follows is a hit in JAX's persistent cache.

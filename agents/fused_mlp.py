@@ -2,7 +2,7 @@
 
 Why: with many agents vmapped on a GPU, every layer of every agent's small network is a
 batched matmul whose activations (e.g. 2,048 agents x 128 rows x 120 units) go to memory
-and back between kernels; on an H200 those matmuls and the ReLU/bias kernels around them
+and back between kernels; on a GPU those matmuls and the ReLU/bias kernels around them
 were over half of a DQN iteration with the default config and three quarters with
 PureJaxRL's, in our program and in PureJaxRL's alike (docs/results.md, "DQN on the GPU").
 Here no activation leaves the chip: in the forward kernel one program per block of rows
@@ -12,8 +12,8 @@ registers and writes them once.
 
 The arithmetic is the network's: `x @ kernel + bias`, ReLU between layers, plain
 products on the way back, at the float32 products' default GPU precision (TF32 on recent
-NVIDIA GPUs, as XLA's matmuls; Q-values agree with XLA's to ~5e-4 relative on an H200). Sizes are padded to powers of two (Triton's tiles) with zeros,
-which add nothing to any sum and keep the padded units at exactly zero. On the CPU
+NVIDIA GPUs, as XLA's matmuls; Q-values agree with XLA's to about 5e-4 relative on a GPU).
+Sizes are padded to powers of two (Triton's tiles) with zeros, which add nothing to any sum and keep the padded units at exactly zero. On the CPU
 `interpret=True` runs the same kernels through XLA (the tests compare them there).
 """
 
@@ -27,11 +27,10 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as plgpu
 
 ROWS_PER_BLOCK = 64  # rows per forward program and per backward loop step
-# The widest layer (inputs, hidden units or actions, padded) for which the kernels are used. On an
-# H200, 2,048 agents' forward and backward pass took 119-121 us fused against 202-203 us in XLA
-# for a 64-64 network on 64 rows, but XLA wins at PureJaxRL's 120-84 on 128 rows (padded to 128
-# wide the blocks no longer fit the registers): 1,433 us fused against 751 us, and 1,294 against
-# 662 us for a variant whose backward programs each take a slab of the last hidden layer's units.
+# The widest layer (inputs, hidden units or actions, padded) for which the kernels are used: fused
+# is faster than XLA for a 64-64 network on 64 rows, but XLA wins at PureJaxRL's 120-84 on 128 rows
+# (padded to 128 wide the blocks no longer fit the registers), also against a variant whose backward
+# programs each take a slab of the last hidden layer's units (docs/results.md, "DQN on the GPU").
 # 256 wide overflowed shared memory.
 MAX_WIDTH = 64
 
@@ -114,7 +113,7 @@ def _backward_kernel(num_layers, block, x_ref, *refs):
 
 def _num_warps(kernels) -> int:
     """4 warps for the widths the kernels are used at (`MAX_WIDTH`; the fastest in a sweep of
-    2-8 on an H200), 8 for wider ones."""
+    2-8 on a GPU), 8 for wider ones."""
     return 4 if max(max(k.shape) for k in kernels) <= 64 else 8
 
 

@@ -23,7 +23,7 @@ def _matmul_bwd(saved, grad):
     XLA folds a transpose into the dot that consumes it; the kernel gradient then
     contracts over the leading (batch) axis of both operands, which XLA:CPU runs on
     its slow generic matmul path. Keeping the transpose as a separate small copy (the
-    barrier stops the folding) lets that dot take the fast path: ~4% of a training step.
+    barrier stops the folding) lets that dot take the fast path, a few percent of a training step.
     """
     x, kernel = saved
     x_rows = x.reshape(-1, x.shape[-1])

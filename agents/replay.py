@@ -5,15 +5,14 @@ carry, jitted, and vmapped over a leading seed axis. The buffer objects are
 frozen (hashable) dataclasses holding only static configuration, so they can be
 closed over or passed as static jit arguments.
 
-Why the code looks the way it does (all measured on XLA:CPU, 2 cores, inside a
-`lax.scan`, which is how the DQN uses it):
+Why the code looks the way it does (measured on XLA:CPU inside a `lax.scan`, which is how
+the DQN uses it; docs/bench-cpu.json, "uniform" and "prioritized"):
 
 * XLA:CPU splits any loop fusion that *reads* >= 512 KiB of one operand across
   threads (`ParallelTaskAssigner`, "I/O bound" branch: bytes accessed / 256 KiB
   tasks). A gather or scatter counts its whole operand, so fetching 32 rows from
-  a large array pays a thread hand-off of ~1-2 us per op, and for a sum tree
-  descended level by level that is paid at every level (20-60 us per sample
-  at 50k items). `dynamic_slice` / `dynamic_update_slice` only count the bytes
+  a large array pays a thread hand-off per op, and for a sum tree descended
+  level by level that is paid at every level. `dynamic_slice` / `dynamic_update_slice` only count the bytes
   they touch and are never split, so:
   - writes (`add`) copy rows one at a time with `dynamic_update_slice` in a
     `fori_loop` (faster than a scatter for every batch size we tried, <= 64);
@@ -32,8 +31,8 @@ Why the code looks the way it does (all measured on XLA:CPU, 2 cores, inside a
   of at most `capacity / 2**32` (< 3e-4 for a million items).
 * On accelerators every one of those loops is a `while` whose iterations each launch
   kernels, and under `vmap` (seeds) a loop whose trip count differs between seeds
-  selects over the whole carry, i.e. the whole buffer, on every iteration (an H100
-  spent 112 us per add on a 256-seed buffer of 10k items). So a buffer made with
+  selects over the whole carry, i.e. the whole buffer, on every iteration (most of an
+  add's time on a GPU, at hundreds of seeds). So a buffer made with
   `vectorized=True` (what `agents.backend` picks off the CPU) reads with one gather,
   writes with one scatter and rebuilds sum-tree ancestors level by level. Both ways
   compute the same values bit for bit (`tests/test_replay.py` checks).

@@ -53,7 +53,7 @@ def is_writer() -> bool:
     return jax.process_index() == 0
 
 
-# Seen on two H200s (jax 0.11.2, 2026-11-24 and 2026-11-26): XLA's GPU compiler
+# Seen with jax 0.11.2 on two GPUs (docs/upstream-two-gpu-mjx.md): XLA's GPU compiler
 # segfaults compiling a batched MJX step under shard_map over two GPUs (`benchmarks.two_gpu_mjx`
 # reproduces it; the same env's reset, a batched Cholesky and the analytic CartPole compile fine).
 MJX_OVER_GPUS = ("an MJX task's step, spread over several GPUs in one program, crashes XLA's GPU compiler "
