@@ -53,6 +53,7 @@ class SavedRun(NamedTuple):
     seed: int
     sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
     agent: str = "dqn"
+    judge_every: int | None = None  # chunks between greedy judges; None: by the time budget (`run_steps.JudgeClock`)
 
 
 def check_writable(out_dir: str | os.PathLike) -> Path:
@@ -96,6 +97,8 @@ def start_run(out_dir: Path, run: SavedRun) -> None:
               "env_options": run.env_options or {}, "config": dataclasses.asdict(run.config)}
     if run.sweep:
         record["sweep"] = run.sweep
+    if run.judge_every is not None:
+        record["judge_every"] = run.judge_every
     _atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
 
 
@@ -108,7 +111,7 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
         agent = record.get("agent", "dqn")  # runs from before PPO and SAC existed are DQN's
         config = config_from_record(registry.config_class(agent), record["config"])
         return SavedRun(record["env"], record["seeds"], config, record.get("env_options", {}),
-                        record.get("seed", 0), record.get("sweep"), agent)
+                        record.get("seed", 0), record.get("sweep"), agent, record.get("judge_every"))
     except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
         raise CheckpointError(f"{path} is damaged or was written by another mjxsuite version "
                               f"({type(err).__name__}: {err}); restore it or start a new run") from err
@@ -124,7 +127,7 @@ def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[st
     import sys
 
     import envs
-    from envs.mjx_options import BUFFER_OPTIONS, WarpUnavailable
+    from envs.mjx_warp import BUFFER_OPTIONS, WarpUnavailable
 
     from agents.env_options import merged
 

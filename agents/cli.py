@@ -25,7 +25,7 @@ from pathlib import Path
 from agents import env_options
 from agents import sweep as sweeps
 from agents.dqn import PRESETS, DQNConfig
-from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, SAVE_COST_FACTOR
+from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, JUDGE_BUDGET, SAVE_COST_FACTOR
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 
@@ -226,7 +226,8 @@ def _train(args, config, **kwargs):
     from agents.run import train_run
 
     kwargs.update(seeds=args.seeds, seed=args.seed, out_dir=args.out, checkpoint_every=args.checkpoint_every,
-                  checkpoint_seconds=args.checkpoint_seconds, devices=args.devices, overwrite=args.overwrite)
+                  checkpoint_seconds=args.checkpoint_seconds, devices=args.devices, overwrite=args.overwrite,
+                  judge_every=args.judge_every)
     if not args.rerun:
         return train_run(args.env, config, **kwargs)
     from agents import sharding
@@ -562,6 +563,10 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     train.add_argument("--checkpoint-seconds", type=ranged(float, NON_NEGATIVE), default=CHECKPOINT_SECONDS,
                        metavar="S", help=f"...and at least S seconds between them, or {SAVE_COST_FACTOR:g}x the last save's "
                             "duration if longer (default %(default)s; 0: no limit)")
+    train.add_argument("--judge-every", type=ranged(int, COUNT), metavar="CHUNKS",
+                       help="judge the greedy policy (keep the best parameters, find the solve step) every CHUNKS "
+                            "chunks and after the last (default: as often as keeps judging within "
+                            f"{100 * JUDGE_BUDGET:g}%% of the run's time)")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true",
                        help="replace the run that --out holds (else refused: --resume continues it) "
@@ -577,7 +582,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                                   + "; writes sweep.json and sweep.png to --out")
     # The options train and sweep share are train's own (one definition; argparse's parents do the same).
     shared = {"env", "agent", "seeds", "seed", "steps", "replay", "preset", "out", "resume", "checkpoint_every",
-              "checkpoint_seconds", "rerun", "overwrite"}
+              "checkpoint_seconds", "judge_every", "rerun", "overwrite"}
     for action in train._actions:
         if action.dest in shared:
             sweep._add_action(action)
@@ -628,7 +633,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
-    from envs.mjx_options import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
+    from envs.mjx_warp import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
 
     from agents import signals
 

@@ -1,4 +1,5 @@
-"""The command line's env overrides: `--env-opt KEY=VALUE`, `--impl`, `--randomize`, `--randomize-per`.
+"""The command line's env overrides: `--env-opt KEY=VALUE`, `--impl`, `--randomize`, `--randomize-per`;
+their text read as `envs.make` values (`parse_option`), and the overflow report that names them.
 
 They become the `envs.make` overrides a run saves in config.json (`env_options`; the
 `--env-opt opt.FIELD=VALUE` pairs as one `opt` mapping), so
@@ -10,9 +11,15 @@ takes `LOW:HIGH` (a uniform range), `xLOW:HIGH` (a scale of the compiled value) 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+from typing import Any
 
+import numpy as np
+
+from envs.mjx_options import ENUMS, opt_defaults, opt_fields
+from envs.mjx_warp import WarpBuffers
 from envs.randomize import PER
-from envs.registry import options, parse_option
+from envs.registry import options
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -86,3 +93,77 @@ def parse_randomize(entry: str) -> tuple[str, list | float]:
                          "FIELD:ELEMENT=xLOW:HIGH (scale) or FIELD:ELEMENT=VALUE, "
                          "e.g. body_mass:pole=0.05:0.2") from None
     return name, (["x", *bounds] if scale else bounds)
+
+
+def parse_option(name: str, option: str, text: str) -> Any:
+    """An override of env `name` from text (the command line's `--env-opt option=text`), read
+    as its default's type: true/false for a bool, a number for an int or float, text for a str.
+    `opt.FIELD` is one field of an MJX task's `opt` (`parse_opt_field`)."""
+    valid = options(name)
+    if option.startswith("opt.") and "opt" in valid:
+        return parse_opt_field(option.removeprefix("opt."), text, f"env {name!r}")
+    if option not in valid:
+        raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
+    default = valid[option]
+    if option in ("randomize", "opt") or dataclasses.is_dataclass(default):
+        fix = {"randomize": "use --randomize FIELD:ELEMENT=LOW:HIGH",
+               "opt": "set its fields one by one: --env-opt opt.iterations=4"}.get(option, "set its fields one by one")
+        raise ValueError(f"option {option!r} of env {name!r} cannot be given as text; {fix}")
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                raise ValueError("expected true or false")
+            return text.lower() in ("true", "1", "yes")
+        if isinstance(default, (int, float)):
+            return type(default)(text)
+        if isinstance(default, tuple):  # an interval such as healthy_z_range, written LOW,HIGH (inf allowed)
+            return tuple(float(part) for part in text.split(","))
+        if default is None:  # no type to go by: a number if it reads as one
+            for kind in (int, float):
+                try:
+                    return kind(text)
+                except ValueError:
+                    pass
+        return text
+    except ValueError as err:
+        raise ValueError(f"bad value {text!r} for option {option!r} of env {name!r} "
+                         f"(default {default!r}): {err}") from None
+
+
+def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
+    """One `opt` field from the command line (`--env-opt opt.FIELD=TEXT`): an enum by name, a vector
+    as comma-separated numbers, an integer or a float by the field's type (`envs.mjx_options`
+    checks the value itself)."""
+    if field not in opt_defaults():
+        raise ValueError(f"{task}: unknown opt field {field!r}; valid fields (mujoco.MjOption): {list(opt_fields())}")
+    default = opt_defaults()[field]
+    try:
+        if field in ENUMS:
+            return int(text) if text.lstrip("-").isdigit() else text
+        if isinstance(default, np.ndarray):
+            return [float(part) for part in text.replace(",", " ").split()]
+        return int(text) if isinstance(default, int) else float(text)
+    except ValueError:
+        shown = default.tolist() if isinstance(default, np.ndarray) else default
+        raise ValueError(f"{task}: bad value {text!r} for opt.{field} (default {shown})") from None
+
+
+def overflow_report(env, contact_steps: int, constraint_steps: int, steps: int, unit: str = "env-steps") -> str:
+    """One line for a training log: which of MuJoCo Warp's buffers ran out on how many of `steps`
+    env-steps (counted from info["overflow"]; or of another `unit`) and the `--env-opt` override
+    (and `envs.make` keyword) that fixes it."""
+    task = env
+    while getattr(task, "warp_buffers", None) is None and hasattr(task, "env"):  # through the wrappers
+        task = task.env
+    buffers = getattr(task, "warp_buffers", None) or WarpBuffers(nconmax=0, njmax=0)
+    parts = []
+    if contact_steps:
+        now = f"naconmax={buffers.naconmax} for the batch" if buffers.naconmax else f"nconmax={buffers.nconmax} per env"
+        bigger = f"naconmax={2 * buffers.naconmax}" if buffers.naconmax else f"nconmax={2 * buffers.nconmax}"
+        parts.append(f"its contact pool ({now}) on {contact_steps:,} of {steps:,} {unit}: raise it with "
+                     f"--env-opt {bigger} (envs.make(..., {bigger}))")
+    if constraint_steps:
+        parts.append(f"its constraint rows (njmax={buffers.njmax} per env) on {constraint_steps:,} of {steps:,} "
+                     f"{unit}: raise them with --env-opt njmax={2 * buffers.njmax} "
+                     f"(envs.make(..., njmax={2 * buffers.njmax}))")
+    return "MuJoCo Warp ran out of " + "; and of ".join(parts) + "."

@@ -7,7 +7,6 @@ import os
 from typing import Any
 
 import jax
-import numpy as np
 
 import envs
 from agents import export_cache
@@ -26,22 +25,6 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None, env: 
 
     env_name, env, agent, params = load_agent(out_dir, env)
     return env_name, env, lambda params, obs, key: agent.policy(params, obs), pick_seed(out_dir, params, seed_index)
-
-
-def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
-    """`obs` (one observation or a batch) as float32 numpy, refused with a clear error unless its
-    last axis has `size` values and every one is finite: a policy fed NaN answers NaN or an
-    arbitrary action without a word, which is how broken physics goes unnoticed."""
-    obs = np.asarray(obs, np.float32)
-    if obs.shape[-1:] != (size,):
-        raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
-    bad = ~np.isfinite(obs)
-    if bad.any():
-        where = np.argwhere(bad)[:3].tolist()
-        raise ValueError(f"the policy of {env_name} got a non-finite observation ({int(bad.sum())} NaN or inf "
-                         f"values, first at index {where}); check the env that produced it (NaN physics ends an "
-                         "episode in mjxsuite's own envs) before acting on it")
-    return obs
 
 
 def collect_rollout_cached(env: envs.Env, env_name: str, env_options: dict | None, policy_fn: rollouts.PolicyFn,

@@ -23,7 +23,6 @@ from agents import checkpoint, export_cache, registry, run_steps, sharding, sign
 from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
-from agents.rollouts import checked_observations
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
@@ -40,24 +39,27 @@ class RunResult:
     wall_s: float = 0.0  # train_run's whole call; the parts below add up to it
     compile_s: float = 0.0
     # Where the rest of wall_s went: setting up (the env, the first JAX calls, placing the agents,
-    # loading a checkpoint), the training chunks (with their greedy evaluations), checkpoint
-    # saves, the final greedy evaluation (its compile included), and the rest (`host_s`): the
-    # host's work between chunks (metrics files, `on_chunk`, e.g. the Rerun logger).
+    # loading a checkpoint), the training chunks, their greedy judges (`run_steps.JudgeClock`),
+    # checkpoint saves, the final greedy evaluation (its compile included), and the rest
+    # (`host_s`): the host's work between chunks (metrics files, `on_chunk`, e.g. the Rerun logger).
     setup_s: float = 0.0
     train_s: float = 0.0
+    judge_s: float = 0.0
+    judges: int = 0  # chunks judged
     save_s: float = 0.0
     eval_s: float = 0.0
     host_s: float = 0.0
 
     def wall_parts(self) -> dict[str, float]:
         """wall_s's parts by name, in the order they happen."""
-        return {"setup": self.setup_s, "compile": self.compile_s, "train": self.train_s, "saves": self.save_s,
-                "evaluation": self.eval_s, "host": self.host_s}
+        return {"setup": self.setup_s, "compile": self.compile_s, "train": self.train_s, "judge": self.judge_s,
+                "saves": self.save_s, "evaluation": self.eval_s, "host": self.host_s}
 
     def finish(self, start: float) -> None:
         """Set wall_s to the time since `start`, and host_s to what the other parts leave of it."""
         self.wall_s = time.perf_counter() - start
-        self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.save_s - self.eval_s)
+        self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.judge_s - self.save_s
+                          - self.eval_s)
     interrupted: bool = False  # SIGINT or SIGTERM; like `stop_after_chunks`, leaves params None and a checkpoint
     stop_signal: str | None = None  # "SIGINT" or "SIGTERM" when interrupted
     chunks_done: int = 0  # chunks the train state has done at the end of this call
@@ -166,6 +168,7 @@ def train_run(
     devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
     sweep: dict[str, list[float]] | None = None,  # a grid over the agent's SWEEPABLE fields: every config x `seeds`
     overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
+    judge_every: int | None = None,  # judge every this many chunks; None: within run_steps.JUDGE_BUDGET of the time
 ) -> RunResult:
     """Train `seeds` agents (DQN, PPO or SAC, as `config` says) on `env_name` at once; see
     docs/training.md for the files written to `out_dir`.
@@ -182,6 +185,9 @@ def train_run(
         start = time.perf_counter()
         COUNT.check("seeds", seeds)
         clock = run_steps.SaveClock(checkpoint_every, checkpoint_seconds)
+        if resume and judge_every is None and out_dir is not None and (Path(out_dir) / checkpoint.CONFIG_FILE).is_file():
+            judge_every = checkpoint.load_config(out_dir).judge_every  # the run's own cadence
+        judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
         sweep = sweep or None
         configs = sweep_configs(config, sweep)
         agents = seeds * len(configs)
@@ -190,7 +196,7 @@ def train_run(
         placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
         writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
         agent = registry.name_of(config)
-        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent)
+        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent, judge_every)
         out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
         if placement.agree(stop.requested is not None):  # a signal while the command started: nothing to compile
             saved = checkpoint.chunks_saved(out) if out is not None and resume else 0
@@ -246,7 +252,7 @@ def train_run(
         # are traced first and compile on another thread while this one traces the judge (traced on
         # two threads at once, both compiles waited for both traces; docs/results.md). Several
         # devices: two sharded programs are faster than one (docs/bench-gpu.json, "dqn-sharded-programs").
-        train_fn = seed_batched(learner.train_steps, per_device, seed_axis)
+        train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
         judge_fn = seed_batched(judge, per_device, seed_axis)
         kind = type(learner).__name__  # names its programs in the export cache
         if placement.mesh is None:
@@ -262,10 +268,6 @@ def train_run(
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
         train_program = train_program.result()
 
-        def chunk(ts):
-            ts, trained, eval_key = train_program(ts)
-            ts, judged = judge_program(ts, eval_key)
-            return ts, {**judged, **trained}
 
         if inputs is not None:
             init_args, eval_keys = inputs.result()
@@ -296,20 +298,32 @@ def train_run(
                     result.interrupted = True
                     break
                 tick = time.perf_counter()
-                ts, metrics = chunk(ts)
-                eval_episode = metrics.pop("eval_episode")
+                ts, metrics, eval_key = train_program(ts)
+                eval_episode = None
+                judging = placement.agree(judge_clock.due(index, tick - start))  # process 0's clock decides
+                if judging:
+                    jax.block_until_ready(metrics)  # the chunk's training done: the judge is timed alone
+                    judge_tick = time.perf_counter()
+                    ts, judged = judge_program(ts, eval_key)
+                    eval_episode = judged.pop("eval_episode")
+                    metrics = {**judged, **metrics}
+                    if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
+                        eval_episode = placement.to_host(eval_episode)
                 record = _host(placement.to_host(metrics))
-                if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
-                    eval_episode = placement.to_host(eval_episode)
+                if judging:
+                    judge_clock.judged(time.perf_counter() - judge_tick)
+                    result.judge_s += judge_clock.last_s
+                    result.train_s += judge_tick - tick
+                else:
+                    result.train_s += time.perf_counter() - tick
                 elapsed = time.perf_counter() - tick
-                result.train_s += elapsed
                 record["chunk"] = index
                 record["steps_per_s"] = config.eval_every * agents / elapsed
                 overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
                 result.history.append(record)
                 last = index + 1
                 now = time.perf_counter() - start
-                for i, solve in enumerate(np.atleast_1d(record["eval_return"])):
+                for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
                     if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
                         result.solve_wall_s[i] = now
                 if writer:
@@ -317,7 +331,7 @@ def train_run(
                 if on_chunk is not None:
                     on_chunk(index, ts, {**record, "eval_episode": eval_episode})
                 run_steps.show(bar, config.eval_every, record)
-                if stop_when_solved and None not in result.solve_wall_s:
+                if stop_when_solved and judging and None not in result.solve_wall_s:
                     solved_early = True
                     break
                 if placement.agree(out is not None and clock.due(last)):  # process 0's clock decides
@@ -338,6 +352,7 @@ def train_run(
             clock.saved(last, save_start)
             result.save_s += time.perf_counter() - save_start
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
+        result.judges = judge_clock.judges
         # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
         # short once it runs): the checkpoint holds every chunk, and --resume evaluates.
         if placement.agree(stop.requested is not None):
@@ -368,8 +383,16 @@ def train_run(
                                     "mean_return": result.mean_return,
                                     "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                                     "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
-                                    "wall_parts_s": result.wall_parts()})
+                                    "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges,
+                                    "chunks": result.chunks_done})
         return result
+
+
+def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
+    """`learner.train_steps(ts)` with the env steps done in its metrics: a chunk the judge skips
+    still says where the run stands (the logger's timeline, metrics.jsonl)."""
+    ts, metrics, eval_key = learner.train_steps(ts)
+    return ts, {**metrics, "env_steps": ts.env_steps}, eval_key
 
 
 def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
@@ -445,6 +468,22 @@ def to_action_space(action: jax.Array, low: np.ndarray, high: np.ndarray) -> jax
     """A policy action in [-1, 1] as the control the task applies: `MjxEnv.action_to_ctrl`'s
     arithmetic (centre + a * half-range), so the two agree to the bit."""
     return 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
+
+
+def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
+    """`obs` (one observation or a batch) as float32 numpy, refused with a clear error unless its
+    last axis has `size` values and every one is finite: a policy fed NaN answers NaN or an
+    arbitrary action without a word, which is how broken physics goes unnoticed."""
+    obs = np.asarray(obs, np.float32)
+    if obs.shape[-1:] != (size,):
+        raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
+    bad = ~np.isfinite(obs)
+    if bad.any():
+        where = np.argwhere(bad)[:3].tolist()
+        raise ValueError(f"the policy of {env_name} got a non-finite observation ({int(bad.sum())} NaN or inf "
+                         f"values, first at index {where}); check the env that produced it (NaN physics ends an "
+                         "episode in mjxsuite's own envs) before acting on it")
+    return obs
 
 
 def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:

@@ -48,7 +48,7 @@ def check_overflow(env, contacts: int, constraints: int, out_of: int, unit: str,
     those steps. Returns whether it was said."""
     if not contacts and not constraints:
         return told
-    from envs.mjx_env import overflow_report  # only MJX tasks overflow; importing it loads mujoco.mjx (start-up time)
+    from agents.env_options import overflow_report
 
     report = f"{overflow_report(env, contacts, constraints, out_of, unit)} Those steps are not physics: {consequence}."
     if max(contacts, constraints) > MOST_OVERFLOWING * out_of:
@@ -97,6 +97,53 @@ class SaveClock:
         self.save_s = self.at - started
 
 
+# The greedy judge (64 episodes per agent after a chunk) takes at most this share of a run's wall
+# time by default: a chunk is judged when the judges' time so far, plus the last judge's, stays
+# within it. Where a judge costs little beside a chunk every chunk is judged; on a CPU's one seed
+# of CartPole, or thousands of agents sharing a GPU, most chunks train without one.
+JUDGE_BUDGET = 0.05
+
+
+class JudgeClock:
+    """Which chunks end with the greedy judge (the evaluation that keeps the best parameters and
+    finds the solve step). `every` given: every `every`-th chunk (chunk index + 1 a multiple of
+    it), the same chunks in every run. `every` None (the default): a chunk is judged while the
+    judges' seconds so far plus the last judge's stay within `budget` of the run's seconds so
+    far (compile included), so judging costs at most about `budget` of the wall time; the first
+    chunk a process trains is judged, to measure a judge. Either way the run's last chunk is
+    judged: its final parameters are a candidate for the best.
+
+    The budget reads the clock, so two runs of a seed may judge different chunks: their training
+    (parameters, optimizer, replay, env states) is the same bit for bit, and their best parameters
+    come from the chunks each judged; `every` makes those the same too (tests and `--resume`
+    comparisons pin it)."""
+
+    def __init__(self, every: int | None, last_chunk: int, budget: float = JUDGE_BUDGET):
+        if every is not None:
+            COUNT.check("judge_every", every)
+        NON_NEGATIVE.check("judge budget", budget)
+        self.every, self.last_chunk, self.budget = every, last_chunk, budget
+        self.judge_s = 0.0  # every judge's seconds so far
+        self.last_s: float | None = None  # the last judge's seconds (None: none measured yet)
+        self.judges = 0
+
+    def due(self, index: int, run_s: float) -> bool:
+        """Whether chunk `index` (0-based) is judged, `run_s` seconds into the run."""
+        if index == self.last_chunk:
+            return True
+        if self.every is not None:
+            return (index + 1) % self.every == 0
+        if self.last_s is None:
+            return True
+        return self.judge_s + self.last_s <= self.budget * (run_s + self.last_s)
+
+    def judged(self, seconds: float) -> None:
+        """Record a judge that took `seconds`."""
+        self.judge_s += seconds
+        self.last_s = seconds
+        self.judges += 1
+
+
 def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> tqdm:
     """The progress bar over env steps (per seed) a run shows."""
     return tqdm(total=total, initial=initial, unit="step", disable=not enabled, desc=desc, dynamic_ncols=True)
@@ -105,6 +152,8 @@ def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> t
 def show(bar: tqdm, steps: int, record: dict) -> None:
     """Advance `bar` by `steps` env steps and show the record's evaluation and speed."""
     bar.update(steps)
+    if record.get("eval_return") is None:  # a chunk the judge skipped (`JudgeClock`): the last figures stay
+        return
     postfix = {"eval": f"{np.mean(record['eval_return']):.1f}"}
     if record.get("best_return") is not None:
         postfix["best"] = f"{np.mean(record['best_return']):.1f}"

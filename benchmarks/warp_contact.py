@@ -37,7 +37,7 @@ import numpy as np
 import envs
 from benchmarks.contact_task import contact_task_name
 from benchmarks.env_throughput import device_name, time_side_by_side
-from envs.registry import parse_option
+from agents.env_options import parse_option
 
 IMPLS = ("jax", "warp")
 C_CHECKED = 16  # envs compared with C MuJoCo in (a)

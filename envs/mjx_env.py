@@ -13,9 +13,7 @@ promises (errors name the task).
 from __future__ import annotations
 
 import abc
-import contextlib
 import copy
-import io
 import os
 from typing import Mapping, Sequence
 
@@ -24,56 +22,16 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-# MJX prints "Failed to import warp" when the optional warp-lang is absent; we use
-# the pure-JAX implementation, so keep that message off the user's console.
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx
-
 from envs.assets import load_model
 from envs.core import Env, State
-from envs.mjx_options import (BUFFER_OPTIONS, WarpBuffers, WarpUnavailable, apply_opt, check_buffer_sizes,
-                               check_opt)
+from envs.mjx_options import apply_opt, check_opt
+from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer_sizes, import_mjx,
+                           put_model_and_data, require_warp)
+
+mjx = import_mjx()  # tasks import it from here: `from envs.mjx_env import mjx`
 
 ActionBins = Mapping[str, Sequence[float]]
 IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
-
-# MuJoCo Warp's per-world overflow bits (`OverflowType` in mujoco_warp's types.py), by the buffer whose
-# override fixes them. Its other bits (solver iteration limits, the EPA horizon) say a result is less
-# precise, not that contacts or constraints were dropped, and do not end an episode.
-CONTACT_OVERFLOW = 4 | 8 | 16  # BROADPHASE, NARROWPHASE, CCD: the contact pool (nconmax / naconmax)
-CONSTRAINT_OVERFLOW = 1 | 2  # NEFC, NJMAX_NNZ: the constraint rows of one world (njmax)
-# info["overflow"] codes: which buffer ran out on a step (both: their sum).
-OVERFLOW_CONTACTS, OVERFLOW_CONSTRAINTS = 1.0, 2.0
-
-
-def require_warp() -> None:
-    """Raise a clear error unless MJX can step with MuJoCo Warp here: it needs warp-lang
-    (the `mjxsuite[warp]` extra) and an NVIDIA GPU that JAX uses (CUDA)."""
-    from mujoco.mjx import warp as mjx_warp
-
-    missing = []
-    if not mjx_warp.WARP_INSTALLED:
-        missing.append("warp-lang is not installed (pip install 'mjxsuite[warp]')")
-    platforms = sorted({device.platform for device in jax.devices()})
-    if "gpu" not in platforms or not _jax_has_cuda():
-        missing.append(f"JAX sees no CUDA GPU (devices: {', '.join(platforms)})")
-    if missing:
-        raise WarpUnavailable("impl='warp' steps MJX with MuJoCo Warp, which needs an NVIDIA GPU and warp-lang: "
-                           + "; ".join(missing) + ". Use impl='jax' (the default, any device) here.")
-
-
-def warp_shared_buffers(data: mjx.Data) -> dict[str, jax.Array]:
-    """The arrays of Warp `data` that all worlds of a batch share (MJX's `DATA_NON_VMAP`)."""
-    from mujoco.mjx.warp.types import DATA_NON_VMAP
-
-    return {name: value for name in sorted(DATA_NON_VMAP) if isinstance(value := getattr(data._impl, name), jax.Array)}
-
-
-def _jax_has_cuda() -> bool:
-    try:
-        return bool(jax.devices("cuda"))
-    except RuntimeError:  # no CUDA backend in this JAX
-        return False
 
 
 class MjxEnv(Env):
@@ -144,12 +102,7 @@ class MjxEnv(Env):
         self.impl = impl
         if impl == "warp":
             self.warp_buffers = WarpBuffers.for_model(self.mj_model, **self._buffer_sizes)
-            # Warp prints a line per overflowing kernel launch (thousands a second); the env flags the
-            # step instead (info["overflow"]) and the training driver says once which buffer to raise.
-            mjx_model = mjx_model.replace(opt=mjx_model.opt.replace(_impl=mjx_model.opt._impl.replace(warn_overflow=0)))
-            # MJX builds Warp data from the MuJoCo model itself (it refuses an mjx.Model there).
-            data = mjx.make_data(self.mj_model, impl=impl, naconmax=self.warp_buffers.pool(1),
-                                 njmax=self.warp_buffers.njmax)
+            mjx_model, data = put_model_and_data(self.mj_model, mjx_model, self.warp_buffers)
         else:
             self.warp_buffers = None
             data = mjx.make_data(mjx_model, impl=impl)
@@ -157,7 +110,9 @@ class MjxEnv(Env):
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
         # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
         self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
-        self._warp_shared = warp_shared_buffers(data) if impl == "warp" else {}
+        # Under impl="warp", the batch of worlds every step and forward runs on (None: impl="jax").
+        self._warp: WarpWorlds | None = WarpWorlds(mjx_model, data, self.warp_buffers, self.name) \
+            if impl == "warp" else None
 
     def _opt_note(self) -> str:
         return f" with opt={self.opt}" if self.opt else ""
@@ -257,7 +212,7 @@ class MjxEnv(Env):
         `model`: everything MuJoCo derives from qpos and qvel (positions, contacts, forces). Under
         impl="warp" MuJoCo Warp's buffers that a batch shares are lent for the call."""
         model = self.mjx_model if model is None else model
-        return self._on_warp_worlds(mjx.forward, model, data) if self._warp_shared else mjx.forward(model, data)
+        return self._warp.run(mjx.forward, model, data) if self._warp else mjx.forward(model, data)
 
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
@@ -286,11 +241,11 @@ class MjxEnv(Env):
             qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
             qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
-        data = self._without_shared(data)
+        data = self._warp.without_shared(data) if self._warp else data
         if self.forward_on_reset:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
-            forwarded = self.forward(data, model) if self._warp_shared else self.forward_at_reset(model, data)
+            forwarded = self.forward(data, model) if self._warp else self.forward_at_reset(model, data)
             data = forwarded.replace(qpos=data.qpos)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
@@ -311,7 +266,7 @@ class MjxEnv(Env):
         prev = state.pipeline_state
         # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
         data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
-        data = self._on_warp_worlds(self._physics, model, data) if self._warp_shared else self._physics(model, data)
+        data = self._warp.run(self._physics, model, data) if self._warp else self._physics(model, data)
         data = self.post_step(prev, data)
         finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
         overflow = self._overflow(data)
@@ -339,72 +294,7 @@ class MjxEnv(Env):
 
     def _overflow(self, data: mjx.Data) -> jax.Array:
         """info["overflow"]'s code for the step that gave `data` (0 under impl="jax")."""
-        if not self._warp_shared:
-            return jnp.zeros((), jnp.float32)
-        bits = data._impl.overflow
-        return (OVERFLOW_CONTACTS * ((bits & CONTACT_OVERFLOW) != 0)
-                + OVERFLOW_CONSTRAINTS * ((bits & CONSTRAINT_OVERFLOW) != 0)).astype(jnp.float32)
-
-    # Under impl="warp" MuJoCo Warp keeps some buffers once for all worlds of a batch: the
-    # contact pool (leading dim `naconmax`), `nacon`, `ncollision` and constant index tables
-    # (MJX's `DATA_NON_VMAP`; `vmap` passes them through without a batch axis). They carry
-    # nothing from one step to the next (collision detection refills them), so an env's
-    # state leaves them out and `step` hands MJX fresh ones. Every leaf of a state then has
-    # the batch axis, and auto-reset, a vmapped seed axis, a while loop with a batched
-    # condition, sharding and checkpoints treat it like any other state.
-    #
-    # The pool must hold the contacts of every world the step runs on, and that number is only
-    # known where `vmap` batches the step (once per env, again per seed, ...). So the physics is a
-    # `custom_vmap` function: each vmap over it folds its axis into one world axis, and the step
-    # at the bottom runs MJX once on all worlds (MJX's Warp step takes a leading world axis)
-    # with a pool of `nconmax` contacts per world.
-    def _on_warp_worlds(self, physics, model: mjx.Model, data: mjx.Data) -> mjx.Data:
-        """`physics(model, data)` (the substeps, or mjx.forward) on one env's state under impl="warp"."""
-        if model is not self.mjx_model:
-            raise ValueError(f"task {self.name}: impl='warp' steps the task's own model; per-env model values "
-                             "(envs.randomize) run with impl='jax'")
-
-        @jax.custom_batching.custom_vmap
-        def step_worlds(data):  # every leaf has a leading world axis
-            return self._step_worlds(physics, data)
-
-        @step_worlds.def_vmap
-        def step_worlds_batched(axis_size, in_batched, data):
-            data = _broadcast(data, in_batched[0], axis_size)  # (axis, worlds, ...)
-            worlds = data.qpos.shape[1]
-            out = step_worlds(jax.tree.map(lambda x: x.reshape((axis_size * worlds,) + x.shape[2:]), data))
-            return jax.tree.map(lambda x: x.reshape((axis_size, worlds) + x.shape[1:]), out), _all_batched(out)
-
-        @jax.custom_batching.custom_vmap
-        def step_one(data):
-            return jax.tree.map(lambda x: x[0], step_worlds(jax.tree.map(lambda x: x[None], data)))
-
-        @step_one.def_vmap
-        def step_one_batched(axis_size, in_batched, data):
-            out = step_worlds(_broadcast(data, in_batched[0], axis_size))
-            return out, _all_batched(out)
-
-        return step_one(data)
-
-    def _step_worlds(self, physics, data: mjx.Data) -> mjx.Data:
-        """`physics` (Warp steps or forward) on the worlds along `data`'s leading axis, with a contact pool
-        for all of them; the result in the state's form (no shared buffers, the state's sizes)."""
-        worlds = data.qpos.shape[0]
-        pool = self.warp_buffers.pool(worlds)
-        template_pool = self.warp_buffers.pool(1)
-        shared = {name: jnp.broadcast_to(buffer[:1], (pool,) + buffer.shape[1:])  # every slot starts alike
-                  if name.startswith("contact__") and buffer.shape[:1] == (template_pool,) else buffer
-                  for name, buffer in self._warp_shared.items()}
-        impl = data._impl.replace(**shared, naconmax=pool, naccdmax=pool,
-                                  overflow=jnp.zeros_like(data._impl.overflow))  # Warp's flags stick until cleared
-        out = physics(self.mjx_model, data.replace(_impl=impl))
-        return out.replace(_impl=out._impl.replace(**dict.fromkeys(shared), naconmax=data._impl.naconmax,
-                                                   naccdmax=data._impl.naccdmax))
-
-    def _without_shared(self, data: mjx.Data) -> mjx.Data:
-        if not self._warp_shared:
-            return data
-        return data.replace(_impl=data._impl.replace(**dict.fromkeys(self._warp_shared)))
+        return self._warp.overflow(data) if self._warp else jnp.zeros((), jnp.float32)
 
     # ---- checks (run once, while tracing) ------------------------------------
     def _check_step_shapes(self, reset_obs, obs, reward, terminated) -> None:
@@ -440,35 +330,6 @@ class MjxEnv(Env):
                     )
             table.append(ctrl)
         return jnp.asarray(np.stack(table), jnp.float32)
-
-
-def overflow_report(env: Env, contact_steps: int, constraint_steps: int, steps: int, unit: str = "env-steps") -> str:
-    """One line for a training log: which of MuJoCo Warp's buffers ran out on how many of `steps`
-    env-steps (counted from info["overflow"]; or of another `unit`) and the override that fixes it."""
-    task = env
-    while not isinstance(task, MjxEnv) and hasattr(task, "env"):
-        task = task.env
-    buffers = getattr(task, "warp_buffers", None) or WarpBuffers(nconmax=0, njmax=0)
-    parts = []
-    if contact_steps:
-        now = f"naconmax={buffers.naconmax} for the batch" if buffers.naconmax else f"nconmax={buffers.nconmax} per env"
-        bigger = f"naconmax={2 * buffers.naconmax}" if buffers.naconmax else f"nconmax={2 * buffers.nconmax}"
-        parts.append(f"its contact pool ({now}) on {contact_steps:,} of {steps:,} {unit}: raise it with "
-                     f"--env-opt {bigger} (envs.make(..., {bigger}))")
-    if constraint_steps:
-        parts.append(f"its constraint rows (njmax={buffers.njmax} per env) on {constraint_steps:,} of {steps:,} "
-                     f"{unit}: raise them with --env-opt njmax={2 * buffers.njmax} "
-                     f"(envs.make(..., njmax={2 * buffers.njmax}))")
-    return "MuJoCo Warp ran out of " + "; and of ".join(parts) + "."
-
-
-def _broadcast(tree, batched, axis_size: int):
-    """Every leaf of `tree` with the leading `axis_size` axis (unbatched leaves repeated)."""
-    return jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), tree, batched)
-
-
-def _all_batched(tree):
-    return jax.tree.map(lambda _: True, tree)
 
 
 def uniform_bins(model: mujoco.MjModel, count: int, task: str = "task") -> dict[str, tuple[float]]:

@@ -1,13 +1,12 @@
-"""MuJoCo's solver options (`opt`) and MuJoCo Warp's buffer sizes, as `envs.make` overrides of an MJX task.
+"""MuJoCo's solver options (`opt`), an `envs.make` override of every MJX task.
 
 `opt` maps `mujoco.MjOption` field names to values: `envs.make("cartpole-mjx", opt={"iterations": 4})`,
 or `--env-opt opt.iterations=4` on the command line. Enum fields take MuJoCo's names, case-insensitive
 (`solver="Newton"`, `integrator="implicitfast"`, `cone="elliptic"`) or their integer values. The
 options are written into a copy of the task's `MjModel` before MJX's model and data are made, so
-both implementations, `envs.randomize` and everything reading `env.mj_model` see them.
-
-`nconmax`, `naconmax` and `njmax` size MuJoCo Warp's contact and constraint buffers (impl="warp");
-see `WarpBuffers`. Everything here is checked in `envs.make`, before anything compiles.
+both implementations, `envs.randomize` and everything reading `env.mj_model` see them. They are
+checked in `envs.make`, before anything compiles. (MuJoCo Warp's buffer sizes, the other MJX
+overrides: `envs.mjx_warp`; the command line's text for them: `agents.env_options`.)
 """
 
 from __future__ import annotations
@@ -118,91 +117,3 @@ def apply_opt(mj_model: mujoco.MjModel, opt: Mapping[str, Any]) -> mujoco.MjMode
             setattr(model.opt, field, value)
     return model
 
-
-def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
-    """One `opt` field from the command line (`--env-opt opt.FIELD=TEXT`): an enum by name, a vector
-    as comma-separated numbers, an integer or a float by the field's type."""
-    if field not in opt_defaults():
-        raise ValueError(f"{task}: unknown opt field {field!r}; valid fields (mujoco.MjOption): {list(opt_fields())}")
-    default = opt_defaults()[field]
-    try:
-        if field in ENUMS:
-            return int(text) if text.lstrip("-").isdigit() else text
-        if isinstance(default, np.ndarray):
-            return [float(part) for part in text.replace(",", " ").split()]
-        return int(text) if isinstance(default, int) else float(text)
-    except ValueError:
-        raise ValueError(f"{task}: bad value {text!r} for opt.{field} (default {_shown(default)})") from None
-
-
-def _shown(value: Any) -> Any:
-    return value.tolist() if isinstance(value, np.ndarray) else value
-
-
-# ---- MuJoCo Warp's buffers ---------------------------------------------------------------------------
-BUFFER_OPTIONS = ("nconmax", "naconmax", "njmax")
-
-
-class WarpUnavailable(RuntimeError):
-    """impl='warp' was asked for on a machine that cannot run MuJoCo Warp (raised by
-    `envs.mjx_env.require_warp`; defined here so the CLI catches it without importing mujoco.mjx)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class WarpBuffers:
-    """MuJoCo Warp's contact and constraint buffers for one task.
-
-    - `nconmax`: contacts per env. MJX keeps one contact pool for all worlds of a batch; its size
-      (`naconmax`) is `nconmax` times the number of envs the step runs on, found when the step is
-      traced (every `vmap`, nested or not), so one env serves a batch of any size.
-    - `naconmax`: the whole pool, whatever the batch (MJX's own meaning); overrides `nconmax`.
-    - `njmax`: constraint rows (contacts' friction directions, joint limits, equalities) per env.
-
-    The defaults (`for_model`) are what MJX's JAX implementation allocates for the same model: it
-    keeps a slot for every contact and every constraint row the model can ever have, so a
-    batch at these sizes does not overflow unless Warp finds more contacts for a geom pair than
-    the JAX implementation's bound (meshes). MuJoCo Warp's own defaults (48 contacts for the whole
-    batch, 64 rows) overflow on half_cheetah.xml at the first step of 4,096 envs.
-    """
-
-    nconmax: int
-    njmax: int
-    naconmax: int | None = None
-
-    @classmethod
-    def for_model(cls, mj_model: mujoco.MjModel, nconmax: int | None = None, naconmax: int | None = None,
-                  njmax: int | None = None) -> WarpBuffers:
-        if nconmax is None or njmax is None:
-            default_ncon, default_nefc = contact_and_constraint_bounds(mj_model)
-            nconmax = default_ncon if nconmax is None else nconmax
-            njmax = default_nefc if njmax is None else njmax
-        return cls(nconmax=nconmax, njmax=njmax, naconmax=naconmax)
-
-    def pool(self, worlds: int) -> int:
-        """The contact pool for a batch of `worlds` envs (at least 1 slot: Warp needs an array)."""
-        return max(1, self.naconmax if self.naconmax is not None else self.nconmax * worlds)
-
-
-def check_buffer_sizes(sizes: Mapping[str, Any], task: str = "task") -> dict[str, int | None]:
-    """`nconmax`, `naconmax`, `njmax` as given to envs.make (None: derived from the model)."""
-    checked = {}
-    for name in BUFFER_OPTIONS:
-        value = sizes.get(name)
-        if value is not None:
-            COUNT.check(f"{task}: {name}", value)
-        checked[name] = value
-    return checked
-
-
-def contact_and_constraint_bounds(mj_model: mujoco.MjModel) -> tuple[int, int]:
-    """The most contacts and constraint rows one world of `mj_model` can have, as MJX's JAX
-    implementation allocates them (every candidate geom pair's most contacts, every row). For a
-    model the JAX implementation cannot run: MuJoCo Warp's own guesses for one world."""
-    from envs.mjx_env import mjx  # here, not at the top: mujoco.mjx takes seconds to import (start-up time)
-
-    try:
-        data = mjx.make_data(mjx.put_model(mj_model, impl="jax"))
-        return max(1, int(data.contact.dist.shape[0])), max(1, int(data._impl.efc_J.shape[0]))
-    except NotImplementedError:
-        data = mjx.make_data(mj_model, impl="warp")  # one world: its pool is one world's contacts
-        return int(data._impl.naconmax), int(data._impl.njmax)

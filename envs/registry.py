@@ -9,7 +9,8 @@ import sys
 from typing import Any, Callable
 
 from envs.core import Env
-from envs.mjx_options import check_buffer_sizes, check_opt, parse_opt_field
+from envs.mjx_options import check_opt
+from envs.mjx_warp import check_buffer_sizes
 from envs.randomize import PER, Randomize
 from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
@@ -61,7 +62,7 @@ def make(name: str, **overrides: Any) -> Env:
 
     An MJX task also takes `impl` ("jax", or "warp" for MuJoCo Warp on an NVIDIA GPU), `opt`
     (`mujoco.MjOption` fields, e.g. `opt={"iterations": 4, "solver": "CG"}`), `nconmax`,
-    `naconmax` and `njmax` (MuJoCo Warp's buffers, see `envs.mjx_options.WarpBuffers`) and
+    `naconmax` and `njmax` (MuJoCo Warp's buffers, see `envs.mjx_warp.WarpBuffers`) and
     `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`."""
     factory, _ = _lookup(name)
     valid = options(name)
@@ -110,41 +111,6 @@ def _loaded_mjx_env() -> type | None:
     """`envs.MjxEnv` once envs.mjx_env is imported, else None: no MJX task exists before, and
     importing it just to ask would load mujoco.mjx (seconds of start-up) for an analytic task."""
     return getattr(sys.modules.get("envs.mjx_env"), "MjxEnv", None)
-
-
-def parse_option(name: str, option: str, text: str) -> Any:
-    """An override of env `name` from text (the command line's `--env-opt option=text`), read
-    as its default's type: true/false for a bool, a number for an int or float, text for a str.
-    `opt.FIELD` is one field of an MJX task's `opt` (`envs.mjx_options.parse_opt_field`)."""
-    valid = options(name)
-    if option.startswith("opt.") and "opt" in valid:
-        return parse_opt_field(option.removeprefix("opt."), text, f"env {name!r}")
-    if option not in valid:
-        raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
-    default = valid[option]
-    if option in ("randomize", "opt") or dataclasses.is_dataclass(default):
-        fix = {"randomize": "use --randomize FIELD:ELEMENT=LOW:HIGH",
-               "opt": "set its fields one by one: --env-opt opt.iterations=4"}.get(option, "set its fields one by one")
-        raise ValueError(f"option {option!r} of env {name!r} cannot be given as text; {fix}")
-    try:
-        if isinstance(default, bool):
-            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError("expected true or false")
-            return text.lower() in ("true", "1", "yes")
-        if isinstance(default, (int, float)):
-            return type(default)(text)
-        if isinstance(default, tuple):  # an interval such as healthy_z_range, written LOW,HIGH (inf allowed)
-            return tuple(float(part) for part in text.split(","))
-        if default is None:  # no type to go by: a number if it reads as one
-            for kind in (int, float):
-                try:
-                    return kind(text)
-                except ValueError:
-                    pass
-        return text
-    except ValueError as err:
-        raise ValueError(f"bad value {text!r} for option {option!r} of env {name!r} "
-                         f"(default {default!r}): {err}") from None
 
 
 def _lookup(name: str) -> tuple[Callable[..., Env], int]:

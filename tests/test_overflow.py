@@ -10,7 +10,8 @@ import pytest
 
 import envs
 from agents import DQN, DQNConfig, train_run
-from envs import mjx_env
+from agents import env_options
+from envs import mjx_warp
 
 CONFIG = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                    eval_episodes=2, hidden=(16,))
@@ -23,7 +24,7 @@ class OverflowingCartPole(envs.CartPoleMjx):
     threshold = 0.02
 
     def _overflow(self, data):
-        return jnp.where(data.qpos[0] > self.threshold, mjx_env.OVERFLOW_CONTACTS, 0.0).astype(jnp.float32)
+        return jnp.where(data.qpos[0] > self.threshold, mjx_warp.OVERFLOW_CONTACTS, 0.0).astype(jnp.float32)
 
 
 class AlwaysOverflowingCartPole(OverflowingCartPole):
@@ -72,12 +73,12 @@ def test_a_run_that_overflows_on_most_steps_stops():
 
 def test_the_report_names_the_buffer_and_the_override():
     task = envs.CartPoleMjx()
-    task.warp_buffers = mjx_env.WarpBuffers(nconmax=16, njmax=70)
-    line = mjx_env.overflow_report(envs.TimeLimit(task, 10), 3, 4, 1000)
+    task.warp_buffers = mjx_warp.WarpBuffers(nconmax=16, njmax=70)
+    line = env_options.overflow_report(envs.TimeLimit(task, 10), 3, 4, 1000)
     assert "contact pool (nconmax=16 per env) on 3 of 1,000 env-steps" in line and "--env-opt nconmax=32" in line
     assert "constraint rows (njmax=70 per env) on 4 of 1,000" in line and "--env-opt njmax=140" in line
-    task.warp_buffers = mjx_env.WarpBuffers(nconmax=16, njmax=70, naconmax=5000)
-    assert "naconmax=5000 for the batch" in mjx_env.overflow_report(task, 1, 0, 10)
+    task.warp_buffers = mjx_warp.WarpBuffers(nconmax=16, njmax=70, naconmax=5000)
+    assert "naconmax=5000 for the batch" in env_options.overflow_report(task, 1, 0, 10)
 
 
 def test_throughput_runs_count_the_steps_that_overflowed():
@@ -96,7 +97,7 @@ class AlwaysOverflowingPendulum(envs.PendulumMjx):
     """A continuous task whose every step overflows the constraint rows, for Brax's trainers."""
 
     def _overflow(self, data):
-        return jnp.full((), mjx_env.OVERFLOW_CONSTRAINTS, jnp.float32)
+        return jnp.full((), mjx_warp.OVERFLOW_CONSTRAINTS, jnp.float32)
 
 
 if "test-always-overflowing-pendulum" not in envs.names():

@@ -14,7 +14,7 @@ pytest.importorskip("mujoco_warp", reason="impl='warp' needs mujoco-warp: pip in
 
 import envs  # noqa: E402
 from agents import DQNConfig, train_run  # noqa: E402
-from envs import mjx_env  # noqa: E402
+from envs import mjx_env, mjx_warp  # noqa: E402
 from envs.wrappers import BatchedAutoReset, VmapWrapper  # noqa: E402
 
 TINY = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=200,
@@ -138,8 +138,8 @@ def test_brax_training_wrappers_end_an_overflowing_episode():
 def test_the_overflow_bits_are_mujoco_warps():
     from mujoco.mjx.third_party.mujoco_warp._src.types import OverflowType
 
-    assert mjx_env.CONTACT_OVERFLOW == OverflowType.BROADPHASE | OverflowType.NARROWPHASE | OverflowType.CCD
-    assert mjx_env.CONSTRAINT_OVERFLOW == OverflowType.NEFC | OverflowType.NJMAX_NNZ
+    assert mjx_warp.CONTACT_OVERFLOW == OverflowType.BROADPHASE | OverflowType.NARROWPHASE | OverflowType.CCD
+    assert mjx_warp.CONSTRAINT_OVERFLOW == OverflowType.NEFC | OverflowType.NJMAX_NNZ
 
 
 GYMNASIUM_TASKS = ["half-cheetah", "hopper", "walker2d", "ant", "humanoid", "swimmer", "reacher", "pusher",
