@@ -12,31 +12,52 @@ import importlib.util
 from envs.core import Env, State, Wrapper
 from envs.randomize import Randomize, randomize
 from envs.registry import make, names, options, register
-from envs.tasks.acrobot import Acrobot, AcrobotPhysics, AcrobotRules
-from envs.tasks.cartpole import CartPole, CartPolePhysics, CartPoleRules, CartPoleState
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
-# Public names imported on first use (PEP 562 `__getattr__` below): their modules load mujoco.mjx,
-# which loads MuJoCo Warp and Warp (seconds of imports), or serve Brax. `envs.make("cartpole")` and DQN on
-# the analytic tasks then start without them; `from envs import HalfCheetah` works as before.
-_LAZY_MODULES = {
-    "envs.mjx_env": ("MjxEnv",),
-    "envs.interop.brax": ("BraxEnv", "to_brax"),
-    "envs.tasks.acrobot_mjx": ("AcrobotMjx",),
-    "envs.tasks.cartpole_mjx": ("CartPoleMjx",),
-    "envs.tasks.cartpole_swingup_mjx": ("CartPoleSwingUpMjx", "SwingUpRules"),
-    "envs.tasks.ant": ("Ant", "AntParams"),
-    "envs.tasks.half_cheetah": ("HalfCheetah", "HalfCheetahParams"),
-    "envs.tasks.humanoid": ("Humanoid", "HumanoidParams"),
-    "envs.tasks.inverted_pendulums": ("InvertedDoublePendulum", "InvertedDoublePendulumParams",
-                                      "InvertedPendulum", "InvertedPendulumParams"),
-    "envs.tasks.pusher": ("Pusher", "PusherParams"),
-    "envs.tasks.reacher": ("Reacher", "ReacherParams"),
-    "envs.tasks.pendulum_mjx": ("DISCRETE_TORQUE_BINS", "PendulumMjx", "PendulumMjxDiscrete", "PendulumParams"),
-    "envs.tasks.swimmer": ("Swimmer", "SwimmerParams"),
-    "envs.tasks.walkers": ("Hopper", "HopperParams", "Walker2d", "Walker2dParams"),
+# The built-in tasks, one row each: the name `envs.make` takes, the task class as "module:Class", the
+# episode length (Gymnasium's max_episode_steps for its tasks), and the other public names of the
+# task's module (its params, rules, ...). The registrations, the lazy imports and `__all__` all
+# derive from this table: adding a task is one row.
+TASKS = (
+    # analytic (the Gymnasium / gymnax equations)
+    ("cartpole", "envs.tasks.cartpole:CartPole", 500, ("CartPolePhysics", "CartPoleRules", "CartPoleState")),
+    ("acrobot", "envs.tasks.acrobot:Acrobot", 500, ("AcrobotPhysics", "AcrobotRules")),
+    # MJX: classic control as MJCF models
+    ("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", 500, ()),
+    ("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", 500, ()),
+    ("cartpole-swingup-mjx", "envs.tasks.cartpole_swingup_mjx:CartPoleSwingUpMjx", 1000, ("SwingUpRules",)),
+    ("pendulum-mjx", "envs.tasks.pendulum_mjx:PendulumMjx", 200, ("PendulumParams", "DISCRETE_TORQUE_BINS")),
+    ("pendulum-mjx-discrete", "envs.tasks.pendulum_mjx:PendulumMjxDiscrete", 200, ()),
+    # MJX: Gymnasium's MuJoCo v5 tasks
+    ("half-cheetah", "envs.tasks.half_cheetah:HalfCheetah", 1000, ("HalfCheetahParams",)),
+    ("hopper", "envs.tasks.walkers:Hopper", 1000, ("HopperParams",)),
+    ("walker2d", "envs.tasks.walkers:Walker2d", 1000, ("Walker2dParams",)),
+    ("swimmer", "envs.tasks.swimmer:Swimmer", 1000, ("SwimmerParams",)),
+    ("inverted-pendulum", "envs.tasks.inverted_pendulums:InvertedPendulum", 1000, ("InvertedPendulumParams",)),
+    ("inverted-double-pendulum", "envs.tasks.inverted_pendulums:InvertedDoublePendulum", 1000,
+     ("InvertedDoublePendulumParams",)),
+    ("reacher", "envs.tasks.reacher:Reacher", 50, ("ReacherParams",)),
+    ("ant", "envs.tasks.ant:Ant", 1000, ("AntParams",)),
+    ("humanoid", "envs.tasks.humanoid:Humanoid", 1000, ("HumanoidParams",)),
+    ("pusher", "envs.tasks.pusher:Pusher", 100, ("PusherParams",)),
+)
+
+# Public names of the API imported on first use too: their modules load mujoco.mjx (which loads
+# MuJoCo Warp and Warp: seconds of imports) or serve Brax.
+_LAZY_API = {
+    "MjxEnv": "envs.mjx_env",
+    "BraxEnv": "envs.interop.brax",
+    "to_brax": "envs.interop.brax",
 }
-_LAZY = {name: module for module, names_ in _LAZY_MODULES.items() for name in names_}
+
+# Every task's names are imported on first use (PEP 562 `__getattr__` below), so `envs.make("cartpole")`
+# and DQN on the analytic tasks start without MJX; `from envs import HalfCheetah` works as any import.
+_LAZY = dict(_LAZY_API)
+for _name, _factory, _length, _more in TASKS:
+    _module, _, _class = _factory.partition(":")
+    _LAZY.update(dict.fromkeys((_class, *_more), _module))
+    register(_name, _factory, episode_length=_length)  # imported by its first `make` or `options`
+del _name, _factory, _length, _more, _module, _class
 
 
 def __getattr__(name: str):
@@ -54,11 +75,6 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-def _lazy_task(name: str) -> str:
-    """A task class of `_LAZY` as `register` takes it by name ("module:attr"), imported on first use."""
-    return f"{_LAZY[name]}:{name}"
-
-
 def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
     """A registered env (by name) or an env instance as a `gymnasium.Env`, or with `num_envs` a
     `gymnasium.vector.VectorEnv` (see `envs.interop.gymnasium`). Gymnasium is optional, so it is
@@ -68,35 +84,6 @@ def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
     return bridge(name, num_envs, **kwargs)
 
 
-register("cartpole", CartPole, episode_length=500)
-register("acrobot", Acrobot, episode_length=500)
-# The MJX tasks by "module:attr", imported by their first `make` or `options`.
-register("acrobot-mjx", _lazy_task("AcrobotMjx"), episode_length=500)
-register("cartpole-mjx", _lazy_task("CartPoleMjx"), episode_length=500)
-register("cartpole-swingup-mjx", _lazy_task("CartPoleSwingUpMjx"), episode_length=1000)
-register("pendulum-mjx", _lazy_task("PendulumMjx"), episode_length=200)
-register("pendulum-mjx-discrete", _lazy_task("PendulumMjxDiscrete"), episode_length=200)
-# Gymnasium's MuJoCo v5 tasks, truncated at their max_episode_steps as registered by Gymnasium.
-register("half-cheetah", _lazy_task("HalfCheetah"), episode_length=1000)
-register("hopper", _lazy_task("Hopper"), episode_length=1000)
-register("walker2d", _lazy_task("Walker2d"), episode_length=1000)
-register("swimmer", _lazy_task("Swimmer"), episode_length=1000)
-register("inverted-pendulum", _lazy_task("InvertedPendulum"), episode_length=1000)
-register("inverted-double-pendulum", _lazy_task("InvertedDoublePendulum"), episode_length=1000)
-register("reacher", _lazy_task("Reacher"), episode_length=50)
-register("ant", _lazy_task("Ant"), episode_length=1000)
-register("humanoid", _lazy_task("Humanoid"), episode_length=1000)
-register("pusher", _lazy_task("Pusher"), episode_length=100)
-
-__all__ = [
-    "Acrobot", "AcrobotMjx", "AcrobotPhysics", "AcrobotRules",
-    "AutoReset", "BatchedAutoReset", "CartPole", "CartPoleMjx", "CartPolePhysics", "CartPoleRules", "CartPoleState", "Env",
-    "EpisodeStats", "MjxEnv", "State", "TimeLimit", "VmapWrapper", "Wrapper",
-    "make", "names", "options", "register", "to_gymnasium", "wrap_for_training",
-    "PendulumMjx", "PendulumParams",
-    "CartPoleSwingUpMjx", "SwingUpRules", "BraxEnv", "to_brax", "Randomize", "randomize",
-    "HalfCheetah", "HalfCheetahParams", "Hopper", "HopperParams", "Walker2d", "Walker2dParams",
-    "Swimmer", "SwimmerParams",
-    "InvertedPendulum", "InvertedPendulumParams", "InvertedDoublePendulum", "InvertedDoublePendulumParams",
-    "Reacher", "ReacherParams", "Ant", "AntParams", "Humanoid", "HumanoidParams", "Pusher", "PusherParams",
-]
+__all__ = sorted(["Env", "State", "Wrapper", "Randomize", "randomize", "make", "names", "options", "register",
+                  "AutoReset", "BatchedAutoReset", "EpisodeStats", "TimeLimit", "VmapWrapper", "wrap_for_training",
+                  "to_gymnasium", *_LAZY])

@@ -153,3 +153,18 @@ def test_no_module_imports_itself_through_others():
 def test_the_circle_check_sees_a_circle():
     assert import_circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
     assert import_circles({"a": {"b"}, "b": set()}) == []
+
+
+def test_one_task_table_gives_the_registrations_the_lazy_names_and_all():
+    import envs
+
+    assert {row[0] for row in envs.TASKS} <= set(envs.names())
+    for name, factory, episode_length, more in envs.TASKS:
+        module, _, cls = factory.partition(":")
+        assert envs.options(name)["episode_length"] == episode_length
+        assert {cls, *more} <= set(envs.__all__), name
+        assert all(envs._LAZY[public] == module for public in (cls, *more)), name
+    modules = {row[1].partition(":")[0] for row in envs.TASKS}
+    files = {f"envs.tasks.{p.stem}" for p in (ROOT / "envs" / "tasks").glob("*.py") if p.stem != "__init__"}
+    assert files - modules <= {"envs.tasks.gymnasium_mujoco"}, "a task file without a row in envs.TASKS"
+    assert all(hasattr(envs, public) for public in envs.__all__)
