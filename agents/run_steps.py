@@ -118,9 +118,10 @@ class JudgeClock:
     come from the chunks each judged; `every` makes those the same too (tests and `--resume`
     comparisons pin it)."""
 
-    def __init__(self, every: int | None, last_chunk: int, budget: float = JUDGE_BUDGET):
+    def __init__(self, every: int | None, last_chunk: int, budget: float | None = None):
         if every is not None:
             COUNT.check("judge_every", every)
+        budget = JUDGE_BUDGET if budget is None else budget
         NON_NEGATIVE.check("judge budget", budget)
         self.every, self.last_chunk, self.budget = every, last_chunk, budget
         self.judge_s = 0.0  # every judge's seconds so far

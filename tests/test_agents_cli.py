@@ -147,8 +147,9 @@ def _leaves(out):
 def test_resume_is_exact(tmp_path, env_name, config):
     """Stopped after its first checkpoint, then resumed: the whole train state (Adam's moments,
     the normalizer, the envs, the key, SAC's replay buffer) and the returns of an uninterrupted run."""
-    whole = train_run(env_name, config, seeds=2, out_dir=tmp_path / "whole", progress=False)
-    train_run(env_name, config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=1)
+    # The judged chunks pinned (the default budget reads the clock); the resumed run reads them from --out.
+    whole = train_run(env_name, config, seeds=2, out_dir=tmp_path / "whole", progress=False, judge_every=1)
+    train_run(env_name, config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=1, judge_every=1)
     resumed = train_run(env_name, config, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
     for a, b in zip(_leaves(tmp_path / "whole"), _leaves(tmp_path / "part"), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
@@ -173,12 +174,12 @@ def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config)
     """SIGKILL once a checkpoint exists (saves slowed down, so the kill lands mid-run), then
     `mjxsuite train --out D --resume`: the uninterrupted run's train state, SAC's buffer included."""
     config = dataclasses.replace(config, num_evals=7)
-    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False)
+    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False, judge_every=1)
     args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
             for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
     out = tmp_path / "killed"
     process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", agent,
-                                "--out", str(out), "--checkpoint-seconds", "0", *args], env=_env(),
+                                "--out", str(out), "--checkpoint-seconds", "0", "--judge-every", "1", *args], env=_env(),
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 120
@@ -195,13 +196,14 @@ def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config)
 
 @pytest.mark.slow  # ~20 s: the DQN signal tests (test_faults.py) cover the same lifecycle in the default run
 def test_sigterm_stops_a_ppo_run_and_resume_ends_it_as_the_uninterrupted_run(tmp_path, capsys):
-    whole = train_run("pendulum-mjx", TINY_PPO, out_dir=tmp_path / "whole", progress=False)
+    whole = train_run("pendulum-mjx", TINY_PPO, out_dir=tmp_path / "whole", progress=False, judge_every=1)
 
     def signalled(index, ts, record):  # after the first chunk, as a scheduler would
         if index == 0:
             os.kill(os.getpid(), signal.SIGTERM)
 
-    stopped = train_run("pendulum-mjx", TINY_PPO, out_dir=tmp_path / "part", progress=False, on_chunk=signalled)
+    stopped = train_run("pendulum-mjx", TINY_PPO, out_dir=tmp_path / "part", progress=False, on_chunk=signalled,
+                        judge_every=1)
     assert stopped.interrupted and stopped.stop_signal == "SIGTERM" and stopped.saved_chunks == 1
     assert cli_main(["train", "--out", str(tmp_path / "part"), "--resume"]) == 0
     for a, b in zip(_leaves(tmp_path / "whole"), _leaves(tmp_path / "part"), strict=True):

@@ -105,8 +105,10 @@ def test_train_is_deterministic_and_vmaps_over_seeds():
                                          pytest.param("cartpole-mjx", "uniform", marks=pytest.mark.slow)])
 def test_resume_reproduces_the_uninterrupted_run(tmp_path, name, replay):
     config = DQNConfig(**{**SMALL.__dict__, "replay": replay})
-    whole = train_run(name, config, seeds=2, out_dir=tmp_path / "whole", progress=False)
-    part = train_run(name, config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2)
+    # The judged chunks pinned (the default budget reads the clock): the resumed run reads them from --out.
+    whole = train_run(name, config, seeds=2, out_dir=tmp_path / "whole", progress=False, judge_every=1)
+    part = train_run(name, config, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2,
+                     judge_every=1)
     assert part.params is None  # stopped early
     resumed = train_run(name, config, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
     for a, b in zip(jax.tree.leaves(whole.train_state), jax.tree.leaves(resumed.train_state)):

@@ -27,7 +27,7 @@ from agents.run import seed_keys
 CONFIG = DQNConfig(total_steps=600, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                    eval_episodes=4, hidden=(16,))
 CONFIG_ARGS = ["--steps", "600", "--learning_starts", "64", "--batch_size", "32", "--buffer_size", "256",
-               "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16"]
+               "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16", "--judge-every", "1"]
 SEEDS = 2
 
 

@@ -51,8 +51,9 @@ SINGLE_HOST = textwrap.dedent("""
         return {k: v for k, v in record.items() if k not in ("wall_s", "compile_s", "solve_wall_s", "devices", "wall_parts_s")}
 
     found = {}
-    one = train_run("cartpole", config, seeds=seeds, devices=1, out_dir=out / "one", progress=False)
-    four = train_run("cartpole", config, seeds=seeds, devices=4, out_dir=out / "four", progress=False)
+    # The judged chunks pinned (the default budget reads the clock); a resumed run reads them from its --out.
+    one = train_run("cartpole", config, seeds=seeds, devices=1, out_dir=out / "one", progress=False, judge_every=1)
+    four = train_run("cartpole", config, seeds=seeds, devices=4, out_dir=out / "four", progress=False, judge_every=1)
     found["devices"] = [one.devices, four.devices, json.loads((out / "four/eval.json").read_text())["devices"]]
     found["four_equals_one"] = {"params": equal(one.params, four.params),
                                 "train_state": equal(one.train_state, four.train_state),
@@ -63,7 +64,8 @@ SINGLE_HOST = textwrap.dedent("""
                                     for line in (out / "four/metrics.jsonl").read_text().splitlines()]}
 
     # Saved on 2 devices after one chunk, resumed on 1 and on 4.
-    train_run("cartpole", config, seeds=seeds, devices=2, out_dir=out / "part", progress=False, stop_after_chunks=1)
+    train_run("cartpole", config, seeds=seeds, devices=2, out_dir=out / "part", progress=False, stop_after_chunks=1,
+              judge_every=1)
     shutil.copytree(out / "part", out / "part_copy")
     found["resumed"] = {}
     for devices, run in ((1, "part"), (4, "part_copy")):
@@ -75,8 +77,8 @@ SINGLE_HOST = textwrap.dedent("""
     grid = ["--learning_rate", "1e-3,2e-3", "--polyak_tau", "0.02"]
     flags = [w for name, value in json.loads(sys.argv[2]).items() for w in (f"--{name}", str(value))]
     found["sweep_exit"] = main(["sweep", "--env", "cartpole", "--seeds", "2", "--devices", "4", "--out",
-                                str(out / "sweep"), *grid, *flags])
-    found["train_exit"] = main(["train", "--env", "cartpole", "--seeds", "2", "--out", str(out / "member"),
+                                str(out / "sweep"), "--judge-every", "1", *grid, *flags])
+    found["train_exit"] = main(["train", "--env", "cartpole", "--seeds", "2", "--out", str(out / "member"), "--judge-every", "1",
                                 "--learning_rate", "2e-3", "--polyak_tau", "0.02", *flags])
     swept, member = json.loads((out / "sweep/eval.json").read_text()), kept("member")
     found["sweep_member_eval"] = [swept["mean_return"][2:4], swept["solve_step"][2:4]] == \\

@@ -60,7 +60,7 @@ def test_dqn_trains_with_warp_as_with_jax(seeds, seed_axis):
     """One seed runs unbatched, vmapped seeds batch the evaluation's while loop (whose batched
     condition batches its whole carry): Warp's run ends with JAX's parameters to rounding."""
     runs = {impl: train_run("cartpole-mjx", TINY, seeds=seeds, env_options={"impl": impl}, progress=False,
-                            seed_axis=seed_axis) for impl in ("warp", "jax")}
+                            seed_axis=seed_axis, judge_every=1) for impl in ("warp", "jax")}
     for ours, reference in zip(jax.tree.leaves(runs["warp"].params), jax.tree.leaves(runs["jax"].params)):
         np.testing.assert_allclose(np.asarray(ours), np.asarray(reference), atol=1e-5)
     assert runs["warp"].mean_return == runs["jax"].mean_return

@@ -1,0 +1,64 @@
+"""The run lifecycle's judge budget (`agents.run_steps.JudgeClock`): which chunks end with the
+greedy judge, by the clock by default or every N chunks when pinned, and that a resumed run keeps
+its run's cadence."""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from agents import DQNConfig, run_steps, train_run
+
+SMALL = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
+                  eval_episodes=4, hidden=(16,))
+
+
+def test_the_clock_judges_within_its_budget_and_always_the_last_chunk():
+    clock = run_steps.JudgeClock(None, last_chunk=9, budget=0.05)
+    assert clock.due(0, run_s=0.0)  # nothing measured yet: judge, to measure
+    clock.judged(0.1)
+    assert not clock.due(1, run_s=1.0)  # 0.1 + 0.1 > 5% of 1.1 s
+    assert clock.due(1, run_s=3.9)  # 0.2 <= 5% of 4.0 s
+    clock.judged(0.1)
+    assert not clock.due(2, run_s=4.1) and clock.due(9, run_s=4.1)  # the last chunk is always judged
+    assert clock.judges == 2 and clock.judge_s == pytest.approx(0.2)
+
+
+def test_a_pinned_cadence_judges_the_same_chunks_whatever_the_clock():
+    clock = run_steps.JudgeClock(3, last_chunk=7)
+    assert [i for i in range(8) if clock.due(i, run_s=0.0)] == [2, 5, 7]
+    with pytest.raises(ValueError, match="judge_every"):
+        run_steps.JudgeClock(0, last_chunk=3)
+
+
+def _judged_chunks(out):
+    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    assert all("env_steps" in r for r in records)  # every chunk says where the run stands
+    return [r["chunk"] for r in records if "eval_return" in r]
+
+
+@pytest.mark.parametrize("budget, judged", [(0.0, [0, 3]), (1.0, [0, 1, 2, 3])])
+def test_the_budget_decides_which_chunks_a_run_judges(tmp_path, monkeypatch, budget, judged):
+    """Budget 0: only the first chunk (the measurement) and the last; a budget of the whole run:
+    every chunk. The training itself is the same either way: only the judged chunks differ."""
+    monkeypatch.setattr(run_steps, "JUDGE_BUDGET", budget)
+    result = train_run("cartpole", SMALL, out_dir=tmp_path, progress=False)
+    assert _judged_chunks(tmp_path) == judged and result.judges == len(judged)
+    summary = json.loads((tmp_path / "eval.json").read_text())
+    assert summary["judged_chunks"] == len(judged) and summary["chunks"] == SMALL.num_chunks
+    assert summary["wall_parts_s"]["judge"] > 0
+    assert sum(summary["wall_parts_s"].values()) == pytest.approx(summary["wall_s"], abs=1e-6)
+    pinned = train_run("cartpole", SMALL, progress=False, judge_every=1)
+    for a, b in zip(jax.tree.leaves(result.train_state.params), jax.tree.leaves(pinned.train_state.params),
+                    strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_a_resumed_run_keeps_its_runs_cadence(tmp_path):
+    part = train_run("cartpole", SMALL, out_dir=tmp_path, progress=False, stop_after_chunks=1, judge_every=2)
+    assert part.params is None and json.loads((tmp_path / "config.json").read_text())["judge_every"] == 2
+    train_run("cartpole", SMALL, out_dir=tmp_path, progress=False, resume=True)  # judge_every from --out
+    assert _judged_chunks(tmp_path) == [1, 3]
+    with pytest.raises(ValueError, match="judge_every 2"):
+        train_run("cartpole", SMALL, out_dir=tmp_path, progress=False, resume=True, judge_every=1)
