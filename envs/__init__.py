@@ -46,6 +46,7 @@ TASKS = (
 # MuJoCo Warp and Warp: seconds of imports) or serve Brax.
 _LAZY_API = {
     "MjxEnv": "envs.mjx_env",
+    "GymnasiumMujocoEnv": "envs.tasks.gymnasium_mujoco",
     "BraxEnv": "envs.interop.brax",
     "to_brax": "envs.interop.brax",
 }

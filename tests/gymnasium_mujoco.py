@@ -1,12 +1,10 @@
 """Checks of a Gymnasium MuJoCo v5 task against Gymnasium's own env of the same task (C MuJoCo,
 float64), shared by the tests of every such task (a helper module, not a test file).
 
-- `transitions(name, ...)`: our env (float32, jit + vmap) run from its resets under random
-  actions; every step is kept as (state before, action, what our step returned).
-- `gymnasium_steps(gymnasium_id, starts, actions)`: Gymnasium's env set to each start state
-  (`set_state(qpos, qvel)` and MuJoCo's solver warm start) and stepped with the same action.
-- `assert_steps_match(ours, theirs, tolerances)`: observation, reward, every reward term and
-  Gymnasium info value our metrics carry, and termination, compared at stated tolerances.
+- The step-for-step proof is the library's (`envs.interop.gymnasium_equality`, public for users'
+  tasks): `transitions`, `gymnasium_steps`, `assert_steps_match`, re-exported here.
+- `lockstep`: whole short episodes side by side; `through_our_task`: Gymnasium's MjData through
+  our task's hooks.
 - `reset_samples` / `assert_resets_match`: the reset distributions, by mean and spread.
 """
 
@@ -21,113 +19,8 @@ import jax
 import numpy as np
 
 import envs
-from envs.mjx_env import mjx
-
-
-def gymnasium_env(gymnasium_id: str, **kwargs: Any) -> gymnasium.Env:
-    """Gymnasium's env itself (no TimeLimit, order or passive checks around it)."""
-    env = gymnasium.make(gymnasium_id, **kwargs).unwrapped
-    env.reset(seed=0)
-    return env
-
-
-def gymnasium_kwargs(params: Any) -> dict[str, Any]:
-    """A task's params as the keyword arguments of Gymnasium's constructor (v5 uses the same names)."""
-    return {field.name: getattr(params, field.name) for field in dataclasses.fields(params)}
-
-
-@dataclasses.dataclass
-class Steps:
-    """A batch of env steps: what each returned (arrays with a leading batch axis)."""
-
-    obs: np.ndarray
-    reward: np.ndarray
-    terminated: np.ndarray
-    info: dict[str, np.ndarray]  # Gymnasium's info names (our metrics)
-    contacts: np.ndarray | None = None  # Gymnasium's side: MuJoCo's contact count after the step
-
-
-@dataclasses.dataclass
-class Transitions:
-    """Our env's steps and the states they started from (float32)."""
-
-    qpos: np.ndarray
-    qvel: np.ndarray
-    qacc_warmstart: np.ndarray  # MuJoCo's solver starts from it; C MuJoCo is given the same
-    actions: np.ndarray  # the env's actions, in [-1, 1]
-    env_actions: np.ndarray  # the same actions in Gymnasium's action space (the ctrlrange)
-    steps: Steps
-
-
-def transitions(name: str, num_envs: int = 32, num_steps: int = 40, keep: int = 320, seed: int = 0,
-                forward_first: bool = False, **overrides: Any) -> Transitions:
-    """`keep` steps of `num_envs` episodes of `num_steps` random actions each (uniform in [-1, 1],
-    one jitted scan over a vmapped env; no time limit, no auto-reset), spread evenly over the
-    episodes' steps so that early (near the reset) and late states are both in the sample.
-
-    `forward_first`: each step starts from its state after `mjx.forward`, so the positions MuJoCo
-    derives (xpos, ...) are those of its qpos, as Gymnasium's `set_state` leaves them; for a task
-    whose reward reads the previous step's derived positions (Ant's x_velocity), which after an
-    RK4 step are those of RK4's last stage, not of the new qpos (see `lockstep` for rollouts)."""
-    env = envs.make(name, **overrides).unwrapped
-
-    def episode(key):
-        reset_key, action_key = jax.random.split(key)
-        actions = jax.random.uniform(action_key, (num_steps, env.action_size), minval=-1.0, maxval=1.0)
-
-        def step(state, action):
-            if forward_first:
-                state = state.replace(pipeline_state=env.forward(state.pipeline_state))
-            before = state.pipeline_state
-            state = env.step(state, action)
-            return state, (before.qpos, before.qvel, before.qacc_warmstart, state.obs, state.reward,
-                           state.done, state.metrics)
-
-        _, record = jax.lax.scan(step, env.reset(reset_key), actions)
-        return actions, record
-
-    keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
-    actions, (qpos, qvel, warmstart, obs, reward, done, metrics) = jax.jit(jax.vmap(episode))(keys)
-    flat = lambda x: np.asarray(x).reshape(num_envs * num_steps, *np.shape(x)[2:])
-    chosen = np.linspace(0, num_envs * num_steps - 1, keep).round().astype(int)
-    pick = lambda x: flat(x)[chosen]
-    actions = pick(actions)
-    return Transitions(
-        qpos=pick(qpos), qvel=pick(qvel), qacc_warmstart=pick(warmstart), actions=actions,
-        env_actions=np.stack([env.to_env_action(a) for a in actions.astype(np.float64)]),
-        steps=Steps(pick(obs), pick(reward), pick(done).astype(bool), {k: pick(v) for k, v in metrics.items()}),
-    )
-
-
-def gymnasium_steps(gymnasium_id: str, starts: Transitions, opt: dict[str, Any] | None = None, **kwargs: Any) -> Steps:
-    """Gymnasium's env stepped once from each start state with the same action. `opt`: MjOption
-    fields set on Gymnasium's model first (humanoid: the solver our task steps its model with)."""
-    env = gymnasium_env(gymnasium_id, **kwargs)
-    for field, value in (opt or {}).items():
-        setattr(env.model.opt, field, value)
-    obs, rewards, terminated, infos, contacts = [], [], [], [], []
-    for qpos, qvel, warmstart, action in zip(starts.qpos, starts.qvel, starts.qacc_warmstart, starts.env_actions):
-        env.set_state(qpos.astype(np.float64), qvel.astype(np.float64))
-        env.data.qacc_warmstart[:] = warmstart
-        o, r, term, _, info = env.step(action)
-        obs.append(o), rewards.append(r), terminated.append(term), infos.append(info), contacts.append(env.data.ncon)
-    info = {key: np.array([i[key] for i in infos]) for key in infos[0]}
-    return Steps(np.array(obs), np.array(rewards), np.array(terminated), info, np.array(contacts))
-
-
-def assert_steps_match(ours: Steps, theirs: Steps, atol: dict[str, float], rtol: float = 1e-4) -> None:
-    """Every observation element, the reward and each metric within `atol[name]` (+ rtol relative;
-    "obs" and "reward" name those two, a missing metric name falls back to atol["reward"]) and
-    termination equal. Every metric of ours must be one of Gymnasium's info values."""
-    assert ours.obs.shape == theirs.obs.shape, (ours.obs.shape, theirs.obs.shape)
-    np.testing.assert_allclose(ours.obs, theirs.obs, atol=atol["obs"], rtol=rtol, err_msg="observation")
-    np.testing.assert_allclose(ours.reward, theirs.reward, atol=atol["reward"], rtol=rtol, err_msg="reward")
-    missing = sorted(set(ours.info) - set(theirs.info))
-    assert not missing, f"metrics {missing} are not in Gymnasium's info ({sorted(theirs.info)})"
-    for name, value in ours.info.items():
-        np.testing.assert_allclose(value, theirs.info[name], atol=atol.get(name, atol["reward"]), rtol=rtol,
-                                   err_msg=f"info[{name!r}]")
-    np.testing.assert_array_equal(ours.terminated, theirs.terminated, err_msg="terminated")
+from envs.interop.gymnasium_equality import (Steps, Transitions, assert_steps_match, gymnasium_env,  # noqa: F401
+                                             gymnasium_kwargs, gymnasium_steps, transitions)
 
 
 def lockstep(name: str, gymnasium_id: str, num_episodes: int = 16, num_steps: int = 20, seed: int = 0,
@@ -223,7 +116,7 @@ def through_our_task(env, before: list, after: list) -> tuple:
     def task(prev, data):
         data = env.post_step(prev, data)
         reward, terms = env.reward(data, None, prev)
-        return data._impl.cfrc_ext, env.observation(data), reward, terms, env.terminated(data)
+        return env.cfrc_ext(data), env.observation(data), reward, terms, env.terminated(data)
 
     return jax.tree.map(np.asarray, task(stack(before), stack(after)))
 

@@ -103,7 +103,7 @@ class Ant(GymnasiumMujocoEnv):
     def contact_forces(self, data: mjx.Data) -> jax.Array:
         """cfrc_ext of every body (world first), clipped to contact_force_range: shape (nbody, 6)."""
         low, high = self.params.contact_force_range
-        return jnp.clip(data._impl.cfrc_ext, low, high)
+        return jnp.clip(self.cfrc_ext(data), low, high)
 
     def observation(self, data: mjx.Data) -> jax.Array:
         obs = super().observation(data)

@@ -38,17 +38,22 @@ MODEL_SOLVER = mujoco.mjtSolver.mjSOL_NEWTON
 
 
 class GymnasiumMujocoEnv(MjxEnv):
-    """A Gymnasium MuJoCo v5 task. Subclasses set the class attributes below, take a params
-    dataclass (v5's constructor arguments, with `RANGES`) and fill in `reward`, `terminated`
-    and, where Gymnasium draws velocities differently, `initial_qvel_noise`."""
+    """A Gymnasium MuJoCo v5 task (public as `envs.GymnasiumMujocoEnv`; docs/tasks.md, "A
+    Gymnasium-style task"). Subclasses set the class attributes below, take a params dataclass
+    (v5's constructor arguments; `RANGES` optional) and fill in `reward`, `terminated` and, where
+    Gymnasium draws velocities differently, `initial_qvel_noise`. The params need
+    `reset_noise_scale`; `exclude_current_positions_from_observation` and `ctrl_cost_weight` are
+    read where present (`observation`, `control_cost`), and a task that reads contact forces may
+    have `include_cfrc_ext_in_observation` and `contact_cost_weight` (`needs_cfrc_ext`).
+    `envs.interop.gymnasium_equality` proves such a task step for step against Gymnasium's env."""
 
     gymnasium_id: ClassVar[str]  # Gymnasium's name of the task, e.g. "HalfCheetah-v5"
     xml_file: ClassVar[str]  # the MJCF file in gymnasium/envs/mujoco/assets
     frame_skip: ClassVar[int]  # MuJoCo steps per env step (Gymnasium's default for the task)
     skipped_qpos: ClassVar[int] = 1  # leading qpos left out by exclude_current_positions_from_observation
     velocity_clip: ClassVar[float | None] = None  # Hopper and Walker2d clip qvel to +-10 in the observation
-    # Ant and Humanoid read each body's contact force `cfrc_ext` after a step (their params have
-    # include_cfrc_ext_in_observation and contact_cost_weight). Gymnasium computes it with
+    # Ant and Humanoid read each body's contact force `cfrc_ext` after a step (`cfrc_ext(data)`).
+    # Gymnasium computes it with
     # mj_rnePostConstraint after mj_step; here MJX's `mjx.rne_postconstraint` after the step under
     # impl "jax", and MuJoCo Warp inside each forward pass, asked by opt.run_rne_postconstraint, under "warp".
     reads_contact_forces: ClassVar[bool] = False
@@ -74,9 +79,25 @@ class GymnasiumMujocoEnv(MjxEnv):
     @property
     def needs_cfrc_ext(self) -> bool:
         """Whether a step computes cfrc_ext: a task that reads it, unless both its observation and its
-        contact cost leave it out."""
+        contact cost leave it out. Each of the two params fields counts only where the task has it:
+        a task without `include_cfrc_ext_in_observation` is taken to observe the forces, one without
+        `contact_cost_weight` to have no contact cost of that name."""
         p = self.params
-        return self.reads_contact_forces and (p.include_cfrc_ext_in_observation or p.contact_cost_weight != 0)
+        observed = getattr(p, "include_cfrc_ext_in_observation", True)
+        costed = getattr(p, "contact_cost_weight", 0) != 0
+        return self.reads_contact_forces and bool(observed or costed)
+
+    # ---- what MuJoCo derives that Gymnasium's tasks read (MJX keeps some of it in `data._impl`) ----
+    def cfrc_ext(self, data: mjx.Data) -> jax.Array:
+        """Each body's external contact force, (nbody, 6) as MuJoCo's `data.cfrc_ext` (rotation then
+        force, in the body's centre-of-mass frame). Computed after a step only for a task with
+        `reads_contact_forces` (see `needs_cfrc_ext`); zero at reset, as Gymnasium's `mj_forward`
+        leaves it."""
+        return data._impl.cfrc_ext
+
+    def cinert(self, data: mjx.Data) -> jax.Array:
+        """Each body's inertia in its centre-of-mass frame, (nbody, 10) as MuJoCo's `data.cinert`."""
+        return data._impl.cinert
 
     def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
         if self.needs_cfrc_ext and self.impl == "jax":
@@ -88,8 +109,12 @@ class GymnasiumMujocoEnv(MjxEnv):
         return self.gymnasium_id
 
     @property
+    def _excludes_positions(self) -> bool:
+        return getattr(self.params, "exclude_current_positions_from_observation", True)
+
+    @property
     def observation_size(self) -> int:
-        skipped = self.skipped_qpos if self.params.exclude_current_positions_from_observation else 0
+        skipped = self.skipped_qpos if self._excludes_positions else 0
         return self.mj_model.nq - skipped + self.mj_model.nv
 
     # ---- reset --------------------------------------------------------------
@@ -106,7 +131,7 @@ class GymnasiumMujocoEnv(MjxEnv):
 
     # ---- what the tasks compute alike ------------------------------------------
     def observation(self, data: mjx.Data) -> jax.Array:
-        position = data.qpos[self.skipped_qpos:] if self.params.exclude_current_positions_from_observation else data.qpos
+        position = data.qpos[self.skipped_qpos:] if self._excludes_positions else data.qpos
         velocity = data.qvel if self.velocity_clip is None else jnp.clip(data.qvel, -self.velocity_clip, self.velocity_clip)
         return jnp.concatenate([position, velocity])
 

@@ -116,13 +116,13 @@ class Humanoid(GymnasiumMujocoEnv):
         p = self.params
         parts = [super().observation(data)]
         if p.include_cinert_in_observation:
-            parts.append(data._impl.cinert[1:].ravel())
+            parts.append(self.cinert(data)[1:].ravel())
         if p.include_cvel_in_observation:
             parts.append(data.cvel[1:].ravel())
         if p.include_qfrc_actuator_in_observation:
             parts.append(data.qfrc_actuator[6:])
         if p.include_cfrc_ext_in_observation:
-            parts.append(data._impl.cfrc_ext[1:].ravel())
+            parts.append(self.cfrc_ext(data)[1:].ravel())
         return jnp.concatenate(parts)
 
     def mass_center(self, data: mjx.Data) -> jax.Array:
@@ -144,7 +144,7 @@ class Humanoid(GymnasiumMujocoEnv):
         forward = p.forward_reward_weight * x_velocity
         survive = jnp.where(self.is_healthy(data), p.healthy_reward, 0.0)
         ctrl_cost = self.control_cost(data)
-        squared_forces = jnp.sum(jnp.square(data._impl.cfrc_ext)) if self.needs_cfrc_ext else 0.0
+        squared_forces = jnp.sum(jnp.square(self.cfrc_ext(data))) if self.needs_cfrc_ext else 0.0
         low, high = p.contact_cost_range
         contact_cost = jnp.clip(p.contact_cost_weight * squared_forces, low, high)  # clipped even when 0
         terms = {
