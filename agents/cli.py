@@ -235,7 +235,7 @@ def _train(args, config, **kwargs):
     if not sharding.is_writer():  # process 0 writes the file; the others still gather their agents' episodes for it
         return train_run(args.env, config, on_chunk=lambda *_: None, **kwargs)
     from agents import registry
-    from agents.recording import CURVES, TrainingLogger
+    from agents.training_log import CURVES, TrainingLogger
 
     grid = kwargs.get("sweep")
     agents = args.seeds * (len(registry.sweep_configs(config, grid)) if grid else 1)
@@ -424,7 +424,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
     import numpy as np
 
     import envs
-    from agents.rollouts import collect_rollout_cached
+    from agents.saved_policies import collect_rollout_cached
     from envs import recording
 
     if extra:
@@ -434,7 +434,7 @@ def cmd_rollout(args, extra: list[str]) -> int:
         _require_registered(args.env)
     if args.checkpoint:
         from agents import checkpoint
-        from agents.rollouts import load_greedy
+        from agents.saved_policies import load_greedy
 
         saved = checkpoint.load_config(args.checkpoint)
         other_env = args.env is not None and args.env != saved.env

@@ -154,6 +154,9 @@ PRESETS = {
     # Many envs per agent, large batches, several updates per iteration: on a GPU it solves
     # CartPole-v1 in far less wall time than the one-env default (docs/results.md), since an
     # iteration costs about the same for 1 or 32 envs there. On a CPU the default is faster.
+    # One seed on a CPU, CartPole solved in the fewest seconds: a larger step, a shorter random
+    # phase and exploration, and a judge every 500 steps (the judge's budget spaces them out).
+    "quick": DQNConfig(learning_rate=4e-3, learning_starts=500, exploration_steps=2_000, eval_every=500),
     "many-envs": DQNConfig(num_envs=32, batch_size=512, gradient_steps=4, learning_rate=2e-3, learning_starts=4096,
                            exploration_steps=16_384, eval_every=4096, total_steps=300_000, polyak_tau=0.02),
 }

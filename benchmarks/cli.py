@@ -23,6 +23,9 @@ def add_parser(sub) -> None:
                                        "Peers come from the bench extra; a missing one is recorded as skipped.")
     bench.add_argument("--quick", action="store_true", help="fewer batch sizes, repeats and DQN runs (minutes on a CPU)")
     bench.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
+    bench.add_argument("--merge", action="store_true",
+                       help="with --json: keep FILE's other records, replacing only those of the kinds this run wrote "
+                            "(its meta record notes the sections re-run and when)")
     bench.add_argument("--sections", nargs="+", default=list(DEFAULT_SECTIONS), choices=SECTIONS,
                        help=f"what to run (default: {' '.join(DEFAULT_SECTIONS)})")
     bench.add_argument("--envs", nargs="*", default=["cartpole", "cartpole-mjx"], choices=envs.names(),
@@ -59,6 +62,8 @@ def cmd_bench(args, extra: list[str]) -> int:
             raise cli.UsageError(f"bench: cannot write {target}")
     records = suite.run_bench(args.quick, args.sections, batch=args.batch, ours=args.envs, peers=args.peers,
                               repeats=args.repeats, peer_dqn=args.peer_dqn)
+    if args.json and args.merge and Path(args.json).is_file():
+        records = suite.merge_records(suite.load_records(args.json), records)
     if args.json:
         Path(args.json).write_text(json.dumps(records, indent=2))
         print(f"wrote {len(records)} records to {args.json}")

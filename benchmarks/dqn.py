@@ -68,6 +68,22 @@ def solve_record(env: str, seeds: int, config: DQNConfig, runs: int = 1, preset:
     }
 
 
+# The first second (issue 44): one seed solves CartPole-v1 (the run's own judge: greedy mean >= 475
+# over 64 episodes) within these seconds of training and judging after compile, and with compile.
+FIRST_SECOND_S, FIRST_SECOND_WITH_COMPILE_S = 1.0, 3.5
+
+
+def first_second_record(preset: str = "quick", runs: int = SOLVE_SEEDS) -> dict:
+    """`solve_record` of one seed on the analytic CartPole with `preset`, `runs` separate runs
+    (seeds 0, 1, ...), as the row "dqn-first-second" with the targets beside the medians."""
+    record = solve_record("cartpole", 1, PRESETS[preset], runs=runs, preset=preset)
+    record.update(kind="dqn-first-second", target_s=FIRST_SECOND_S, target_with_compile_s=FIRST_SECOND_WITH_COMPILE_S)
+    record["met"] = (record["time_to_solve_excl_compile_s"] is not None
+                     and record["time_to_solve_excl_compile_s"] <= FIRST_SECOND_S
+                     and record["time_to_solve_s"] <= FIRST_SECOND_WITH_COMPILE_S)
+    return record
+
+
 def throughput_record(env: str, seeds: int, config: DQNConfig, chunks: int = 3, seed_axis: str | None = None) -> dict:
     """Env steps/s and updates/s over `chunks` chunks after the first (compile excluded)."""
     seed_axis = seed_axis or default_seed_axis()
@@ -149,6 +165,9 @@ def _describe(r: dict) -> str:
         axis = f" ({r['seed_axis']})" if r["seeds"] > 1 else ""
         return (f"{r['env']:<13} seeds {r['seeds']:>2}{axis}: {r['steps_per_s']:,.0f} env-steps/s, "
                 f"{r['updates_per_s']:,.0f} updates/s (compile {r['compile_s']:.1f}s excluded)")
+    if r["kind"] == "dqn-first-second":
+        return (_describe({**r, "kind": "dqn-solve"}) + f"; target {r['target_s']:g} s after compile, "
+                f"{r['target_with_compile_s']:g} s with: {'met' if r['met'] else 'not met'}")
     runs = f" (median of {r['runs']} runs: {', '.join(f'{t:.1f}' if t else '–' for t in r['time_to_solve_runs_s'])} s)"
     solve = (f"time-to-solve {r['time_to_solve_s']:.1f}s with compile, {r['time_to_solve_excl_compile_s']:.1f}s without"
              if r["time_to_solve_s"] is not None else "time-to-solve n/a")

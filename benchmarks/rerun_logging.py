@@ -31,7 +31,7 @@ import numpy as np
 
 import envs
 from agents.dqn import DQNConfig
-from agents.recording import TrainingLogger
+from agents.training_log import TrainingLogger
 from agents.run import train_run
 from envs import recording
 

@@ -10,6 +10,12 @@ Sections (all by default; pick with `--sections`):
 - `logging`: writing a 100,000-step rollout to a Rerun file (`benchmarks.rerun_logging`);
 - `startup`: `mjxsuite train --env cartpole-mjx --steps 2000` in fresh processes sharing
   a fresh persistent compilation cache, once cold and three times warm: compile_s of each;
+- `first-second`: one seed of DQN (`--preset quick`) solving CartPole-v1 (the run's judge, greedy
+  mean >= 475 over 64 episodes), five separate runs: the median seconds after compile and with
+  compile, beside the targets (`benchmarks.dqn.first_second_record`);
+- `first-compile` (only when named): the README's `make train` command with `--no-compile-cache`
+  in a fresh clone of this checkout's HEAD, three fresh processes: compile_s (eval.json) and
+  where the rest of the wall time went;
 - `gym-mujoco` (only when named): env-steps/s of Gymnasium's MuJoCo tasks with impl "jax" (and
   "warp" where it runs) beside Brax's look-alikes and Gymnasium's own vector env
   (`benchmarks.gym_mujoco`; `--batch` sets its sizes, default 4,096 and 32,768);
@@ -40,8 +46,8 @@ import tempfile
 import time
 from pathlib import Path
 
-SECTIONS = ("env", "dqn", "logging", "startup", "gym-mujoco", "gym-vector")
-DEFAULT_SECTIONS = ("env", "dqn", "logging", "startup")  # gym-mujoco takes long, gym-vector needs torch: run them by name
+SECTIONS = ("env", "dqn", "first-second", "logging", "startup", "first-compile", "gym-mujoco", "gym-vector")
+DEFAULT_SECTIONS = ("env", "dqn", "first-second", "logging", "startup")  # gym-mujoco takes long, gym-vector needs torch: run them by name
 
 
 def _cpu_model() -> str | None:
@@ -161,6 +167,57 @@ def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int
     return records
 
 
+def first_second_section(runs: int | None = None) -> list[dict]:
+    from benchmarks.dqn import SOLVE_SEEDS, _describe, first_second_record
+
+    print("== the first second: one seed solves CartPole-v1 (greedy mean >= 475 over 64 episodes) ==")
+    record = first_second_record(runs=runs or SOLVE_SEEDS)
+    print("   " + _describe(record), flush=True)
+    return [record]
+
+
+# The README's main job (`make train`), with the persistent caches off.
+MAKE_TRAIN = ["train", "--env", "cartpole-mjx", "--out", "runs/cartpole-mjx", "--rerun", "runs/cartpole-mjx/train.rrd",
+              "--overwrite", "--no-compile-cache"]
+
+
+def first_compile_section(runs: int = 3) -> list[dict]:
+    """`make train`'s command in a fresh clone of HEAD (nothing compiled, traced or cached there),
+    `runs` fresh processes one after another, each with the caches off."""
+    import jax
+
+    root = Path(__file__).resolve().parents[1]
+    print(f"== first compile: `mjxsuite {' '.join(MAKE_TRAIN)}` in a fresh clone, {runs} processes ==")
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        clone = Path(tmp) / "clone"
+        subprocess.run(["git", "clone", "-q", "--depth", "1", f"file://{root}", str(clone)], check=True)
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=clone, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        environ = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+        environ.update(PYTHONPATH=str(clone), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
+        for run in range(1, runs + 1):
+            start = time.perf_counter()
+            done = subprocess.run([sys.executable, "-c", "import sys; from benchmarks.entry import main; sys.exit(main())",
+                                   *MAKE_TRAIN], cwd=clone, env=environ, capture_output=True, text=True, check=False)
+            wall = time.perf_counter() - start
+            if done.returncode != 0:
+                raise RuntimeError(f"first-compile run {run} failed ({done.returncode}): {done.stderr[-2000:]}")
+            summary = json.loads((clone / "runs/cartpole-mjx/eval.json").read_text())
+            records.append({"kind": "first-compile", "lib": "mjxsuite", "command": "mjxsuite " + " ".join(MAKE_TRAIN),
+                            "commit": head, "run": run, "compile_s": summary["compile_s"],
+                            "wall_parts_s": summary["wall_parts_s"], "train_wall_s": summary["wall_s"],
+                            "process_wall_s": wall, "judged_chunks": summary.get("judged_chunks"),
+                            "chunks": summary.get("chunks"), "mean_return": summary["mean_return"],
+                            "device": jax.devices()[0].device_kind})
+            parts = summary["wall_parts_s"]
+            print(f"   run {run}: compile_s {summary['compile_s']:.2f}, judge {parts['judge']:.2f} + saves "
+                  f"{parts['saves']:.2f} of train_run's {summary['wall_s']:.1f} s, process {wall:.1f} s", flush=True)
+    compiles = [r["compile_s"] for r in records]
+    print(f"   median compile_s {statistics.median(compiles):.2f} (runs: {', '.join(f'{c:.2f}' for c in compiles)})")
+    return records
+
+
 def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
               peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
@@ -176,6 +233,8 @@ def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=(
         "dqn": lambda: dqn_section(quick, peer_dqn),
         "logging": lambda: logging_section(quick),
         "startup": startup_section,
+        "first-second": lambda: first_second_section(1 if quick else None),
+        "first-compile": first_compile_section,
         "gym-mujoco": lambda: gym_mujoco_section(quick, batch, repeats),
         "gym-vector": lambda: gym_vector_section(quick, batch, repeats),
     }
@@ -197,6 +256,20 @@ def load_records(path: str | os.PathLike) -> list[dict]:
     if not isinstance(records, list) or not all(isinstance(r, dict) and "kind" in r for r in records):
         raise ValueError(f"{path}: not a list of mjxsuite bench records")
     return records
+
+
+def merge_records(old: list[dict], new: list[dict]) -> list[dict]:
+    """`old` with its records of the kinds `new` holds replaced by `new`'s (`bench --merge`): one
+    section re-run into a file of every section. The old meta record stays, with a note."""
+    meta = [r for r in new if r["kind"] == "meta"]
+    fresh = [r for r in new if r["kind"] != "meta"]
+    kinds = {r["kind"] for r in fresh}
+    kept = [dict(r) for r in old if r["kind"] not in kinds]
+    for r in kept:
+        if r["kind"] == "meta" and meta:
+            note = f"{', '.join(meta[0]['sections'])} re-run alone at {meta[0]['date']}"
+            r["note"] = f"{r['note']}; {note}" if r.get("note") else note
+    return kept + fresh
 
 
 def throughput_table(records: list[dict]) -> str:

@@ -139,3 +139,15 @@ def test_gym_mujoco_runs_on_the_cpu_with_tiny_sizes(tmp_path):
     assert speeds["brax", "gymnasium"]["solver"] == speeds["mjxsuite", "jax"]["solver"] == speeds["gymnasium", None]["solver"]
     assert speeds["brax", "own"]["solver"]["iterations"] == 4
     assert {r["peer"] for r in records if r["kind"] == "gym-mujoco-ratio"} == {"brax", "gymnasium"}
+
+
+def test_merge_replaces_only_the_kinds_a_run_wrote():
+    from benchmarks.suite import merge_records
+
+    old = [{"kind": "meta", "date": "d0"}, {"kind": "startup", "run": 1}, {"kind": "dqn-solve", "env": "cartpole"}]
+    new = [{"kind": "meta", "date": "d1", "sections": ["first-second"]}, {"kind": "dqn-first-second", "met": True}]
+    merged = merge_records(old, new)
+    assert [r["kind"] for r in merged] == ["meta", "startup", "dqn-solve", "dqn-first-second"]
+    assert merged[0]["note"] == "first-second re-run alone at d1" and "note" not in old[0]
+    again = merge_records(merged, [{"kind": "dqn-first-second", "met": False}])
+    assert [r.get("met") for r in again if r["kind"] == "dqn-first-second"] == [False]

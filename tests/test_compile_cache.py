@@ -74,7 +74,7 @@ def test_training_chunks_compile_once(tmp_path):
     """Nothing is traced or compiled again after the first chunk, Rerun logging included; the
     final evaluation's program, compiling on another thread meanwhile, compiles once."""
     pytest.importorskip("rerun")
-    from agents.recording import TrainingLogger
+    from agents.training_log import TrainingLogger
 
     config = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                        eval_episodes=4, hidden=(16,))

@@ -16,7 +16,7 @@ from rerun.chunk import RrdReader
 
 import envs
 from agents import DQN, DQNConfig
-from agents import recording as agent_recording
+from agents import training_log as agent_recording
 from agents.cli import main as cli_main
 from envs import recording
 
