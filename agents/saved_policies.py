@@ -1,5 +1,5 @@
 """The policies of saved runs and their rollouts, Rerun-free: what `mjxsuite eval` and `rollout`
-collect (agents/recording.py writes them to Rerun)."""
+collect (envs/recording.py writes them to Rerun; agents/training_log.py logs training)."""
 
 from __future__ import annotations
 
