@@ -1,8 +1,9 @@
 """Do two runs with the same seed give the same parameters? (issue #42; docs/reliability.md)
 
 For each job and each of plain / `--deterministic`, two `mjxsuite train` runs of the same seed
-and config run at once on one device; then their saved best parameters are compared leaf by
-leaf, bit for bit, with their final returns and training seconds.
+and config run at once on one device, both judging every chunk (`--judge-every 1`: the default
+cadence reads the clock); then their saved best parameters are compared leaf by leaf, bit for bit,
+with their final returns and training seconds.
 
     python -m benchmarks.determinism --impl jax,warp [--json FILE] \\
         [--job "dqn cartpole-mjx --steps 50000"] [--job "ppo hopper --steps 2000000 --num_evals 3"]
@@ -64,7 +65,8 @@ def main(argv=None) -> None:
                 dirs = [root / f"{name}-{rep}" for rep in "ab"]
                 runs = [subprocess.Popen([sys.executable, "-m", "agents.cli", "train", "--env", task, "--agent", agent,
                                           "--impl", impl, *(["--deterministic"] if mode == "deterministic" else []),
-                                          *extra, "--out", str(d), "--overwrite", "--checkpoint-seconds", "1e9"],
+                                          *extra, "--out", str(d), "--overwrite", "--checkpoint-seconds", "1e9",
+                                          "--judge-every", "1"],
                                          env=env, stdout=open(root / f"{d.name}.log", "w"), stderr=subprocess.STDOUT)
                         for d in dirs]
                 for run in runs:
