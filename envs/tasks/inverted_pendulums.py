@@ -1,21 +1,84 @@
-"""Gymnasium's InvertedPendulum-v5 and InvertedDoublePendulum-v5, stepped by MJX.
+"""InvertedPendulum-v5 and InvertedDoublePendulum-v5 of Gymnasium (gymnasium/envs/mujoco/
+inverted_pendulum_v5.py, inverted_double_pendulum_v5.py), stepped by MJX: `envs.make("inverted-pendulum")`,
+`envs.make("inverted-double-pendulum")`. A cart on a rail balances one pole, or two stacked poles.
+The MJCFs are Gymnasium's own, read from the installed package.
 
-Both read their MJCF from the installed gymnasium package (`gymnasium_asset`) and follow
-`gymnasium/envs/mujoco/inverted_pendulum_v5.py` and `inverted_double_pendulum_v5.py`:
+## Action Space
+| | InvertedPendulum | InvertedDoublePendulum |
+| --- | --- | --- |
+| `step` takes | Box(-1, 1, (1,), float32) | Box(-1, 1, (1,), float32) |
+| becomes `ctrl` (the cart's force) | scaled to the ctrlrange [-3, 3]: 3a | scaled to [-1, 1]: unchanged |
+| Gymnasium v5's space | Box(-3, 3, (1,), float32) | Box(-1, 1, (1,), float32) |
 
-- InvertedPendulum: frame skip 2 (dt 0.04 s), observation (qpos, qvel), reward 1 while
-  |pole angle| <= 0.2 and 0 on the step that ends the episode (angle > 0.2 or a non-finite
-  observation), reset qpos, qvel = init + U(-reset_noise_scale, reset_noise_scale).
-- InvertedDoublePendulum: frame skip 5 (dt 0.05 s), observation (cart x, sin and cos of the
-  two hinge angles, qvel clipped to +-10, the cart's constraint force clipped to +-10),
-  reward healthy_reward (0 on the terminating step) - 0.01 x_tip^2 - (y_tip - 2)^2
-  - 1e-3 w1^2 - 5e-3 w2^2, terminated when the tip's height y_tip <= 1; reset qpos = init +
-  U(-reset_noise_scale, reset_noise_scale), qvel = init + reset_noise_scale * N(0, 1).
+`env.action_low`/`action_high`, `env.to_env_action` and `envs.to_gymnasium` give Gymnasium's space
+(a policy trained here acts on Gymnasium's env through them).
 
-Both integrate with RK4 (the MJCF's option): after a step MuJoCo's derived quantities
-(`site_xpos`, `qfrc_constraint`) are those of RK4's last stage, in C MuJoCo (what Gymnasium
-reads) and in MJX alike. Actions: ours in [-1, 1] scaled to the actuator's ctrlrange, which is
-[-3, 3] (InvertedPendulum) and [-1, 1] (InvertedDoublePendulum) in Gymnasium's action units.
+## Observation Space
+float32 (Gymnasium: float64), as v5:
+- InvertedPendulum, 4 values: cart x, pole angle, cart velocity, pole angular velocity.
+- InvertedDoublePendulum, 9 values: cart x, sin and cos of the two hinge angles, qvel clipped to
+  +-10, the cart's constraint force (`qfrc_constraint[0]`) clipped to +-10. After a step MuJoCo's
+  derived values (tip site, constraint force) are those of RK4's last stage, in C MuJoCo and MJX alike.
+
+## Rewards
+As v5; `state.metrics` holds v5's `info`:
+- InvertedPendulum: reward_survive = 1 on every step, 0 on the step that terminates.
+- InvertedDoublePendulum: reward = reward_survive + distance_penalty + velocity_penalty, with
+  reward_survive = healthy_reward (0 on the terminating step), distance_penalty = -(0.01 x_tip^2 +
+  (y_tip - 2)^2), velocity_penalty = -(1e-3 w1^2 + 5e-3 w2^2).
+
+## Starting State
+As v5; JAX's random numbers: the same distribution, not the same draws.
+- InvertedPendulum: qpos, qvel = qpos0, 0 + U(-s, s), s = reset_noise_scale (0.01).
+- InvertedDoublePendulum: qpos = qpos0 + U(-s, s), qvel = s * N(0, 1), s = 0.1; `mjx.forward` at
+  reset, as v5's `set_state` runs `mj_forward`, for the tip and the constraint force.
+
+## Episode End
+- Terminated, as v5: InvertedPendulum when |pole angle| > 0.2 or the observation is non-finite;
+  InvertedDoublePendulum when the tip's height y_tip <= 1.
+- Truncated: after 1000 steps (`envs.make`'s TimeLimit, v5's max_episode_steps).
+- Ours besides (every MjxEnv): a non-finite step (`info["nan"]`) or, under impl="warp", an overflow
+  of MuJoCo Warp's buffers (`info["overflow"]`) ends the episode with reward 0.
+
+## Arguments
+`envs.make(name, **options)`, `InvertedPendulumParams` / `InvertedDoublePendulumParams`: v5's names
+and defaults.
+
+| argument | InvertedPendulum | InvertedDoublePendulum |
+| --- | --- | --- |
+| reset_noise_scale | 0.01 | 0.1 |
+| healthy_reward | (none) | 10.0 |
+
+v5's xml_file, frame_skip, camera and render arguments are not taken: RK4, frame skip 2 at
+timestep 0.02 (dt = 0.04) and frame skip 5 at timestep 0.01 (dt = 0.05). Ours besides: every MJX
+task's `impl` ("jax" or "warp"), `opt`, `nconmax`/`naconmax`/`njmax` and `randomize` (`envs.make`).
+
+## Version History
+- v5 only (Gymnasium 1.x); v4 and earlier are not offered.
+
+## Equality with Gymnasium
+One env step of ours (float32) and of Gymnasium's env (C MuJoCo, float64) from the same state (qpos,
+qvel, solver warm start) with the same action (`envs.interop.gymnasium_equality`);
+tests/test_inverted_pendulums.py (bounds plus 1e-4 relative, termination equal, unless said):
+- test_inverted_pendulum_steps_match_gymnasium (impl "jax"): 320 steps (64 episodes x 8 random
+  actions, 5-95% of them terminating). Observation, reward and reward_survive within 2e-5; v5's
+  reward is 1 exactly where it does not terminate.
+- test_inverted_double_pendulum_steps_match_gymnasium (slow): 320 steps (32 episodes x 10, the
+  constraint force and the velocity clip both seen), the same 2e-5 bounds, all three metrics.
+- test_inverted_double_pendulum_episodes_match_gymnasium (slow): whole episodes side by side from
+  our reset state (16 episodes x 12 steps, up to each first termination): observation and reward
+  within 1e-4.
+- test_steps_match_gymnasium_with_every_option_changed (slow, double pendulum): 80 steps, 2e-5.
+- test_*_reset_distribution_matches_gymnasium: 4,000 resets each; per coordinate of qpos, qvel (and
+  the double pendulum's observation) the means within 5 standard errors, the spreads within 10%;
+  the uniform noise inside its bounds, both ends reached.
+- test_options_are_gymnasiums: argument names, defaults, action bounds and episode length equal v5's.
+- impl "warp": tests/test_gymnasium_warp.py::test_steps_match_gymnasium (slow), 320 steps of 32
+  episodes x 40: 99% within the 2e-5 bounds, every step within 1e-2, termination equal;
+  tests/test_warp.py::test_gymnasium_tasks_step_alike_under_both_implementations: "warp" against
+  "jax", 4 envs x 10 steps, observation and reward within 2e-3 (+2e-3 relative).
+
+Not compared: the reset's draws themselves (only their distribution).
 """
 
 from __future__ import annotations

@@ -1,20 +1,75 @@
-"""Gymnasium's Reacher-v5, stepped by MJX.
+"""Reacher-v5 of Gymnasium (gymnasium/envs/mujoco/reacher_v5.py), stepped by MJX: `envs.make("reacher")`.
+A two-link arm on a table reaches for a target placed at random. The MJCF is Gymnasium's own
+`reacher.xml`, read from the installed package.
 
-A two-link arm on a table reaches for a target placed at random. The MJCF is read from the
-installed gymnasium package; the rest follows `gymnasium/envs/mujoco/reacher_v5.py`:
+## Action Space
+| | ours | Gymnasium v5 |
+| --- | --- | --- |
+| `step` takes | Box(-1, 1, (2,), float32) | Box(-1, 1, (2,), float32) |
+| becomes `ctrl` | scaled to the ctrlrange [-1, 1]: unchanged | as given |
 
-- frame skip 2 (dt 0.02 s; the MJCF integrates with RK4, so the fingertip position read after
-  a step is RK4's last stage in C MuJoCo and in MJX alike);
-- observation: cos and sin of the two arm angles, the target's position (qpos[2:]), the arm's
-  two angular velocities, and fingertip - target in x and y (10 values);
-- reward = reward_dist + reward_ctrl with reward_dist = -reward_dist_weight * |fingertip -
-  target| (3-D) and reward_ctrl = -reward_control_weight * sum(ctrl^2), ctrl in Gymnasium's
-  action units; it never terminates (Gymnasium truncates at 50 steps);
-- reset: arm angles qpos0 + U(-0.1, 0.1), the target uniform in the disc of radius 0.2 (Gymnasium
-  draws it by rejection from the square [-0.2, 0.2]^2, which gives the same distribution: here
-  radius 0.2 sqrt(u) at a uniform angle), arm velocities U(-0.005, 0.005), target velocity 0.
+The two hinge torques (shoulder, elbow). `env.action_low`/`action_high` and `envs.to_gymnasium`
+give Gymnasium's space.
 
-Actions: ours in [-1, 1] scaled to the ctrlrange, which is [-1, 1]: the same as Gymnasium's.
+## Observation Space
+10 values, float32 (Gymnasium: float64), as v5: cos and sin of the two arm angles (4), the target's
+x, y (qpos[2:]), the arm's two angular velocities, fingertip - target in x and y. The body
+positions after a step are those of RK4's last stage, in C MuJoCo and MJX alike.
+
+## Rewards
+- reward = reward_dist + reward_ctrl, as v5:
+  - reward_dist = -reward_dist_weight * |fingertip - target| (3-D);
+  - reward_ctrl = -reward_control_weight * sum(ctrl^2).
+- `state.metrics` holds v5's `info`: reward_dist, reward_ctrl.
+
+## Starting State
+- Arm angles qpos0 + U(-0.1, 0.1), arm velocities U(-0.005, 0.005), target velocity 0, as v5.
+- The target uniform in the disc of radius 0.2: v5 draws it by rejection from the square
+  [-0.2, 0.2]^2; ours draws radius 0.2 sqrt(u) at a uniform angle (the same distribution, no loop).
+- `mjx.forward` at reset, as v5's `set_state` runs `mj_forward`, so the first observation's
+  fingertip is the reset pose's.
+
+## Episode End
+- Terminated: never (as v5). Truncated: after 50 steps (`envs.make`'s TimeLimit, v5's max_episode_steps).
+- Ours besides (every MjxEnv): a non-finite step (`info["nan"]`) or, under impl="warp", an overflow
+  of MuJoCo Warp's buffers (`info["overflow"]`) ends the episode with reward 0.
+
+## Arguments
+`envs.make("reacher", **options)`, `ReacherParams`: v5's names and defaults.
+
+| argument | default |
+| --- | --- |
+| reward_dist_weight | 1.0 |
+| reward_control_weight | 1.0 |
+
+v5's xml_file, frame_skip, camera and render arguments are not taken: frame skip 2 at timestep
+0.01 (dt = 0.02), RK4. Ours besides: every MJX task's `impl` ("jax" or "warp"), `opt`,
+`nconmax`/`naconmax`/`njmax` and `randomize` (`envs.make`).
+
+## Version History
+- v5 only (Gymnasium 1.x); v4 and earlier are not offered.
+
+## Equality with Gymnasium
+One env step of ours (float32) and of Gymnasium's env (C MuJoCo, float64) from the same state (qpos,
+qvel, solver warm start) with the same action (`envs.interop.gymnasium_equality`); tests/test_reacher.py:
+- test_steps_match_gymnasium (slow, impl "jax"): 320 steps (32 episodes x 50 random actions, arm
+  velocities above 10). Observation within 1e-4, reward and both metrics within 2e-5, each plus 1e-4
+  relative; termination equal.
+- test_episodes_match_gymnasium (slow): whole episodes side by side from our reset state (8 episodes
+  x 50 steps, Gymnasium carrying its own state): every step within 1e-3 (observation) and 1e-4
+  (reward), plus 1e-4 relative.
+- test_steps_match_gymnasium_with_every_option_changed (slow): 80 steps, both weights changed, the
+  bounds of the first test.
+- test_reset_distribution_matches_gymnasium: 4,000 resets each; per coordinate of qpos, the arm's
+  qvel and the observation the means within 5 standard errors, the spreads within 10%; the noise
+  inside its bounds, both ends reached; the target inside radius 0.2, a quarter (+-0.03) inside 0.1.
+- test_options_are_gymnasiums: argument names, defaults, action bounds and episode length equal v5's.
+- impl "warp": tests/test_gymnasium_warp.py::test_steps_match_gymnasium (slow), 320 steps of 32
+  episodes x 40: 99% within the bounds of the first test, every step within 1e-2, termination equal;
+  tests/test_warp.py::test_gymnasium_tasks_step_alike_under_both_implementations: "warp" against
+  "jax", 4 envs x 10 steps, observation and reward within 2e-3 (+2e-3 relative).
+
+Not compared: the reset's draws themselves (only their distribution).
 """
 
 from __future__ import annotations
