@@ -1,29 +1,80 @@
-"""Gymnasium's Pusher-v5, stepped by MJX.
+"""Pusher-v5 of Gymnasium (gymnasium/envs/mujoco/pusher_v5.py), stepped by MJX: `envs.make("pusher")`.
+A seven-joint arm on a table pushes a cylinder (the object) to a goal. The MJCF is Gymnasium's own
+`pusher_v5.xml`, read from the installed package (no gravity; the object and the arm's three finger
+capsules collide with the table and each other).
 
-A seven-joint arm on a table pushes a cylinder (the object) to a goal. The MJCF is Gymnasium's
-`pusher_v5.xml`, read from the installed gymnasium package (no gravity, Euler at timestep 0.01,
-the object's cylinder and the arm's three finger capsules collide with the table and each other);
-the rest follows `gymnasium/envs/mujoco/pusher_v5.py`:
+## Action Space
+| | ours | Gymnasium v5 |
+| --- | --- | --- |
+| `step` takes | Box(-1, 1, (7,), float32) | Box(-2, 2, (7,), float32) |
+| becomes `ctrl` | scaled to the ctrlrange [-2, 2]: 2a | as given |
 
-- frame skip 5 (dt 0.05 s);
-- observation (23 values): the arm's joint angles qpos[:7], its joint velocities qvel[:7], and the
-  positions (`xpos`) of the bodies tips_arm, object and goal. `xpos` after a step is what MuJoCo's
-  last `mj_forward` computed, from the qpos before the last Euler substep, in C MuJoCo and in
-  MJX alike;
-- reward = reward_dist + reward_ctrl + reward_near: -reward_dist_weight * |object - goal|,
-  -reward_control_weight * sum(ctrl^2) (ctrl in Gymnasium's action units) and
-  -reward_near_weight * |object - tips_arm|, the positions read AFTER the physics step (v5 fixed
-  v4's reward from the state before it: Gymnasium's `step` runs `do_simulation`, then `_get_obs`
-  and `_get_rew`); it never terminates (Gymnasium truncates at 100 steps);
-- reset: the arm at qpos0 (no position noise), the object's two slide joints (qpos[7]:
-  obj_slidey, qpos[8]: obj_slidex) drawn from U(-0.3, 0) x U(-0.2, 0.2) until farther than 0.17
-  from the goal's (0, 0), the goal's joints at 0; the arm's velocities U(-0.005, 0.005), the object's
-  and the goal's 0. Gymnasium draws the object by rejection with NumPy; so do we, with JAX's
-  random numbers in a `lax.while_loop` (a candidate is rejected with probability 0.378, the loop
-  ends after 1.6 draws on average): the same distribution, not the same numbers.
+The seven arm joints' torques (shoulder pan/lift, upper arm roll, elbow flex, forearm roll, wrist
+flex/roll). `env.action_low`/`action_high`, `env.to_env_action` and `envs.to_gymnasium` give
+Gymnasium's space (`load_policy` returns Gymnasium's units).
 
-Actions: ours in [-1, 1] scaled to the ctrlrange, which is [-2, 2] for every joint: Gymnasium's
-action is twice ours (`to_env_action`; `load_policy` returns Gymnasium's units).
+## Observation Space
+23 values, float32 (Gymnasium: float64), as v5: the arm's joint angles qpos[:7] and velocities
+qvel[:7], then `xpos` of the bodies tips_arm, object and goal (3 each). After a step `xpos` is that
+of MuJoCo's last forward pass (before the last Euler substep), in C MuJoCo and MJX alike.
+
+## Rewards
+- reward = reward_dist + reward_ctrl + reward_near, as v5 (positions read after the step, v5's fix of v4):
+  - reward_dist = -reward_dist_weight * |object - goal|;
+  - reward_ctrl = -reward_control_weight * sum(ctrl^2), ctrl in Gymnasium's units;
+  - reward_near = -reward_near_weight * |object - tips_arm|.
+- `state.metrics` holds v5's `info`: reward_dist, reward_ctrl, reward_near.
+
+## Starting State
+- The arm at qpos0, its velocities U(-0.005, 0.005); the goal's joints and every other velocity 0.
+- The object's slides (qpos[7], qpos[8]) from U(-0.3, 0) x U(-0.2, 0.2), redrawn until farther than
+  0.17 from the goal: v5's rejection with NumPy, ours with JAX in a `lax.while_loop` (the same
+  distribution, not the same draws).
+
+## Episode End
+- Terminated: never (as v5). Truncated: after 100 steps (`envs.make`'s TimeLimit, v5's max_episode_steps).
+- Ours besides (every MjxEnv): a non-finite step (`info["nan"]`) or, under impl="warp", an overflow
+  of MuJoCo Warp's buffers (`info["overflow"]`) ends the episode with reward 0.
+
+## Arguments
+`envs.make("pusher", **options)`, `PusherParams`: v5's names and defaults.
+
+| argument | default |
+| --- | --- |
+| reward_near_weight | 0.5 |
+| reward_dist_weight | 1.0 |
+| reward_control_weight | 0.1 |
+
+v5's xml_file, frame_skip, camera and render arguments are not taken: frame skip 5 at timestep
+0.01 (dt = 0.05), Euler. Ours besides: every MJX task's `impl` ("jax" or "warp"), `opt`,
+`nconmax`/`naconmax`/`njmax` and `randomize` (`envs.make`).
+
+## Version History
+- v5 only (Gymnasium 1.x); v4 and earlier are not offered.
+
+## Equality with Gymnasium
+One env step of ours (float32) and of Gymnasium's env (C MuJoCo, float64) from the same state (qpos,
+qvel, solver warm start) with the same action (`envs.interop.gymnasium_equality`); tests/test_pusher.py:
+- test_steps_match_gymnasium (slow, impl "jax"): 3,200 steps (32 episodes x 100 random actions, some
+  with a finger on the table). Observation within 1e-4, reward and all three metrics within 2e-5,
+  each plus 1e-4 relative; termination equal.
+- test_steps_while_pushing_differ_as_measured (slow): where a finger pushes the object (at least 50
+  states built so), MJX's capsule-cylinder contact is not C MuJoCo's: the object moves 1.5-2.5 times
+  as far (median) as in v5's step; held to observation within 1e-2 (25-75% of the steps within 1e-3),
+  arm angles 5e-4, reward 3e-3, metrics 2e-3.
+- test_episodes_match_gymnasium (slow): whole episodes side by side from our reset state (8 x 100
+  steps): the first 30 steps within 1e-3 (observation) and 1e-4 (reward); later, where a finger meets
+  the table, float32 and float64 trajectories part.
+- test_reset_distribution_matches_gymnasium: 4,000 resets each; the object's slides, the arm's
+  velocities and the object's xpos by mean (within 5 standard errors) and spread (within 10%); the
+  arm's angles, the goal and the other velocities exactly 0; the fingertips and goal within 1e-6.
+- test_options_are_gymnasiums: argument names, defaults, action bounds and episode length equal v5's.
+- impl "warp": tests/test_gymnasium_warp.py::test_steps_match_gymnasium (slow), 320 steps of 32
+  episodes x 40: 99% within the first test's bounds, every step within 1e-2, termination equal;
+  test_pusher_pushes_as_gymnasium (slow): MuJoCo Warp's pushing contact is C MuJoCo's (object moved
+  0.9-1.1 times as far, median; over 95% of the steps within 1e-3, all within 1e-2, reward 1e-4);
+  tests/test_warp.py::test_gymnasium_tasks_step_alike_under_both_implementations: "warp" against
+  "jax", 4 envs x 10 steps, observation and reward within 2e-3 (+2e-3 relative).
 """
 
 from __future__ import annotations
