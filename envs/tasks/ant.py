@@ -1,30 +1,90 @@
-"""Gymnasium's Ant-v5, stepped by MJX.
+"""Ant-v5 of Gymnasium (gymnasium/envs/mujoco/ant_v5.py), stepped by MJX: `envs.make("ant")`.
+A four-legged robot walks forward on a plane. The MJCF is Gymnasium's own `ant.xml`, read from the
+installed package.
 
-A four-legged robot walks forward on a plane. The MJCF is read from the installed gymnasium
-package; the rest follows `gymnasium/envs/mujoco/ant_v5.py`:
+## Action Space
+| | ours | Gymnasium v5 |
+| --- | --- | --- |
+| `step` takes | Box(-1, 1, (8,), float32) | Box(-1, 1, (8,), float32) |
+| becomes `ctrl` | scaled to the ctrlrange [-1, 1]: unchanged | as given |
 
-- frame skip 5 (dt 0.05 s; the MJCF integrates with RK4);
-- observation: qpos without the torso's x, y (unless exclude_current_positions_from_observation
-  is False), qvel, and each body's external contact force `cfrc_ext` (bodies 1..13, 6 values each,
-  clipped to contact_force_range; left out with include_cfrc_ext_in_observation=False): 105 values;
-- reward = reward_forward + reward_survive - ctrl cost - contact cost: forward_reward_weight times
-  the main body's x velocity, healthy_reward while healthy (every state finite and the torso's z
-  in healthy_z_range), ctrl_cost_weight * sum(ctrl^2) (ctrl in Gymnasium's action units) and
-  contact_cost_weight * sum(clipped cfrc_ext^2); terminated when unhealthy (with
-  terminate_when_unhealthy); reset qpos = qpos0 + U(-s, s), qvel = s * N(0, 1), s = reset_noise_scale.
+Hip and ankle torques of the four legs. `env.action_low`/`action_high` and `envs.to_gymnasium` give
+Gymnasium's space.
 
-Two quantities are read as Gymnasium reads them, after MuJoCo's step:
-- `cfrc_ext`: Gymnasium runs `mj_rnePostConstraint` after `mj_step`. MJX's pure-JAX implementation
-  has the same function (`mjx.rne_postconstraint`), run here after the step; under impl="warp"
-  MuJoCo Warp runs it inside each forward pass when the model's `opt.run_rne_postconstraint` is
-  set, which this task sets. Either way the contact forces are those of RK4's last stage, the
-  data `mj_rnePostConstraint` reads in C MuJoCo. At reset Gymnasium's `mj_forward` leaves
-  cfrc_ext at zero (nothing asks for it), and so does ours.
-- x and y velocity: the main body's `xpos` before and after the step over dt. MuJoCo leaves
-  `xpos` at RK4's last stage, not at the new qpos, so this is not qpos's change; reset runs
-  `mjx.forward` so the first step's "before" is the reset pose, as Gymnasium's `set_state` makes it.
+## Observation Space
+105 values, float32 (Gymnasium: float64), as v5: qpos[2:] (13: the torso's z and quaternion, 8
+joint angles), qvel (14), then `cfrc_ext` of bodies 1..13 (6 each) clipped to contact_force_range.
+- `exclude_current_positions_from_observation=False`: all of qpos (+2);
+  `include_cfrc_ext_in_observation=False`: no contact forces (-78).
+- `cfrc_ext` is computed as v5's `mj_rnePostConstraint` after the step: `mjx.rne_postconstraint`
+  under impl "jax"; under "warp" MuJoCo Warp's forward pass with `opt.run_rne_postconstraint` set.
+  Either way those of RK4's last stage, as in C MuJoCo; zero at reset, as v5's `mj_forward` leaves it.
 
-Actions: ours in [-1, 1] scaled to the ctrlrange, which is [-1, 1]: the same as Gymnasium's.
+## Rewards
+- reward = reward_forward + reward_survive + reward_ctrl + reward_contact, as v5:
+  - reward_forward = forward_reward_weight * x_velocity: main_body's `xpos` before and after the step
+    over dt (after an RK4 step `xpos` is RK4's last stage's, as in C MuJoCo);
+  - reward_survive = healthy_reward while healthy (every qpos, qvel finite, the torso's z inside
+    healthy_z_range, ends included), else 0;
+  - reward_ctrl = -ctrl_cost_weight * sum(ctrl^2);
+  - reward_contact = -contact_cost_weight * sum(clipped cfrc_ext^2).
+- `state.metrics` holds v5's `info`: the four terms, x/y_position, distance_from_origin, x/y_velocity.
+
+## Starting State
+- qpos = qpos0 + U(-s, s), qvel = s * N(0, 1), s = reset_noise_scale (0.1), as v5; JAX's random
+  numbers: the same distribution, not the same draws. `mjx.forward` at reset (qpos kept as drawn),
+  as v5's `set_state`, so the first step's velocity starts from the reset pose's `xpos`.
+
+## Episode End
+- Terminated: when unhealthy, unless terminate_when_unhealthy=False (as v5). Truncated: after 1000
+  steps (`envs.make`'s TimeLimit, v5's max_episode_steps).
+- Ours besides (every MjxEnv): a non-finite step (`info["nan"]`) or, under impl="warp", an overflow
+  of MuJoCo Warp's buffers (`info["overflow"]`) ends the episode with reward 0.
+
+## Arguments
+`envs.make("ant", **options)`, `AntParams`: v5's names and defaults.
+
+| argument | default |
+| --- | --- |
+| forward_reward_weight | 1.0 |
+| ctrl_cost_weight | 0.5 |
+| contact_cost_weight | 5e-4 |
+| healthy_reward | 1.0 |
+| terminate_when_unhealthy | True |
+| healthy_z_range | (0.2, 1.0) |
+| contact_force_range | (-1.0, 1.0) |
+| reset_noise_scale | 0.1 |
+| main_body | 1 (a body id or name) |
+| exclude_current_positions_from_observation | True |
+| include_cfrc_ext_in_observation | True |
+
+v5's xml_file, frame_skip, camera and render arguments are not taken: frame skip 5 at timestep
+0.01 (dt = 0.05), RK4. Ours besides: every MJX task's `impl` ("jax" or "warp"), `opt`,
+`nconmax`/`naconmax`/`njmax` and `randomize` (`envs.make`).
+
+## Version History
+- v5 only (Gymnasium 1.x); v4 and earlier are not offered.
+
+## Equality with Gymnasium
+Two proofs (tests/test_ant.py), because MJX's contacts are not C MuJoCo's where a leg touches the floor:
+- test_task_reads_mujocos_data_as_gymnasium_does (slow): v5's own MjData before and after each of
+  200 steps, put on the device, through our post_step, observation, reward and termination:
+  cfrc_ext within 1e-3 of C's (+1e-4 relative); observation, reward and every metric within 1e-5
+  (+1e-5 relative); termination equal; the metrics are exactly v5's `info` names.
+- test_steps_match_gymnasium_where_mjx_can (slow, impl "jax"): one env step each from the same 200
+  states (16 episodes x 40 random actions) and actions: the median step's observation within 1e-3
+  and more than half of the steps within 1e-3; on those, reward within 1e-3 (+1e-4 relative);
+  termination equal on every step.
+- test_the_steps_differ_by_mjxs_plane_capsule_frame (slow): the rest is MJX's contact frame for a
+  capsule steeper than 60 degrees to the floor; with C MuJoCo's frame patched in, over 90% of the
+  200 steps are within 1e-3.
+- test_reset_distribution_matches_gymnasium: 4,000 resets each; per coordinate of qpos and qvel the
+  means within 5 standard errors, the spreads within 10%; the contact forces exactly 0 in both.
+- test_options_are_gymnasiums: argument names, defaults, sizes and episode length equal v5's.
+- impl "warp": tests/test_gymnasium_warp.py::test_ant_steps_as_under_jax (slow): the second proof's
+  assertions, MuJoCo Warp framing the contact as MJX does;
+  tests/test_warp.py::test_gymnasium_tasks_step_alike_under_both_implementations: "warp" against
+  "jax", 4 envs x 10 steps, observation and reward within 2e-3 (+2e-3 relative).
 """
 
 from __future__ import annotations
