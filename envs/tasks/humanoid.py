@@ -1,52 +1,100 @@
-"""Gymnasium's Humanoid-v5, stepped by MJX.
+"""Humanoid-v5 of Gymnasium (gymnasium/envs/mujoco/humanoid_v5.py), stepped by MJX: `envs.make("humanoid")`.
+A 3-D biped (torso, arms, legs; 17 hinge motors) walks forward on a plane. The MJCF is Gymnasium's
+own `humanoid.xml`, read from the installed package, with one change: the constraint solver.
 
-A 3-D biped (torso, arms, legs; 17 hinge motors) walks forward on a plane. The MJCF is read from
-the installed gymnasium package; the rest follows `gymnasium/envs/mujoco/humanoid_v5.py`:
+## Action Space
+| | ours | Gymnasium v5 |
+| --- | --- | --- |
+| `step` takes | Box(-1, 1, (17,), float32) | Box(-0.4, 0.4, (17,), float32) |
+| becomes `ctrl` | scaled to the ctrlrange [-0.4, 0.4]: 0.4a | as given |
 
-- frame skip 5 (timestep 0.003, dt 0.015 s; the MJCF integrates with RK4);
-- observation (348 values by default): qpos without the torso's x, y (22; all 24 with
-  exclude_current_positions_from_observation=False), qvel (23), and for bodies 1..13 (the world
-  left out) `cinert` (130: 10 each), `cvel` (78: 6 each), then `qfrc_actuator` of the 17 hinges
-  (qvel's dofs after the free joint's 6) and `cfrc_ext` (78: 6 each), each of the last four left
-  out by its `include_*_in_observation=False`. Nothing is clipped (Ant clips cfrc_ext; Humanoid
-  does not);
-- reward = reward_forward + reward_survive - ctrl cost - contact cost: forward_reward_weight times
-  the x velocity of the centre of mass (the mass-weighted mean of the bodies' `xipos`, Gymnasium's
-  `mass_center`: MuJoCo's `subtree_com` of the world body), healthy_reward while healthy (the
-  torso's z strictly inside healthy_z_range), ctrl_cost_weight * sum(ctrl^2) (ctrl in Gymnasium's action units, the ctrlrange [-0.4, 0.4]) and
-  contact_cost_weight * sum(cfrc_ext^2) over every body, that total clipped to contact_cost_range
-  (default (-inf, 10]); terminated when unhealthy (with terminate_when_unhealthy);
-- reset: qpos = qpos0 + U(-s, s), qvel = U(-s, s), s = reset_noise_scale (1e-2).
+Abdomen, hip, knee, shoulder and elbow torques. `env.action_low`/`action_high`, `env.to_env_action`
+and `envs.to_gymnasium` give Gymnasium's space (`load_policy` returns Gymnasium's units).
 
-**The one change to Gymnasium's model: the constraint solver.** humanoid.xml sets
-`solver="PGS" iterations="50"`. MJX (impl "jax") and MuJoCo Warp solve constraints with CG or
-Newton only: `mjx.put_model` raises NotImplementedError(mjSOL_PGS) for this model as it is, and
-MuJoCo Warp's `put_model` refuses it as "mjSOL_PGS is unsupported" (their `SolverType` enums say
-"unsupported: PGS"). So the task steps the model with Newton (`MODEL_SOLVER`, set in
-`GymnasiumMujocoEnv` for any v5 MJCF that names PGS), every other option of the MJCF as it is
-(RK4, timestep 0.003, iterations 50, tolerance, cone, ...). PGS and Newton solve the same convex
-problem, to different precision after 50 iterations; tests/test_humanoid.py measures the
-difference against Gymnasium's unmodified env (docs/tasks.md has the figures). `opt={"solver":
-"cg"}` picks CG instead; `opt={"solver": "pgs"}` is refused by MJX as before.
+## Observation Space
+348 values, float32 (Gymnasium: float64), as v5, nothing clipped: qpos[2:] (22), qvel (23), then
+for bodies 1..13 `cinert` (130), `cvel` (78), `qfrc_actuator` of the 17 hinges (qvel[6:]) and
+`cfrc_ext` (78).
+- `exclude_current_positions_from_observation=False`: all of qpos (+2); each
+  `include_{cinert,cvel,qfrc_actuator,cfrc_ext}_in_observation=False` leaves its part out.
+- After an RK4 step MuJoCo's derived values are RK4's last stage's, in C MuJoCo and MJX alike.
+  `cfrc_ext`: v5's `mj_rnePostConstraint` after the step is `mjx.rne_postconstraint` under impl
+  "jax" and MuJoCo Warp's forward pass with `opt.run_rne_postconstraint` under "warp"; 0 at reset.
 
-Quantities read as Gymnasium reads them, after MuJoCo's step:
-- `cinert`, `cvel`, `qfrc_actuator` and `subtree_com` are those MuJoCo derives in its last forward
-  evaluation: after an RK4 step that is RK4's last stage, not the new qpos, in C MuJoCo and MJX
-  alike. Reset runs `mjx.forward` (`forward_on_reset`) as Gymnasium's `set_state` runs
-  `mj_forward`, so the reset observation holds the reset pose's cinert and cvel and the first
-  step's "before" centre of mass is the reset pose's.
-- `cfrc_ext`: Gymnasium runs `mj_rnePostConstraint` after `mj_step`. Under impl "jax" this task
-  runs MJX's `mjx.rne_postconstraint` after the step; under impl "warp" MuJoCo Warp runs it inside
-  each forward pass when `opt.run_rne_postconstraint` is set, which this task sets (as `ant`).
-  At reset it is zero, as Gymnasium's `mj_forward` leaves it.
+## Rewards
+- reward = reward_forward + reward_survive + reward_ctrl + reward_contact, as v5:
+  - reward_forward = forward_reward_weight * x_velocity of the centre of mass (`subtree_com` of the
+    world body: v5's mass-weighted mean of `xipos`), before and after the step over dt;
+  - reward_survive = healthy_reward while the torso's z is strictly inside healthy_z_range, else 0;
+  - reward_ctrl = -ctrl_cost_weight * sum(ctrl^2), ctrl in Gymnasium's units;
+  - reward_contact = -(contact_cost_weight * sum(cfrc_ext^2) over all bodies, clipped to contact_cost_range).
+- `state.metrics` holds v5's scalar `info`: the four terms, x/y_position, distance_from_origin,
+  x/y_velocity. v5's tendon_length and tendon_velocity (arrays) are left out: they are
+  `state.pipeline_state.ten_length` and `.ten_velocity`.
 
-Gymnasium's `info` also holds `tendon_length` and `tendon_velocity` (arrays of 2, the hip-knee
-tendons): `state.metrics` holds scalars only (Brax's evaluator sums each per episode), so they are
-left out of it; they are `state.pipeline_state.ten_length` and `.ten_velocity`.
+## Starting State
+- qpos = qpos0 + U(-s, s), qvel = U(-s, s), s = reset_noise_scale (1e-2), as v5; JAX's random
+  numbers: the same distribution, not the same draws. `mjx.forward` at reset, as v5's `set_state`
+  runs `mj_forward` (the reset observation's cinert and cvel, the first step's centre of mass).
 
-Actions: ours in [-1, 1], scaled to the ctrlrange [-0.4, 0.4]: our action a is Gymnasium's 0.4a
-(`env.to_env_action`; `load_policy` returns actions in the same [-0.4, 0.4] through
-`env.action_low`/`action_high`, so a policy trained here acts on `gymnasium.make("Humanoid-v5")`).
+## Episode End
+- Terminated: when unhealthy, unless terminate_when_unhealthy=False (as v5). Truncated: after 1000
+  steps (`envs.make`'s TimeLimit, v5's max_episode_steps).
+- Ours besides (every MjxEnv): a non-finite step (`info["nan"]`) or, under impl="warp", an overflow
+  of MuJoCo Warp's buffers (`info["overflow"]`) ends the episode with reward 0.
+
+## Arguments
+`envs.make("humanoid", **options)`, `HumanoidParams`: v5's names and defaults.
+
+| argument | default |
+| --- | --- |
+| forward_reward_weight | 1.25 |
+| ctrl_cost_weight | 0.1 |
+| contact_cost_weight | 5e-7 |
+| contact_cost_range | (-inf, 10.0) |
+| healthy_reward | 5.0 |
+| terminate_when_unhealthy | True |
+| healthy_z_range | (1.0, 2.0) |
+| reset_noise_scale | 1e-2 |
+| exclude_current_positions_from_observation | True |
+| include_cinert/cvel/qfrc_actuator/cfrc_ext_in_observation | True |
+
+v5's xml_file, frame_skip, camera and render arguments are not taken: frame skip 5 at timestep
+0.003 (dt = 0.015), RK4. Ours besides: every MJX task's `impl` ("jax" or "warp"), `opt`,
+`nconmax`/`naconmax`/`njmax` and `randomize` (`envs.make`).
+
+**The one change to v5's model: the solver.** humanoid.xml names `solver="PGS" iterations="50"`,
+which neither MJX (`put_model` raises NotImplementedError(mjSOL_PGS)) nor MuJoCo Warp ("mjSOL_PGS
+is unsupported") has. The task steps it with Newton (`MODEL_SOLVER`, set in `GymnasiumMujocoEnv`
+for any v5 MJCF that names PGS), every other option as the MJCF's; `opt={"solver": "cg"}` picks CG,
+`opt={"solver": "pgs"}` is refused. Both solve the same convex problem, to different precision.
+
+## Version History
+- v5 only (Gymnasium 1.x); v4 and earlier are not offered.
+
+## Equality with Gymnasium
+Two proofs (tests/test_humanoid.py), the second against v5's env with the same solver change:
+- test_task_reads_mujocos_data_as_gymnasium_does (impl "jax"): v5's own MjData (its model
+  unmodified) before and after each of 200 random-action steps, put on the device, through our
+  post_step, observation, reward and termination: cfrc_ext within 1e-2 of C's (+1e-4 relative);
+  observation, reward and every metric within 1e-4 (+1e-5 relative); termination equal; the metrics
+  are v5's scalar `info` names. `..._with_every_option_changed` (slow): 120 steps, the same bounds.
+- test_steps_match_gymnasium_with_the_same_solver (slow): one env step each from the same 200
+  states (16 episodes x 40 random actions) and actions, v5's model set to Newton: qpos[2:],
+  cinert and qfrc_actuator within 1e-4; qvel and cvel within 1e-2; cfrc_ext within 1 (+1e-2
+  relative); all but cfrc_ext within 1e-3 on over 95% of the steps; reward and metrics within 2e-3
+  (+1e-4 relative); termination equal.
+- test_the_solver_change_moves_a_step_less_than_float32_does (slow): v5's unmodified (PGS) env
+  against its Newton one, from those states: each part within a fifth of the bounds above,
+  cfrc_ext 0.2, reward 1e-4, termination equal; ours against the unmodified env within the bounds above.
+- test_reset_distribution_matches_gymnasium: 4,000 resets' qpos and qvel by mean and spread, noise
+  inside +-0.01; test_reset_observation_is_gymnasiums (slow): 50 reset states set in v5's env, the
+  observation within 1e-5 (+1e-5 relative), cfrc_ext 0 in both.
+- test_options_are_gymnasiums: argument names, defaults, sizes, action units and episode length
+  equal v5's; test_the_model_is_gymnasiums_but_for_the_solver.
+- impl "warp": tests/test_gymnasium_warp.py::test_humanoid_steps_as_under_jax (slow): the second
+  proof's assertions; tests/test_warp.py::test_gymnasium_tasks_step_alike_under_both_implementations:
+  "warp" against "jax", 4 envs x 10 steps, observation and reward within 2e-3 (+2e-3 relative).
 """
 
 from __future__ import annotations
