@@ -1,9 +1,47 @@
-"""Gymnasium's CartPole-v1, written as its equations in JAX.
+"""CartPole-v1 of Gymnasium (gymnasium/envs/classic_control/cartpole.py), written as its equations in
+JAX: `envs.make("cartpole")`. A pole hinged on a cart; push the cart left or right to keep it up.
 
-The constants, reset distribution, reward and termination rule are those of
-`gymnasium.envs.classic_control.CartPoleEnv`; the 500-step truncation is added
-by the registry's time limit, as Gymnasium's `TimeLimit` does. Arithmetic runs
-in JAX's default float type: float32, or float64 with `jax_enable_x64`.
+## Action Space
+Discrete(2), as v1: 0 pushes the cart left, 1 right, with force_mag (10 N).
+
+## Observation Space
+(x, x_dot, theta, theta_dot), 4 values, as v1; in JAX's default float type: float32 (v1: float32
+observations from a float64 state), float64 with `jax_enable_x64`.
+
+## Rewards
+1 on every step, the terminating one included (v1's default, sutton_barto_reward=False).
+
+## Starting State
+Each of the four values U(-0.05, 0.05), as v1; JAX's random numbers: the same distribution, not
+the same draws.
+
+## Episode End
+- Terminated: |x| > 2.4 or |theta| > 12 degrees (as v1), or a non-finite state (ours).
+- Truncated: after 500 steps (`envs.make`'s TimeLimit, v1's max_episode_steps).
+
+## Arguments
+`envs.make("cartpole", ...)`: `integrator` ("euler", v1's default, or "semi_implicit", v1's
+"semi-implicit euler"), `physics` (`CartPolePhysics`: gravity 9.8, masscart 1.0, masspole 0.1,
+length 0.5, force_mag 10.0, tau 0.02: v1's constants) and `rules` (`CartPoleRules`: x_threshold
+2.4, theta_threshold 12 degrees, reset_bound 0.05). v1 takes none of these as constructor arguments
+(only render_mode and sutton_barto_reward); ours are overrides and vmappable pytrees.
+
+## Version History
+- v1 only (500 steps); v0 (200 steps) is not offered.
+
+## Equality with Gymnasium
+tests/test_cartpole_gymnasium.py, against v1's own `CartPoleEnv` (float64):
+- test_step_matches_gymnasium: 10,000 states across the whole non-terminal region and beyond,
+  random actions, one step each, both integrators: the next state within 1e-12 under float64
+  and within 1e-5 under float32; reward 1; termination equal under float64, and under float32 on
+  all but 0.1% of the steps (a state within rounding of a threshold may flip).
+- test_episodes_terminate_on_the_same_step: 30 whole episodes from v1's own resets, random
+  actions, float64, both integrators: every step's state within 1e-12, rewards equal, the episode
+  ending on the same step.
+- test_truncation_at_500_is_not_termination: a balancing controller runs 500 steps; step 500 is
+  truncation, as v1's TimeLimit (also for cartpole-mjx).
+- test_reset_distribution_matches_gymnasium_bounds: inside +-0.05, both ends reached, mean within
+  4e-3 of 0 and spread within 5% of 0.1 / sqrt(12), for ours and v1's alike.
 """
 
 from __future__ import annotations
