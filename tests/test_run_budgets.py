@@ -62,3 +62,15 @@ def test_a_resumed_run_keeps_its_runs_cadence(tmp_path):
     assert _judged_chunks(tmp_path) == [1, 3]
     with pytest.raises(ValueError, match="judge_every 2"):
         train_run("cartpole", SMALL, out_dir=tmp_path, progress=False, resume=True, judge_every=1)
+
+
+def test_deterministic_pins_the_judge_to_every_chunk(tmp_path):
+    """`--deterministic` without --judge-every judges every chunk: the default cadence reads the clock."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    subprocess.run([sys.executable, "-m", "agents.cli", "train", "--env", "cartpole", "--steps", "3000", "--eval_every",
+                    "1000", "--deterministic", "--out", str(out)], check=True, capture_output=True, timeout=300)
+    assert json.loads((out / "config.json").read_text())["judge_every"] == 1
+    assert json.loads((out / "eval.json").read_text())["judged_chunks"] == 3

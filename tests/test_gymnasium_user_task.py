@@ -104,11 +104,7 @@ def test_the_public_proof_reports_each_steps_error():
     assert set(errors) >= {"obs", "reward", "terminated"} and all(e.shape == (64,) for e in errors.values())
     same.assert_within({"obs": 1e-4, "reward": 1e-4})
     assert same.worst()["terminated"] == 0.0
-    # A reset noise Gymnasium's env is not given: the same states go in, so steps still agree ...
-    other = compare_with_gymnasium(envs.make("inverted-pendulum", reset_noise_scale=0.1), "InvertedPendulum-v5",
-                                   num_envs=16, num_steps=8, keep=64, gymnasium_kwargs_={})
-    other.assert_within({"obs": 1e-4, "reward": 1e-4})
-    # ... but a shorter frame skip does not: the proof sees it.
+    # A shorter frame skip than Gymnasium's: the proof sees it.
     skipped = envs.make("inverted-pendulum").unwrapped
     skipped.n_substeps = 1
     wrong = compare_with_gymnasium(skipped, "InvertedPendulum-v5", num_envs=16, num_steps=8, keep=64)
