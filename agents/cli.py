@@ -642,7 +642,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
         signals.release_early()  # only a training run stops at a signal of its own accord
     try:
         if args.command in ("train", "sweep") and (args.deterministic or os.environ.get("MJXSUITE_DETERMINISTIC") == "1"):
-            from agents.backend import make_deterministic
+            from agents.device_options import make_deterministic
 
             make_deterministic()  # before any JAX computation
             if getattr(args, "judge_every", 0) is None:

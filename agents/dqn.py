@@ -20,7 +20,7 @@ import optax
 from flax import struct
 from jax.flatten_util import ravel_pytree
 
-from agents import backend, evaluation, fused_mlp
+from agents import device_options, evaluation, fused_mlp
 from agents.evaluation import EvalEpisode  # noqa: F401 (agents.dqn.EvalEpisode, as before)
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
@@ -258,7 +258,7 @@ class DQN:
     """The pieces of a DQN run for one env and config; all methods are pure."""
 
     def __init__(self, config: DQNConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`platform`: the backend whose program shapes to use (`agents.backend`); None:
+        """`platform`: the backend whose program shapes to use (`agents.device_options`); None:
         JAX's default backend. `agents`: how many agents run vmapped on one device (some
         program shapes pay off only for many)."""
         if env.num_actions is None:
@@ -267,19 +267,19 @@ class DQN:
         self.env = env
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
-                                transposed_kernel_gradient=backend.transposed_kernel_gradient(platform))
+                                transposed_kernel_gradient=device_options.transposed_kernel_gradient(platform))
         # A dueling head stays in Flax (its two outputs are not one MLP's), and so do networks
         # too wide for the kernels to win (`fused_mlp.fits`).
-        self.fused_network = (backend.fused_q_network(platform, agents) and not config.dueling
+        self.fused_network = (device_options.fused_q_network(platform, agents) and not config.dueling
                               and fused_mlp.fits(env.observation_size, config.hidden, env.num_actions))
-        self.flat_optimizer = backend.flat_optimizer(platform)
-        self.unroll = backend.unrolled_inner_loops(platform)
-        self.batch_skips_idle_copies = backend.batch_skips_idle_target_copies(platform)
+        self.flat_optimizer = device_options.flat_optimizer(platform)
+        self.unroll = device_options.unrolled_inner_loops(platform)
+        self.batch_skips_idle_copies = device_options.batch_skips_idle_target_copies(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
         # Adam's direction only: the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
         # would (same state leaves), so a sweep can trace the learning rate.
         self.optimizer = optax.chain(*clip, optax.scale_by_adam())
-        vectorized = backend.vectorized_replay(platform)
+        vectorized = device_options.vectorized_replay(platform)
         if config.replay == "uniform":
             self.buffer = UniformReplay(config.buffer_size, vectorized=vectorized)
         else:
@@ -316,7 +316,7 @@ class DQN:
         Acting, one row per env, keeps Flax: fused, the training steps were slower (docs/results.md,
         "Concurrent kernels")."""
         if self.fused_network:
-            return fused_mlp.q_values(params, obs, interpret=backend.on_cpu())
+            return fused_mlp.q_values(params, obs, interpret=device_options.on_cpu())
         return self.q_values(params, obs)
 
     def act(self, params, obs, epsilon, bits):
@@ -392,7 +392,7 @@ class DQN:
         def keep_unless_learning(new, old):
             return jnp.where(learning, new, old)
 
-        if self.flat_optimizer:  # one flat vector: a few large elementwise kernels (see `agents.backend`)
+        if self.flat_optimizer:  # one flat vector: a few large elementwise kernels (see `agents.device_options`)
             flat_params, unravel = ravel_pytree(ts.params)
             direction, opt_state = self.optimizer.update(ravel_pytree(grads)[0], ts.opt_state, flat_params)
             step = self.hyper.neg_learning_rate * direction

@@ -33,7 +33,7 @@ the DQN uses it; docs/bench-cpu.json, "uniform" and "prioritized"):
   kernels, and under `vmap` (seeds) a loop whose trip count differs between seeds
   selects over the whole carry, i.e. the whole buffer, on every iteration (most of an
   add's time on a GPU, at hundreds of seeds). So a buffer made with
-  `vectorized=True` (what `agents.backend` picks off the CPU) reads with one gather,
+  `vectorized=True` (what `agents.device_options` picks off the CPU) reads with one gather,
   writes with one scatter and rebuilds sum-tree ancestors level by level. Both ways
   compute the same values bit for bit (`tests/test_replay.py` checks).
 * Both buffers also sample from random bits the caller drew (`sample_from_bits`):

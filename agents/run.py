@@ -20,7 +20,7 @@ import numpy as np
 
 import envs
 from agents import checkpoint, export_cache, registry, run_steps, sharding, signals
-from agents.backend import default_seed_axis, init_compiler_options, training_compiler_options
+from agents.device_options import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS

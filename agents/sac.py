@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agents import backend
+from agents import device_options
 from agents import evaluation
 from agents.replay import UniformReplay
 from envs import Env, wrap_for_training
@@ -201,7 +201,7 @@ class SAC:
     """The pieces of a SAC run for one env and config; all methods are pure."""
 
     def __init__(self, config: SACConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`platform`: the backend whose program shapes to use (`agents.backend`); None: JAX's
+        """`platform`: the backend whose program shapes to use (`agents.device_options`); None: JAX's
         default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
         interface has it)."""
         from brax.training import gradients, types
@@ -232,7 +232,7 @@ class SAC:
         self.alpha_update = gradients.gradient_update_fn(alpha_loss, self.alpha_optimizer, pmap_axis_name=None)
         self.critic_update = gradients.gradient_update_fn(critic_loss, self.q_optimizer, pmap_axis_name=None)
         self.actor_update = gradients.gradient_update_fn(actor_loss, self.policy_optimizer, pmap_axis_name=None)
-        self.buffer = UniformReplay(config.max_replay_size, vectorized=backend.vectorized_replay(platform))
+        self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
 
     # ---- acting -------------------------------------------------------------
     def policy(self, params, obs):

@@ -33,7 +33,7 @@ import numpy as np
 
 from benchmarks.replay import bench_replay, format_table
 from agents.dqn import PRESETS, DQNConfig
-from agents.backend import default_seed_axis
+from agents.device_options import default_seed_axis
 from agents.run import train_run
 
 ARTICLE = DQNConfig(

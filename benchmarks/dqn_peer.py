@@ -31,7 +31,7 @@ import jax
 import numpy as np
 
 from benchmarks.dqn import throughput_record
-from agents.backend import default_seed_axis
+from agents.device_options import default_seed_axis
 from agents.dqn import DQNConfig
 
 SEEDS = (1, 16, 256, 2048)

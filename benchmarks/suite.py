@@ -299,7 +299,7 @@ def throughput_table(records: list[dict]) -> str:
 
 def _default_axis(records: list[dict]) -> str:
     """The seed axis `train_run` uses on the device of these records."""
-    from agents.backend import default_seed_axis
+    from agents.device_options import default_seed_axis
 
     meta = next((m for m in records if m["kind"] == "meta"), {})
     return default_seed_axis(meta.get("platform", "gpu"))

@@ -6,7 +6,7 @@ import tempfile
 
 # Tests run on the CPU; keep XLA from grabbing every core's worth of threads per test.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# The CPU compiler options `mjxsuite train` uses for its programs (`agents.backend.CPU_COMPILER_OPTIONS`)
+# The CPU compiler options `mjxsuite train` uses for its programs (`agents.device_options.CPU_COMPILER_OPTIONS`)
 # for every program the tests compile, their directly jitted DQN and MJX programs too: half the compile
 # time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it. jaxlib 0.11's XLA
 # no longer has the flag (its classic emitters are retired) and aborts on an unknown XLA_FLAGS entry.

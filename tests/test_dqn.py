@@ -10,7 +10,7 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import envs
-from agents import DQN, DQNConfig, backend, load_policy, train, train_run
+from agents import DQN, DQNConfig, device_options, load_policy, train, train_run
 from agents.cli import main as cli_main
 from agents.dqn import greedy, unpack
 from agents.run import run_keys
@@ -205,17 +205,17 @@ def _assert_trees_equal(a, b):
 
 @pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); compiles the accelerator's DQN program on the CPU (~25 s)
 def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
-    """The replay `agents.backend` picks for accelerators (gathers, scatters, level-by-level
+    """The replay `agents.device_options` picks for accelerators (gathers, scatters, level-by-level
     sum trees), run on the CPU, computes the CPU program's values bit for bit: with the
     CPU's optimizer, matmul and loops kept, a whole run (prioritized, several envs and
     updates per iteration) is identical."""
-    from agents import backend
+    from agents import device_options
 
     cpu = _train_chunks(DQN(GPU_SHAPED, envs.make("cartpole"), platform="cpu"))
-    monkeypatch.setattr(backend, "flat_optimizer", lambda platform=None: True)
-    monkeypatch.setattr(backend, "transposed_kernel_gradient", lambda platform=None: True)
-    monkeypatch.setattr(backend, "unrolled_inner_loops", lambda platform=None: False)
-    monkeypatch.setattr(backend, "fused_q_network", lambda platform=None, agents=1: False)
+    monkeypatch.setattr(device_options, "flat_optimizer", lambda platform=None: True)
+    monkeypatch.setattr(device_options, "transposed_kernel_gradient", lambda platform=None: True)
+    monkeypatch.setattr(device_options, "unrolled_inner_loops", lambda platform=None: False)
+    monkeypatch.setattr(device_options, "fused_q_network", lambda platform=None, agents=1: False)
     accelerator = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu")
     assert accelerator.buffer.vectorized
     _assert_trees_equal(_train_chunks(accelerator), cpu)
@@ -230,10 +230,10 @@ def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
     across steps. One update from the same state agrees to float rounding;
     over thousands of updates (and the greedy actions they change) the runs drift apart,
     so the GPU's training is judged by its solve rates (docs/results.md: 16/16)."""
-    from agents import backend
+    from agents import device_options
 
     cpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="cpu")
-    gpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu", agents=backend.FUSED_MIN_AGENTS)
+    gpu = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu", agents=device_options.FUSED_MIN_AGENTS)
     assert gpu.fused_network
     ts = _train_chunks(cpu, chunks=1)  # a filled buffer; learning starts in the next chunk
     bits = jnp.arange(GPU_SHAPED.batch_size, dtype=jnp.uint32) * jnp.uint32(2654435761)
@@ -288,7 +288,7 @@ def test_vmapped_agents_train_the_same_when_the_batch_skips_idle_target_copies(m
         return ts
 
     selected = run()
-    monkeypatch.setattr(backend, "batch_skips_idle_target_copies", lambda platform=None: True)
+    monkeypatch.setattr(device_options, "batch_skips_idle_target_copies", lambda platform=None: True)
     skipped = run()
     assert int(selected.updates[0]) > config.target_period  # several copies happened
     _assert_trees_equal(skipped, selected)
@@ -296,17 +296,17 @@ def test_vmapped_agents_train_the_same_when_the_batch_skips_idle_target_copies(m
 
 def test_cpu_compile_options_unknown_to_this_xla_are_left_out():
     # jax 0.11's XLA:CPU refuses xla_cpu_use_fusion_emitters; a run must compile there all the same.
-    assert not backend.cpu_accepts("xla_cpu_no_such_option", False)
-    assert backend.known_cpu_options({"xla_cpu_no_such_option": False, "xla_backend_optimization_level": 1}) == {
+    assert not device_options.cpu_accepts("xla_cpu_no_such_option", False)
+    assert device_options.known_cpu_options({"xla_cpu_no_such_option": False, "xla_backend_optimization_level": 1}) == {
         "xla_backend_optimization_level": 1}
-    assert set(backend.training_compiler_options("cpu")) <= set(backend.CPU_COMPILER_OPTIONS)
+    assert set(device_options.training_compiler_options("cpu")) <= set(device_options.CPU_COMPILER_OPTIONS)
 
 
 def test_gpu_training_options_are_options_this_xla_knows():
     # CI has no GPU; XLA parses every platform's debug options on any, so a misspelt option or
     # value (command buffer kinds, scheduling mode) fails here as it would on a GPU. A misspelt
     # value is refused, as the last line shows.
-    options = backend.training_compiler_options("gpu")
+    options = device_options.training_compiler_options("gpu")
     assert options["xla_gpu_command_buffer_scheduling_mode"] == "CONCURRENT"
     program = jax.jit(lambda x: x + 1).lower(jax.ShapeDtypeStruct((), jnp.float32))
     program.compile(options)

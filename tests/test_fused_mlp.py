@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import envs
-from agents import backend, fused_mlp
+from agents import device_options, fused_mlp
 from agents.dqn import DQN, DQNConfig
 from agents.networks import QNetwork
 
@@ -34,7 +34,7 @@ def test_kernels_compute_the_flax_network_and_its_gradients(hidden, rows, featur
 
 
 def test_the_update_uses_the_kernels_only_for_many_agents_of_a_narrow_network_on_accelerators():
-    cartpole, many = envs.make("cartpole"), backend.FUSED_MIN_AGENTS
+    cartpole, many = envs.make("cartpole"), device_options.FUSED_MIN_AGENTS
     assert DQN(DQNConfig(), cartpole, platform="gpu", agents=many).fused_network
     assert not DQN(DQNConfig(), cartpole, platform="gpu", agents=many - 1).fused_network  # GPU mostly idle
     assert not DQN(DQNConfig(), cartpole, platform="cpu", agents=many).fused_network
@@ -47,7 +47,7 @@ def test_the_judge_runs_the_kernels_and_scores_its_episodes_as_flax_does():
     many rows per agent); interpreted on the CPU, the same actions and returns as Flax's network,
     and the kernel is really in the program (a Pallas call in its jaxpr)."""
     cartpole, config = envs.make("cartpole"), DQNConfig(eval_episodes=8)
-    fused = DQN(config, cartpole, platform="gpu", agents=backend.FUSED_MIN_AGENTS)
+    fused = DQN(config, cartpole, platform="gpu", agents=device_options.FUSED_MIN_AGENTS)
     flax = DQN(config, cartpole, platform="cpu")
     assert fused.fused_network and not flax.fused_network
     params = flax.init(jax.random.PRNGKey(0)).params

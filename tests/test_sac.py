@@ -242,7 +242,7 @@ def test_the_pure_train_is_the_chunked_run():
 
 @pytest.mark.slow  # compiles the accelerator's program shapes on the CPU (~10 s)
 def test_the_accelerator_program_trains_the_same_on_the_cpu():
-    """Off the CPU the replay writes with a scatter and reads with a gather (`agents.backend`):
+    """Off the CPU the replay writes with a scatter and reads with a gather (`agents.device_options`):
     the same agent as the CPU's loops, bit for bit."""
     env = drift()
     key = jax.random.PRNGKey(7)

@@ -1,4 +1,4 @@
-"""The one place where the agents choose code by JAX backend.
+"""The one place where the agents choose code and XLA options by device (JAX platform).
 
 The CPU and accelerators want different shapes of the same computation: XLA:CPU runs
 small sequential loops and one network at a time fastest, while on a GPU every loop
