@@ -508,7 +508,7 @@ def import_tasks(modules: list[str]) -> None:
 
 def build_parser(more: Mapping[str, Command] | None = None) -> argparse.ArgumentParser:
     """The `mjxsuite` argument parser: train, eval and rollout, plus the subcommands in `more`."""
-    parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN.")
+    parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN, PPO and SAC.")
     sub = parser.add_subparsers(dest="command", required=True)
     cached = argparse.ArgumentParser(add_help=False)
     cached.add_argument("--no-compile-cache", action="store_true",

@@ -65,8 +65,8 @@ done = time.perf_counter()
 print(json.dumps({"startup_s": tick - start, "make_train_s": done - tick, "device": jax.devices()[0].device_kind}))
 """
 
-# Ours: the `mjxsuite` console script itself (benchmarks.entry:main).
-_OUR_PROGRAM = "import sys; from benchmarks.entry import main; sys.exit(main())"
+# Ours: the `mjxsuite` console script itself (agents.console:main, with `bench` from its entry point).
+_OUR_PROGRAM = "import sys; from agents.console import main; sys.exit(main())"
 
 # The untimed warm-up: the libraries both sides load, and a first program on the device.
 _WARM_UP_PROGRAM = """

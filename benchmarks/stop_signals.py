@@ -43,7 +43,7 @@ def main(argv=None) -> None:
     runs = []
     for i in range(args.runs):
         out, log = root / f"run{i}", root / f"run{i}.log"
-        command = [sys.executable, "-c", "import sys\nfrom benchmarks.entry import main\nsys.exit(main())\n", "train",
+        command = [sys.executable, "-c", "import sys\nfrom agents.console import main\nsys.exit(main())\n", "train",
                    "--env", args.env, *shlex.split(args.train_args), "--out", str(out), "--overwrite"]
         process = subprocess.Popen(command, env=env, stdout=open(log, "w"), stderr=subprocess.STDOUT)
         runs.append({"process": process, "at_s": round(draw.uniform(args.low, args.high), 1), "out": out, "log": log})

@@ -198,7 +198,7 @@ def first_compile_section(runs: int = 3) -> list[dict]:
         environ.update(PYTHONPATH=str(clone), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
         for run in range(1, runs + 1):
             start = time.perf_counter()
-            done = subprocess.run([sys.executable, "-c", "import sys; from benchmarks.entry import main; sys.exit(main())",
+            done = subprocess.run([sys.executable, "-c", "import sys; from agents.console import main; sys.exit(main())",
                                    *MAKE_TRAIN], cwd=clone, env=environ, capture_output=True, text=True, check=False)
             wall = time.perf_counter() - start
             if done.returncode != 0:

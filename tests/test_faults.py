@@ -463,7 +463,7 @@ def test_a_signal_while_the_command_starts_exits_cleanly(tmp_path, delay):
     """The `mjxsuite` console script catches signals from its first line: one during the imports
     (JAX, CUDA's plugin) neither raises inside them nor starts training (a KeyboardInterrupt inside
     CUDA's plugin start made JAX fall back to the CPU on a GPU machine)."""
-    code = "import sys\nfrom benchmarks.entry import main\nsys.exit(main())\n"
+    code = "import sys\nfrom agents.console import main\nsys.exit(main())\n"
     process = subprocess.Popen([sys.executable, "-c", code, "train", "--env", "cartpole", "--out", str(tmp_path / "run"),
                                 *CONFIG_ARGS], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(delay)

@@ -25,6 +25,18 @@ def test_non_editable_install_ships_the_assets(tmp_path):
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": ""},
                          check=True, capture_output=True, text=True).stdout
     assert out.strip() == str(target / "envs" / "assets" / "cartpole.xml")
+    # The console script finds `bench` through the installed entry point, not through an import of benchmarks.
+    out = subprocess.run([sys.executable, "-c", "from agents.console import more_commands; print(sorted(more_commands()))"],
+                         cwd=tmp_path, env={"PYTHONPATH": str(target), "PATH": ""}, check=True, capture_output=True,
+                         text=True).stdout
+    assert out.strip() == "['bench']"
+
+
+def test_the_console_script_adds_the_benchmarks_command():
+    """`mjxsuite bench` comes from the benchmarks' `mjxsuite.commands` entry point (agents never import benchmarks)."""
+    from agents.console import more_commands
+
+    assert list(more_commands()) == ["bench"]
 
 
 def test_importing_the_suite_starts_no_jax_backend():
