@@ -1,8 +1,8 @@
 """The `mjxsuite` command's train, sweep, eval and rollout (`bench` is added by `benchmarks.cli`).
 
 train, eval and rollout use JAX's persistent compilation cache (see
-`agents.compile_cache`): a second run loads its compiled programs from disk, and
-`train` its traced training chunk too (`agents.export_cache`).
+`agents.jax_compile_cache`): a second run loads its compiled programs from disk, and
+`train` its traced training chunk too (`agents.traced_programs`).
 `--no-compile-cache` or `MJXSUITE_COMPILE_CACHE=0` turns it off.
 
 Exit status: 0 done, 2 a command that cannot run as given (bad option or value, unknown
@@ -476,12 +476,12 @@ def cmd_rollout(args, extra: list[str]) -> int:
 
 
 def _use_compile_cache(args) -> None:
-    from agents import compile_cache
+    from agents import jax_compile_cache
 
     if getattr(args, "no_compile_cache", False):
-        compile_cache.disable()
+        jax_compile_cache.disable()
     else:
-        compile_cache.enable()
+        jax_compile_cache.enable()
 
 
 def import_tasks(modules: list[str]) -> None:

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import checkpoint, export_cache, registry, run_steps, sharding, signals
+from agents import checkpoint, registry, run_steps, sharding, signals, traced_programs
 from agents.device_options import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
@@ -130,12 +130,12 @@ def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds:
 
 
 def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
-                 env_options: dict | None, donate: bool = False) -> export_cache.LoweredProgram:
+                 env_options: dict | None, donate: bool = False) -> traced_programs.LoweredProgram:
     """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) lowered for `args`, to compile with the
-    training programs' XLA options; with the export cache on (`agents.compile_cache.enable()`),
+    training programs' XLA options; with the export cache on (`agents.jax_compile_cache.enable()`),
     its traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
     the training chunk and the evaluation) is most of a warm start."""
-    return export_cache.lower_env_program(program, fn, args, learner.env, env_name, env_options,
+    return traced_programs.lower_env_program(program, fn, args, learner.env, env_name, env_options,
                                           extra=key_parts(learner, seeds), donate=donate,
                                           compiler_options=training_compiler_options())
 

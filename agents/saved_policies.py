@@ -9,7 +9,7 @@ from typing import Any
 import jax
 
 import envs
-from agents import export_cache
+from agents import traced_programs
 from envs import rollouts
 
 
@@ -35,6 +35,6 @@ def collect_rollout_cached(env: envs.Env, env_name: str, env_options: dict | Non
     `policy` names `policy_fn` in the cache key: "random", or the DQN config of a greedy policy."""
     program = rollouts.rollout_program(env, policy_fn, num_envs, steps, scene_envs)
     sizes = {"num_envs": num_envs, "steps": steps, "scene_envs": scene_envs}
-    compiled = export_cache.compile_env_program("rollout", program, (key, params), env, env_name, env_options,
+    compiled = traced_programs.compile_env_program("rollout", program, (key, params), env, env_name, env_options,
                                                 extra={"policy": policy, **sizes})
     return compiled(key, params)

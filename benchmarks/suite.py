@@ -221,9 +221,9 @@ def first_compile_section(runs: int = 3) -> list[dict]:
 def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
               peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
-    from agents import compile_cache
+    from agents import jax_compile_cache
 
-    compile_cache.disable()  # report cold compile times
+    jax_compile_cache.disable()  # report cold compile times
     records = [meta_record(quick, sections)]
     m = records[0]
     print(f"mjxsuite bench on {m['device']} ({m['platform']}, {m['cpu_count']} CPU cores), jax {m['jax']}, "

@@ -18,7 +18,7 @@ if tuple(int(part) for part in importlib.metadata.version("jaxlib").split(".")[:
 # never ~/.cache), compiles each once and loads it afterwards. It is keyed by the compiled
 # program itself, so a test that changes what is traced (a monkeypatched step) misses it.
 # Subprocesses the tests start (the CLI, kill -9 and resume, two-process runs) inherit it
-# through MJXSUITE_COMPILE_CACHE, with `agents.export_cache` beside it as a user has it.
+# through MJXSUITE_COMPILE_CACHE, with `agents.traced_programs` beside it as a user has it.
 # `make test` runs two pytest-xdist workers: each takes a directory of its own (as a sequential
 # run has), not the one of the process that started them, which their environment inherits;
 # one directory shared by concurrent writers would need JAX's file lock, which a test's own
@@ -33,11 +33,11 @@ if _INHERITED is None or (os.environ.get("PYTEST_XDIST_WORKER") and os.path.base
 import jax  # noqa: E402 (after the environment above)
 import pytest  # noqa: E402
 
-from agents import export_cache  # noqa: E402
+from agents import traced_programs  # noqa: E402
 
 if os.environ["MJXSUITE_COMPILE_CACHE"] == _CACHE_DIR:
     jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
-    # As `agents.compile_cache.enable()`: the tests' programs are small, each well under
+    # As `agents.jax_compile_cache.enable()`: the tests' programs are small, each well under
     # JAX's default one-second threshold, and they add up.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
@@ -47,8 +47,8 @@ else:
 
 @pytest.fixture(autouse=True)
 def _export_cache_off_between_tests():
-    """In-process CLI tests turn on the export cache (`compile_cache.enable()`, as the CLI
+    """In-process CLI tests turn on the export cache (`jax_compile_cache.enable()`, as the CLI
     does); it keys traced programs by config and env, not by code, so it must not carry
     over into a test that traces its own variant (a monkeypatched backend choice)."""
     yield
-    export_cache.disable()
+    traced_programs.disable()

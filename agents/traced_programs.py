@@ -1,13 +1,13 @@
 """Traced programs kept across processes with `jax.export`, beside JAX's compilation cache.
 
-JAX's persistent compilation cache (`agents.compile_cache`) skips XLA's compile on a
+JAX's persistent compilation cache (`agents.jax_compile_cache`) skips XLA's compile on a
 second run, but not what comes before it: tracing the Python function and lowering it
 to StableHLO. For an MJX training chunk that is seconds of tracing `mjx.step`. This cache
 stores the lowered program (`jax.export`'s serialized `Exported`) in a file named by a
 hash of everything that could change it; a later process deserializes it in
 milliseconds, and the compile that follows is a hit in JAX's persistent cache.
 
-It is switched with the compilation cache: `agents.compile_cache.enable()` (which the
+It is switched with the compilation cache: `agents.jax_compile_cache.enable()` (which the
 `mjxsuite` command calls) turns it on in `<compilation cache dir>/mjxsuite-export`,
 `disable()` or `MJXSUITE_COMPILE_CACHE=0` leave it off. Python users who enable
 nothing trace as before. Delete the directory to clear it.

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import envs
-from agents import compile_cache, export_cache
+from agents import jax_compile_cache, traced_programs
 from agents.dqn import DQN, DQNConfig
 from agents.run import key_parts as agent_key_parts, seed_keys, train_run
 
@@ -21,9 +21,9 @@ TINY = DQNConfig(total_steps=200, learning_starts=64, batch_size=32, buffer_size
 
 @pytest.fixture
 def cache_dir(tmp_path):
-    directory = export_cache.enable(tmp_path / "export")
+    directory = traced_programs.enable(tmp_path / "export")
     yield directory
-    export_cache.disable()
+    traced_programs.disable()
 
 
 @pytest.fixture
@@ -53,10 +53,10 @@ def assert_same_run(a, b):
 
 
 def test_a_second_run_loads_the_traced_chunk_with_identical_results(tmp_path, chunk_traces):
-    export_cache.disable()
+    traced_programs.disable()
     plain = train_run("cartpole", TINY, progress=False, judge_every=1)  # judged chunks pinned (not by the clock)
     assert len(chunk_traces) == 1
-    export_cache.enable(tmp_path / "export")
+    traced_programs.enable(tmp_path / "export")
     try:
         first = train_run("cartpole", TINY, progress=False, judge_every=1)
         assert len(chunk_traces) == 2  # traced, exported and written
@@ -66,7 +66,7 @@ def test_a_second_run_loads_the_traced_chunk_with_identical_results(tmp_path, ch
         assert len(chunk_traces) == 2  # loaded: not traced
         assert sorted((tmp_path / "export").iterdir()) == files
     finally:
-        export_cache.disable()
+        traced_programs.disable()
     assert_same_run(first, plain)
     assert_same_run(second, plain)
 
@@ -76,8 +76,8 @@ def chunk_file(cache_dir, env_name, config=TINY, seeds=1, env_options=None):
     dqn = DQN(config, env)
     ts = jax.eval_shape(jax.vmap(dqn.init), seed_keys(0, seeds))
     ts = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), ts)  # concrete arguments, as train_run passes
-    key_parts = export_cache.program_key_parts("DQN.chunk", env, env_name, env_options, agent_key_parts(dqn, seeds))
-    return export_cache.cache_file(cache_dir, key_parts, (ts,))
+    key_parts = traced_programs.program_key_parts("DQN.chunk", env, env_name, env_options, agent_key_parts(dqn, seeds))
+    return traced_programs.cache_file(cache_dir, key_parts, (ts,))
 
 
 def test_whatever_could_change_the_chunk_changes_its_file(tmp_path):
@@ -95,16 +95,16 @@ def test_whatever_could_change_the_chunk_changes_its_file(tmp_path):
 
 
 def test_a_changed_mjcf_model_changes_the_env_fingerprint():
-    default = export_cache.env_fingerprint(envs.make("cartpole-mjx"))
-    assert default == export_cache.env_fingerprint(envs.make("cartpole-mjx"))
+    default = traced_programs.env_fingerprint(envs.make("cartpole-mjx"))
+    assert default == traced_programs.env_fingerprint(envs.make("cartpole-mjx"))
     heavier = envs.CartPoleMjx()
     heavier.mj_model.body_mass[-1] *= 2  # as if the user's XML file had changed
-    assert export_cache.env_fingerprint(envs.TimeLimit(heavier, 500))["mj_model"] != default["mj_model"]
+    assert traced_programs.env_fingerprint(envs.TimeLimit(heavier, 500))["mj_model"] != default["mj_model"]
 
 
 def test_an_env_without_source_file_is_not_cached():
     typed_at_a_prompt = type("Typed", (envs.CartPole,), {"__module__": "__typed_at_a_prompt__"})
-    assert export_cache.env_fingerprint(typed_at_a_prompt()) is None
+    assert traced_programs.env_fingerprint(typed_at_a_prompt()) is None
 
 
 def step(state: envs.State, scale):
@@ -122,16 +122,16 @@ def example_args():
 @pytest.mark.parametrize("damage", ["garbage", "truncated"])
 def test_a_corrupt_file_is_traced_again_and_overwritten(cache_dir, damage):
     expected = jax.jit(step)(*example_args())
-    first = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+    first = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
     (path,) = cache_dir.iterdir()
     good = path.read_bytes()
     damaged = b"not a cached program" if damage == "garbage" else good[: len(good) // 2]
     path.write_bytes(damaged)
     with pytest.warns(UserWarning, match="unreadable cached program"):
-        again = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+        again = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
     assert not first.hit and not again.hit
     assert path.read_bytes() != damaged and list(cache_dir.iterdir()) == [path]  # rewritten in place
-    loaded = export_cache.cached_compile(step, example_args(), "step", cache_dir)
+    loaded = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
     assert loaded.hit
     for program in (first, again, loaded):
         for x, y in zip(leaves(program(*example_args())), leaves(expected), strict=True):
@@ -148,7 +148,7 @@ def test_donation_is_kept_for_the_first_argument_only(cache_dir):
         args = (*example_args()[:1], jax.random.PRNGKey(0))
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            program = export_cache.cached_compile(step_with_key, args, "step-with-key", cache_dir, donate=True)
+            program = traced_programs.cached_compile(step_with_key, args, "step-with-key", cache_dir, donate=True)
         program(*args)
         assert args[0].obs.is_deleted() and not args[1].is_deleted()
     assert program.hit
@@ -157,7 +157,7 @@ def test_donation_is_kept_for_the_first_argument_only(cache_dir):
 @pytest.fixture
 def no_jax_cache_dir():
     """A process where JAX's own cache directory is unset (tests/conftest.py sets one for the
-    session, which `compile_cache.enable()` would respect)."""
+    session, which `jax_compile_cache.enable()` would respect)."""
     names = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs",
              "jax_persistent_cache_min_entry_size_bytes", "jax_enable_compilation_cache")
     saved = {name: getattr(jax.config, name) for name in names}
@@ -169,22 +169,22 @@ def no_jax_cache_dir():
 
 def test_nothing_is_written_while_the_cache_is_off(monkeypatch, tmp_path, no_jax_cache_dir):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    monkeypatch.setenv(compile_cache.ENV_VAR, "0")
-    assert compile_cache.enable() is None and export_cache.directory() is None
+    monkeypatch.setenv(jax_compile_cache.ENV_VAR, "0")
+    assert jax_compile_cache.enable() is None and traced_programs.directory() is None
     train_run("cartpole", TINY, progress=False)
     assert not (tmp_path / "xdg").exists()
 
 
 def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch, tmp_path, no_jax_cache_dir):
-    """`compile_cache.enable()` (what the CLI calls) puts the export cache inside its directory."""
-    monkeypatch.setenv(compile_cache.ENV_VAR, str(tmp_path / "jax"))
+    """`jax_compile_cache.enable()` (what the CLI calls) puts the export cache inside its directory."""
+    monkeypatch.setenv(jax_compile_cache.ENV_VAR, str(tmp_path / "jax"))
     try:
-        assert compile_cache.enable() == tmp_path / "jax"
-        assert export_cache.directory() == tmp_path / "jax" / export_cache.SUBDIR
-        compile_cache.disable()
-        assert export_cache.directory() is None
+        assert jax_compile_cache.enable() == tmp_path / "jax"
+        assert traced_programs.directory() == tmp_path / "jax" / traced_programs.SUBDIR
+        jax_compile_cache.disable()
+        assert traced_programs.directory() is None
     finally:
-        export_cache.disable()
+        traced_programs.disable()
 
 
 def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypatch, capsys):
@@ -194,7 +194,7 @@ def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypa
 
     run = str(tmp_path / "run")
     train_run("cartpole", TINY, out_dir=run, progress=False)
-    monkeypatch.setattr(cli, "_use_compile_cache", lambda args: export_cache.enable(tmp_path / "export"))
+    monkeypatch.setattr(cli, "_use_compile_cache", lambda args: traced_programs.enable(tmp_path / "export"))
     env_steps = []
     step = envs.CartPole.step
     monkeypatch.setattr(envs.CartPole, "step", lambda self, *args: env_steps.append(1) or step(self, *args))
@@ -216,4 +216,4 @@ def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypa
             assert len(env_steps) == traced  # loaded: not traced
             assert capsys.readouterr().out == first
     finally:
-        export_cache.disable()
+        traced_programs.disable()

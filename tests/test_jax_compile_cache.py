@@ -1,4 +1,4 @@
-"""JAX's persistent compilation cache (`agents.compile_cache`): where it lives, how it is
+"""JAX's persistent compilation cache (`agents.jax_compile_cache`): where it lives, how it is
 turned off, a second process loading from it, and no retracing between training chunks."""
 
 import os
@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from agents.cli import main as cli_main
-from agents.compile_cache import CompileCounter, configured_dir, default_dir
 from agents.dqn import DQNConfig
+from agents.jax_compile_cache import CompileCounter, configured_dir, default_dir
 from agents.run import train_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,10 +28,10 @@ def test_compile_cache_location_and_opt_out(monkeypatch, tmp_path):
 
 _CACHED_PROGRAM = """
 import sys
-from agents import compile_cache
-print(compile_cache.enable())
+from agents import jax_compile_cache
+print(jax_compile_cache.enable())
 import jax, numpy
-with compile_cache.CompileCounter() as counter:
+with jax_compile_cache.CompileCounter() as counter:
     jax.block_until_ready(jax.jit(lambda x: jax.numpy.sin(x) * 2 + 1)(numpy.arange(3.0)))
 print(counter.compiles, counter.cache_hits)
 """

@@ -9,7 +9,7 @@ turns it off, a path puts it there; or pass `--no-compile-cache` to a command.
 A cache directory set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins.
 Delete the directory to clear it.
 
-`enable()` also turns on `agents.export_cache` in a subdirectory, which keeps the traced
+`enable()` also turns on `agents.traced_programs` in a subdirectory, which keeps the traced
 programs of `train`, `eval` and `rollout`, so a second run skips tracing too; `disable()`
 turns both off.
 
@@ -27,7 +27,7 @@ from typing import Self
 import jax
 from jax import monitoring
 
-from agents import export_cache
+from agents import traced_programs
 
 ENV_VAR = "MJXSUITE_COMPILE_CACHE"
 _OFF = ("0", "off", "false", "no")
@@ -64,7 +64,7 @@ def enable(path: str | os.PathLike | None = None) -> Path | None:
     # such programs (init, evaluation, small chunks), and they add up at startup.
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    export_cache.enable(directory / export_cache.SUBDIR)
+    traced_programs.enable(directory / traced_programs.SUBDIR)
     return directory
 
 
@@ -72,7 +72,7 @@ def disable() -> None:
     """Turn the persistent cache (and the export cache) off for this process (before the first compile)."""
     jax.config.update("jax_compilation_cache_dir", None)
     jax.config.update("jax_enable_compilation_cache", False)
-    export_cache.disable()
+    traced_programs.disable()
 
 
 class CompileCounter:
