@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.assets import load_model
+from envs.assets import asset_path, load_model
 from envs.core import Env, State
 from envs.mjx_options import apply_opt, check_opt
 from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer_sizes, import_mjx,
@@ -69,7 +69,8 @@ class MjxEnv(Env):
         if xml is None:
             raise TypeError(f"task {self.name}: set the class attribute `xml` to an MJCF file (or pass xml=...)")
         try:
-            self.mj_model: mujoco.MjModel = load_model(xml)
+            self.xml_path = asset_path(xml)  # the MJCF file (envs.pixels adds a camera to it)
+            self.mj_model: mujoco.MjModel = load_model(self.xml_path)
         except (ValueError, FileNotFoundError) as err:
             raise type(err)(f"task {self.name}: {err}") from err
         if not isinstance(getattr(self, "observation_size", None), int):

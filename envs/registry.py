@@ -11,14 +11,16 @@ from typing import Any, Callable
 from envs.core import Env
 from envs.mjx_options import check_opt
 from envs.mjx_warp import check_buffer_sizes
+from envs.pixels import PIXEL_OPTIONS, Pixels, check_pixel_options, with_default_camera
 from envs.randomize import PER, Randomize
 from envs.ranges import COUNT, check_fields
 from envs.wrappers import TimeLimit
 
 # Overrides every MJX task takes besides its own (see `make`): `opt` (MuJoCo's solver options,
-# `envs.mjx_options`) and MuJoCo Warp's buffer sizes (None: derived from the model).
+# `envs.mjx_options`), MuJoCo Warp's buffer sizes (None: derived from the model), `randomize` and the
+# camera observation (`envs.pixels`: observation="pixels", camera, width, height, depth, frame_stack).
 MJX_OPTIONS = {"impl": "jax", "opt": None, "nconmax": None, "naconmax": None, "njmax": None,
-               "randomize": None, "randomize_per": PER[0]}
+               "randomize": None, "randomize_per": PER[0], **PIXEL_OPTIONS}
 
 # name -> (factory, or its "module:attr" until first use; episode_length)
 _REGISTRY: dict[str, tuple[Callable[..., Env] | str, int]] = {}
@@ -63,7 +65,9 @@ def make(name: str, **overrides: Any) -> Env:
     An MJX task also takes `impl` ("jax", or "warp" for MuJoCo Warp on an NVIDIA GPU), `opt`
     (`mujoco.MjOption` fields, e.g. `opt={"iterations": 4, "solver": "CG"}`), `nconmax`,
     `naconmax` and `njmax` (MuJoCo Warp's buffers, see `envs.mjx_warp.WarpBuffers`) and
-    `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`."""
+    `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`, and
+    `observation="pixels"` with `camera`, `width`, `height`, `depth`, `frame_stack` (camera images as
+    the observation, see `envs.pixels`)."""
     factory, _ = _lookup(name)
     valid = options(name)
     unknown = sorted(set(overrides) - set(valid))
@@ -85,12 +89,18 @@ def make(name: str, **overrides: Any) -> Env:
     if mjx_options:
         check_opt(mjx_options["opt"], f"env {name!r}")
         check_buffer_sizes(mjx_options, f"env {name!r}")
+        check_pixel_options({k: mjx_options[k] for k in PIXEL_OPTIONS}, name)
     env = factory(**kwargs)
     if mjx_options:
         env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],
                              naconmax=mjx_options["naconmax"], njmax=mjx_options["njmax"])
+        pixels = mjx_options["observation"] == "pixels"
+        if pixels:
+            env = with_default_camera(env)
         if mjx_options["randomize"]:
             env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
+        if pixels:
+            env = Pixels(env, **{k: mjx_options[k] for k in PIXEL_OPTIONS if k != "observation"})
     return TimeLimit(env, episode_length)
 
 

@@ -1,0 +1,183 @@
+"""Pixel observations (`envs.make(task, observation="pixels", ...)`, envs/pixels.py) on the CPU.
+
+impl="jax" renders with MJX's JAX ray caster: tiny images and two envs keep the compiles short.
+One batched rollout (compiled once for the module) feeds the checks of shapes, the frame stack
+across steps and auto-reset, and `info["state_obs"]`; the depth image is checked against C
+MuJoCo's `mj_ray` cast through the same pixels.
+"""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+from envs.pixels import DEFAULT_CAMERA, camera_rays
+
+TASK = "cartpole-swingup-mjx"  # the depth test's and the option tests' task
+ROLLOUT_TASK = "pendulum-mjx"  # the rollout's: a cheaper step to compile, and cylinders (cast by envs.pixels)
+HEIGHT, WIDTH, STACK, CHANNELS = 6, 8, 3, 4  # rgb + depth
+N_ENVS, N_STEPS, EPISODE = 2, 5, 3  # every env ends an episode (truncation) at step 3
+
+
+@pytest.fixture(scope="module")
+def env():
+    return envs.make(ROLLOUT_TASK, observation="pixels", width=WIDTH, height=HEIGHT, depth=True, frame_stack=STACK,
+                     episode_length=EPISODE)
+
+
+@pytest.fixture(scope="module")
+def rollout(env):
+    # Every env reset by a select (no lax.switch of three branches, each rendering: a third of the compile).
+    batch = envs.BatchedAutoReset(env, N_ENVS, reset_by_index=False)
+    state = jax.jit(batch.reset)(jax.random.PRNGKey(0))
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (N_STEPS, N_ENVS, env.action_size), minval=-1, maxval=1)
+
+    def body(state, action):
+        state = batch.step(state, action)
+        return state, state
+
+    _, states = jax.jit(lambda s: jax.lax.scan(body, s, actions))(state)
+    return state, states
+
+
+def test_shapes_and_dtype(env, rollout):
+    first, states = rollout
+    assert env.observation_shape == (HEIGHT, WIDTH, CHANNELS * STACK)
+    assert env.observation_size == HEIGHT * WIDTH * CHANNELS * STACK
+    assert first.obs.shape == (N_ENVS, HEIGHT, WIDTH, CHANNELS * STACK) and first.obs.dtype == jnp.uint8
+    assert states.obs.shape == (N_STEPS, N_ENVS, HEIGHT, WIDTH, CHANNELS * STACK)
+    assert states.obs.dtype == jnp.uint8 and states.info["final_obs"].dtype == jnp.uint8
+    assert states.info["state_obs"].shape == (N_STEPS, N_ENVS, env.state_observation_size)
+    assert int(first.obs.max()) > 0  # the camera sees something
+
+
+def test_frame_stack_order_and_auto_reset(rollout):
+    first, states = rollout
+    obs, final, done = np.asarray(states.obs), np.asarray(states.info["final_obs"]), np.asarray(states.done)
+    assert done[EPISODE - 1].all() and not done[: EPISODE - 1].any()
+    # A reset fills the stack with its first frame.
+    start = np.asarray(first.obs)
+    for k in range(STACK):
+        np.testing.assert_array_equal(start[..., k * CHANNELS:(k + 1) * CHANNELS], start[..., -CHANNELS:])
+    previous = start
+    for t in range(N_STEPS):
+        # The frame the step produced is the newest of the final stack; the older ones moved one place back.
+        np.testing.assert_array_equal(final[t][..., :-CHANNELS], previous[..., CHANNELS:])
+        for e in range(N_ENVS):
+            if done[t, e]:  # the fresh episode's stack: its first frame everywhere
+                for k in range(STACK):
+                    np.testing.assert_array_equal(obs[t, e][..., k * CHANNELS:(k + 1) * CHANNELS],
+                                                  obs[t, e][..., -CHANNELS:])
+            else:
+                np.testing.assert_array_equal(obs[t, e], final[t, e])
+        previous = obs[t]
+
+
+def test_state_observation_in_info(env, rollout):
+    first, states = rollout
+    task = env.unwrapped
+    for t in (0, EPISODE - 1, N_STEPS - 1):
+        data = jax.tree.map(lambda x: x[t], states.pipeline_state)
+        expected = jax.vmap(task.observation)(data)
+        np.testing.assert_allclose(states.info["state_obs"][t], expected, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(first.info["state_obs"], jax.vmap(task.observation)(first.pipeline_state),
+                               rtol=1e-6, atol=1e-6)
+
+
+def test_newest_frame_is_the_render_of_the_state(env, rollout):
+    _, states = rollout
+    data = jax.tree.map(lambda x: x[1], states.pipeline_state)
+    rgb, depth = jax.jit(jax.vmap(env.render))(data)
+    expected = np.concatenate([np.asarray(rgb), np.clip(np.asarray(depth) / env.depth_range, 0, 1)[..., None]], -1)
+    expected = np.round(expected * 255).astype(np.uint8)
+    np.testing.assert_array_equal(np.asarray(states.obs[1])[..., -CHANNELS:], expected)
+
+
+def test_depth_equals_c_mujoco_mj_ray():
+    """Planar depth (MuJoCo Warp's convention) against C MuJoCo's mj_ray through the same pixels,
+    float64, wherever both hit; the two agree on which pixels hit anything."""
+    height, width = 12, 16
+    env = envs.make(TASK, observation="pixels", width=width, height=height)
+    task = env.unwrapped
+    assert mujoco.mj_id2name(task.mj_model, mujoco.mjtObj.mjOBJ_CAMERA, env.cam) == DEFAULT_CAMERA
+    poses = np.array([[0.0, 0.0], [0.8, 0.6], [-1.2, 2.5]])  # cart position, pole angle (0: hanging down)
+    # The renderer computes the positions of qpos itself: an initial mjx.Data with these qpos will do.
+    data = jax.vmap(lambda q: task._initial_data.replace(qpos=q.astype(jnp.float32)))(jnp.asarray(poses))
+    _, depth = jax.jit(jax.vmap(env.render))(data)
+    depth = np.asarray(depth, np.float64)
+
+    model = task.mj_model
+    c_data = mujoco.MjData(model)
+    rays = camera_rays(model, env.cam, width, height)
+    groups = np.array([1, 1, 1, 0, 0, 0], np.uint8)
+    geom = np.zeros(1, np.int32)
+    both = 0
+    for pose, image in zip(poses, depth):
+        c_data.qpos[:] = pose
+        mujoco.mj_forward(model, c_data)
+        origin, frame = c_data.cam_xpos[env.cam], c_data.cam_xmat[env.cam].reshape(3, 3)
+        expected = np.zeros((height, width))
+        for row in range(height):
+            for col in range(width):
+                dist = mujoco.mj_ray(model, c_data, origin, frame @ rays[row, col], groups, 1, -1, geom)
+                expected[row, col] = dist * -rays[row, col, 2] if dist >= 0 else 0.0
+        hit, c_hit = image > 0, expected > 0
+        np.testing.assert_array_equal(hit, c_hit)
+        np.testing.assert_allclose(image[hit], expected[hit], atol=1e-4, rtol=0)
+        both += hit.sum()
+    assert both > 20  # the pictures are not empty
+
+
+@pytest.mark.parametrize("overrides, words", [
+    ({"observation": "rgb"}, ["observation='rgb'", "'state', 'pixels'"]),
+    ({"observation": "pixels", "width": 0}, ["width=0", "positive integer"]),
+    ({"observation": "pixels", "frame_stack": 1.5}, ["frame_stack=1.5", "positive integer"]),
+    ({"observation": "pixels", "height": 5000}, ["height=5000", "at most 4096"]),
+    ({"observation": "pixels", "depth": "yes"}, ["depth='yes'", "true or false"]),
+    ({"width": 32}, ["'width': 32", "observation='state'", "observation=pixels"]),
+    ({"observation": "pixels", "camera": "side"}, ["camera='side'", DEFAULT_CAMERA]),
+    ({"observation": "pixels", "camera": 3}, ["camera=3", "1 camera(s)"]),
+])
+def test_bad_options_say_which_and_how_to_fix(overrides, words):
+    with pytest.raises(ValueError) as err:
+        envs.make(TASK, **overrides)
+    for word in words:
+        assert word in str(err.value)
+
+
+def test_analytic_task_has_no_pixels():
+    with pytest.raises(ValueError, match="unknown option"):
+        envs.make("cartpole", observation="pixels")
+
+
+def test_command_line_options():
+    from agents.env_options import parse_option
+
+    assert parse_option(TASK, "observation", "pixels") == "pixels"
+    assert parse_option(TASK, "width", "32") == 32 and parse_option(TASK, "depth", "true") is True
+    assert parse_option(TASK, "camera", "1") == 1 and parse_option(TASK, "camera", "track") == "track"
+    assert parse_option(TASK, "frame_stack", "4") == 4
+
+
+def test_every_mjx_task_has_a_camera():
+    """The MJCF's first camera, or the default camera added to a model without one."""
+    for name in envs.names():
+        if "randomize" not in envs.options(name):
+            continue
+        env = envs.make(name, observation="pixels", width=2, height=2)
+        model = env.unwrapped.mj_model
+        assert model.ncam >= 1 and 0 <= env.cam < model.ncam, name
+        named = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_CAMERA, env.cam)
+        assert named == DEFAULT_CAMERA or env.cam == 0, name
+
+
+def test_default_camera_keeps_the_model_options():
+    """A model rebuilt with the default camera keeps what the task and `opt` set after loading
+    (Gymnasium's tasks turn PGS into MJX's solver)."""
+    state_model = envs.make("inverted-pendulum", opt={"iterations": 7}).unwrapped.mj_model
+    model = envs.make("inverted-pendulum", opt={"iterations": 7}, observation="pixels").unwrapped.mj_model
+    assert state_model.ncam == 0 and model.ncam == 1
+    assert model.opt.solver == state_model.opt.solver and model.opt.iterations == 7
+    assert model.opt.timestep == state_model.opt.timestep
