@@ -462,11 +462,11 @@ class DQN:
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
         """`eval_every` env steps of acting and learning (`train_steps`), then a greedy evaluation
-        (`judge`). With `record`, `metrics["eval_episode"]` holds its first episode (`evaluate`'s
+        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode (`evaluate`'s
         `record`), else None: the same train state and metrics from a smaller program, for runs
         that log no episodes. `agents.run` compiles the two halves as two programs, at once."""
         ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.judge(ts, eval_key, record)
+        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
         return ts, {**judged, **trained}
 
     # What a chunk adds up over its iterations (`train_steps`): `collect`'s and `update`'s stats,
@@ -516,11 +516,12 @@ class DQN:
         }
         return ts, metrics, eval_key
 
-    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
+    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
+                               record: bool = True) -> tuple[TrainState, dict]:
         """A chunk's greedy evaluation: keeps the best parameters and the step that solved the task."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
-            return self.with_hyperparams(ts.hyperparams).judge(ts, eval_key, record)
-        return evaluation.judge_chunk(self, ts, eval_key, record)
+            return self.with_hyperparams(ts.hyperparams).evaluate_and_keep_best(ts, eval_key, record)
+        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
 
 def repeat(step, ts, xs, unroll: bool = False):
     """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one

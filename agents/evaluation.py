@@ -94,8 +94,8 @@ def episode_metrics(totals: dict) -> dict:
             "overflow_constraints": totals["overflow_constraints"].astype(jnp.int32)}
 
 
-def judge(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
-          solve_return: float | None) -> tuple[Any, dict]:
+def keep_best(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
+              solve_return: float | None) -> tuple[Any, dict]:
     """A chunk's evaluation of `ts.params` applied to a train state with `best_params`,
     `best_return`, `solve_step` and `env_steps`: the best parameters so far, and the first env
     step whose mean return reached `solve_return` (None: never solved). Returns the state and the
@@ -112,11 +112,11 @@ def judge(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
                 "eval_episode": eval_episode}
 
 
-def judge_chunk(agent: Any, ts: Any, eval_key: jax.Array, record: bool) -> tuple[Any, dict]:
-    """`judge` of `agent.evaluate(ts.params, eval_key)`: an agent's `judge` method."""
+def evaluate_and_keep_best(agent: Any, ts: Any, eval_key: jax.Array, record: bool) -> tuple[Any, dict]:
+    """`keep_best` of `agent.evaluate(ts.params, eval_key)`: an agent's `evaluate_and_keep_best` method."""
     returns, episode = agent.evaluate(ts.params, eval_key, record=True) if record else (
         agent.evaluate(ts.params, eval_key), None)
-    return judge(ts, returns, episode, agent.config.solve_return)
+    return keep_best(ts, returns, episode, agent.config.solve_return)
 
 
 def whole_run(agent: Any, key: jax.Array):

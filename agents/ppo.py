@@ -10,7 +10,7 @@ parameters; what differs is around it: the whole state of a seed is one pytree
 run advances chunk by chunk inside `jit`, vmaps over seeds, and resumes exactly from a
 saved copy of that pytree.
 
-The interface is `agents.dqn.DQN`'s: `init(key)`, `train_steps(ts)`, `judge(ts, eval_key)`,
+The interface is `agents.dqn.DQN`'s: `init(key)`, `train_steps(ts)`, `evaluate_and_keep_best(ts, eval_key)`,
 `chunk(ts)`, `evaluate(params, key)`, `policy(params, obs)`, all pure.
 """
 
@@ -381,9 +381,9 @@ class PPO:
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
         """`eval_every` env steps of collecting and learning (`train_steps`), then a deterministic
-        evaluation (`judge`)."""
+        evaluation (`evaluate_and_keep_best`)."""
         ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.judge(ts, eval_key, record)
+        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
         return ts, {**judged, **trained}
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
@@ -405,9 +405,10 @@ class PPO:
         }
         return ts, metrics, eval_key
 
-    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = True) -> tuple[TrainState, dict]:
+    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
+                               record: bool = True) -> tuple[TrainState, dict]:
         """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        return evaluation.judge_chunk(self, ts, eval_key, record)
+        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
 
 
 def train(config: PPOConfig, env: Env, key: jax.Array):

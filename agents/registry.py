@@ -1,6 +1,6 @@
 """The agents by name ("dqn", "ppo", "sac"): the name config.json records, the config class and
 the agent class behind it. Every agent has DQN's interface (`agents.dqn.DQN`):
-`init(key)`, `train_steps(ts)`, `judge(ts, eval_key)`, `evaluate(params, key)` and
+`init(key)`, `train_steps(ts)`, `evaluate_and_keep_best(ts, eval_key)`, `evaluate(params, key)` and
 `policy(params, obs)`, all pure; its config has `eval_every`, `num_chunks`, `total_steps`,
 `eval_episodes` and `solve_return`. `agents.run` drives any of them the same way.
 

@@ -1,5 +1,5 @@
 """The run lifecycle, one for every agent (DQN, PPO, SAC): `train_run` drives an agent's pure
-chunks (`init`, then `train_steps` and `judge` as two programs) under jit(vmap) for many seeds
+chunks (`init`, then `train_steps` and `evaluate_and_keep_best` as two programs) under jit(vmap) for many seeds
 (spread over devices by `agents.sharding`, several configs at once for a sweep), and between
 chunks owns the run directory, the progress bar, metrics, checkpoints, signals and the final
 evaluation (`agents.run_steps` holds those steps). `load_agent` and `load_policy` read any
@@ -245,7 +245,7 @@ def train_run(
         # compile; the same train state and metrics).
         record_episode = on_chunk is not None
         per_device = agents // placement.count
-        judge = partial(learner.judge, record=record_episode)
+        judge = partial(learner.evaluate_and_keep_best, record=record_episode)
         # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
         # device: each holds a copy of the env's step, and together were one program that XLA compiled
         # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
@@ -256,7 +256,8 @@ def train_run(
         judge_fn = seed_batched(judge, per_device, seed_axis)
         kind = type(learner).__name__  # names its programs in the export cache
         if placement.mesh is None:
-            judged = f"{kind}.judge over seeds by {seed_axis}" + ("" if record_episode else ", no episode recorded")
+            judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
+                      + ("" if record_episode else ", no episode recorded"))
             train_program = _aside(lower_cached(f"{kind}.train_steps over seeds by {seed_axis}", train_fn, (ts,),
                                                 learner, agents, env_name, env_options, donate=True).compile, "train")
             judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,

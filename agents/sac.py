@@ -4,7 +4,7 @@ Read top to bottom: config -> transition packing -> train state -> acting and co
 (the replay's first fill included) -> the SAC update -> deterministic evaluation -> one
 training chunk -> `train`. Built like `agents.dqn`: `train(config, env, key)` is pure and
 jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the same
-chunks from the host (`init`, `train_steps`, `judge`) and saves the train state between
+chunks from the host (`init`, `train_steps`, `evaluate_and_keep_best`) and saves the train state between
 them; that state is the whole of one seed (networks, optimizers, temperature, normalizer,
 replay buffer, envs, key), so resuming from it is exact.
 
@@ -357,9 +357,9 @@ class SAC:
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
         """`eval_every` env steps of acting and learning (`train_steps`), then an evaluation
-        (`judge`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
+        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
         ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.judge(ts, eval_key, record)
+        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
         return ts, {**judged, **trained}
 
     # What a chunk adds up over its iterations (`train_steps`), with their types.
@@ -398,9 +398,10 @@ class SAC:
         }
         return ts, metrics, eval_key
 
-    def judge(self, ts: TrainState, eval_key: jax.Array, record: bool = False) -> tuple[TrainState, dict]:
+    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
+                               record: bool = False) -> tuple[TrainState, dict]:
         """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        return evaluation.judge_chunk(self, ts, eval_key, record)
+        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
 
 
 def train(config: SACConfig, env: Env, key: jax.Array):

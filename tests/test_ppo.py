@@ -117,7 +117,8 @@ def _nets(params):
 def run_chunks(ppo, ts, chunks, batched=None):
     """`chunks` chunks as train_run drives them: training steps, then the judge (`batched`: over seeds)."""
     wrap = batched or (lambda f: f)
-    train_steps, judge = jax.jit(wrap(ppo.train_steps)), jax.jit(wrap(functools.partial(ppo.judge, record=False)))
+    train_steps = jax.jit(wrap(ppo.train_steps))
+    judge = jax.jit(wrap(functools.partial(ppo.evaluate_and_keep_best, record=False)))
     records = []
     for _ in range(chunks):
         ts, trained, eval_key = train_steps(ts)
@@ -254,16 +255,16 @@ def test_judge_keeps_the_best_parameters_and_the_first_solving_step():
     ppo = PPO(dataclasses.replace(SMALL, solve_return=-1e9), slide())  # any evaluation solves it
     ts = jax.jit(ppo.init)(jax.random.PRNGKey(0))
     ts = ts.replace(env_steps=jnp.int32(256))
-    judged, metrics = jax.jit(ppo.judge)(ts, jax.random.PRNGKey(1))
+    judged, metrics = jax.jit(ppo.evaluate_and_keep_best)(ts, jax.random.PRNGKey(1))
     assert int(judged.solve_step) == 256 and float(judged.best_return) == float(metrics["eval_return"])
     assert metrics["eval_episode"].length > 0 and metrics["eval_episode"].action.shape == (20, 1)
     returns = ppo.evaluate(ts.params, jax.random.PRNGKey(1))
     assert returns.shape == (SMALL.eval_episodes,) and float(returns.mean()) == float(metrics["eval_return"])
-    later, _ = jax.jit(ppo.judge)(judged.replace(env_steps=jnp.int32(512), best_return=jnp.float32(1e9)),
-                                  jax.random.PRNGKey(1))
+    not_better = judged.replace(env_steps=jnp.int32(512), best_return=jnp.float32(1e9))
+    later, _ = jax.jit(ppo.evaluate_and_keep_best)(not_better, jax.random.PRNGKey(1))
     assert int(later.solve_step) == 256  # the first solving step stays
     assert_trees_equal(later.best_params, judged.best_params)  # not better than 1e9: the best stays
-    unsolvable, _ = jax.jit(PPO(SMALL, slide()).judge)(ts, jax.random.PRNGKey(1))  # solve_return None
+    unsolvable, _ = jax.jit(PPO(SMALL, slide()).evaluate_and_keep_best)(ts, jax.random.PRNGKey(1))  # no solve_return
     assert int(unsolvable.solve_step) == -1
 
 

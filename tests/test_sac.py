@@ -184,7 +184,7 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
 # ---- seeds, the pure `train`, and exact resume -----------------------------------------------
 def run_chunks(sac, ts, chunks, batched=None):
     """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge."""
-    train_steps, judge = sac.train_steps, sac.judge
+    train_steps, judge = sac.train_steps, sac.evaluate_and_keep_best
     if batched is not None:
         train_steps, judge = batched(train_steps), batched(judge)
     train_steps, judge = jax.jit(train_steps), jax.jit(judge)
@@ -300,10 +300,10 @@ def test_evaluate_returns_deterministic_episodes_and_records_the_first():
     np.testing.assert_array_equal(np.asarray(again), np.asarray(returns))
     # The judge keeps the best parameters and the first step that reached solve_return.
     solving = SAC(dataclasses.replace(SMALL, solve_return=-1e9), env)
-    judged, metrics = jax.jit(solving.judge)(ts, key)
+    judged, metrics = jax.jit(solving.evaluate_and_keep_best)(ts, key)
     assert int(judged.solve_step) == int(ts.env_steps) and metrics["eval_episode"] is None
     assert float(judged.best_return) == float(metrics["eval_return"])
-    never, _ = jax.jit(sac.judge)(ts, key)  # solve_return None: never solved
+    never, _ = jax.jit(sac.evaluate_and_keep_best)(ts, key)  # solve_return None: never solved
     assert int(never.solve_step) == -1
 
 
