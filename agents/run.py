@@ -108,7 +108,7 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
-def _aside(work: Callable[[], Any], name: str) -> Future:
+def _in_background(work: Callable[[], Any], name: str) -> Future:
     """`work()` on another thread. XLA compiles, and a program runs, without holding Python's
     lock, so the run's inputs are made (on a GPU with the process's first allocation) while the
     programs compile, a fresh run's init program compiles while this thread traces and lowers
@@ -217,13 +217,13 @@ def train_run(
             # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
             # a GPU the first allocation, where XLA reserves most of the device's memory: spent while
             # XLA compiles (docs/bench-gpu.json, "dqn-run-inputs").
-            inputs = _aside(run_inputs, "inputs")
+            inputs = _in_background(run_inputs, "inputs")
             init_args, eval_keys = jax.eval_shape(run_inputs)
         else:
             init_args, eval_keys = placement.put(run_inputs())
         chunks_done = 0
         compile_start = time.perf_counter()
-        init_program = None  # a fresh run's init program, compiling on another thread (`_aside`)
+        init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
         if resume and (out / checkpoint.STATE_FILE).is_file():
             ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
             ts = placement.put(ts)  # saved from any number of devices, split over this run's
@@ -231,7 +231,7 @@ def train_run(
         else:  # a run killed before its first checkpoint resumes from the start, as it began
             if placement.mesh is None:
                 traced = init.trace(*init_args)
-                init_program = _aside(traced.lower().compile, "init")
+                init_program = _in_background(traced.lower().compile, "init")
                 ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
             else:
                 ts = init(*init_args)
@@ -258,14 +258,15 @@ def train_run(
         if placement.mesh is None:
             judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
                       + ("" if record_episode else ", no episode recorded"))
-            train_program = _aside(lower_cached(f"{kind}.train_steps over seeds by {seed_axis}", train_fn, (ts,),
-                                                learner, agents, env_name, env_options, donate=True).compile, "train")
+            trained = f"{kind}.train_steps over seeds by {seed_axis}"
+            train_program = _in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
+                                                        env_options, donate=True).compile, "train")
             judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
                                          env_name, env_options, donate=True).compile()
         else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
             options = training_compiler_options()
-            train_program = _aside(partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile,
-                                           options), "train")
+            train_program = _in_background(
+                partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile, options), "train")
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
         train_program = train_program.result()
 
@@ -279,9 +280,9 @@ def train_run(
         if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
             params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
                                         ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = _aside(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
-                                              (params_shape, eval_keys), learner, agents, env_name, env_options),
-                                      "evaluation")
+            final_evaluation = _in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+                                                      (params_shape, eval_keys), learner, agents, env_name, env_options),
+                                              "evaluation")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
