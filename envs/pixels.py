@@ -176,7 +176,8 @@ class RayRenderer:
     def render(self, data) -> tuple[jax.Array, jax.Array]:
         """(rgb in [0, 1], (H, W, 3); planar depth, (H, W), 0 where no geom is hit) of `data`'s positions."""
         mjx, model = self.mjx, self.task.mjx_model
-        data = mjx.camlight(model, mjx.kinematics(model, data))  # positions of data.qpos (a step leaves the last)
+        # The positions of data.qpos (a step leaves the previous step's); com_pos for tracking cameras.
+        data = mjx.camlight(model, mjx.com_pos(model, mjx.kinematics(model, data)))
         origin, frame = data.cam_xpos[self.cam], data.cam_xmat[self.cam]
         dirs = self.rays.reshape(-1, 3) @ frame.T.astype(jnp.float32)
         dist, geom = jax.vmap(lambda vec: self._cast(model, data, origin, vec))(dirs)

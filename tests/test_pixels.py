@@ -95,20 +95,45 @@ def test_newest_frame_is_the_render_of_the_state(env, rollout):
     np.testing.assert_array_equal(np.asarray(states.obs[1])[..., -CHANNELS:], expected)
 
 
-def test_depth_equals_c_mujoco_mj_ray():
-    """Planar depth (MuJoCo Warp's convention) against C MuJoCo's mj_ray through the same pixels,
-    float64, wherever both hit; the two agree on which pixels hit anything."""
-    height, width = 12, 16
-    env = envs.make(TASK, observation="pixels", width=width, height=height)
-    task = env.unwrapped
-    assert mujoco.mj_id2name(task.mj_model, mujoco.mjtObj.mjOBJ_CAMERA, env.cam) == DEFAULT_CAMERA
-    poses = np.array([[0.0, 0.0], [0.8, 0.6], [-1.2, 2.5]])  # cart position, pole angle (0: hanging down)
-    # The renderer computes the positions of qpos itself: an initial mjx.Data with these qpos will do.
-    data = jax.vmap(lambda q: task._initial_data.replace(qpos=q.astype(jnp.float32)))(jnp.asarray(poses))
-    _, depth = jax.jit(jax.vmap(env.render))(data)
-    depth = np.asarray(depth, np.float64)
+def warp_or_skip(impl: str) -> None:
+    if impl == "warp":
+        from envs.mjx_warp import WarpUnavailable, require_warp
 
+        try:
+            require_warp()
+        except WarpUnavailable as err:
+            pytest.skip(str(err))
+
+
+# Poses to render per task: qpos vectors, or None for qpos0 and two poses near it
+DEPTH_CASES = {
+    "cartpole-swingup-mjx": [[0.0, 0.0], [0.8, 0.6], [-1.2, 2.5]],  # cart position, pole angle (0: down)
+    "half-cheetah": None,
+}
+
+
+@pytest.mark.parametrize("impl", ["jax", "warp"])
+@pytest.mark.parametrize("task_name", ["cartpole-swingup-mjx", "half-cheetah"])  # a default camera, a tracking one
+def test_depth_equals_c_mujoco_mj_ray(task_name, impl):
+    """Planar depth (MuJoCo Warp's convention) against C MuJoCo's mj_ray through the same pixels,
+    float64, wherever both hit; the two agree on which pixels hit anything (impl="warp": on a GPU)."""
+    warp_or_skip(impl)
+    height, width = 12, 16
+    env = envs.make(task_name, observation="pixels", width=width, height=height, impl=impl)
+    task = env.unwrapped
     model = task.mj_model
+    poses = DEPTH_CASES[task_name]
+    if poses is None:
+        noise = np.random.default_rng(0).uniform(-0.3, 0.3, (2, model.nq))
+        poses = np.concatenate([model.qpos0[None], model.qpos0 + noise])
+    poses = np.asarray(poses, np.float32)
+
+    def render(qpos):  # the renderer computes the positions of qpos itself
+        data = task.reset(jax.random.PRNGKey(0)).pipeline_state
+        return env.render(data.replace(qpos=qpos.astype(data.qpos.dtype)))[1]
+
+    depth = np.asarray(jax.jit(jax.vmap(render))(jnp.asarray(poses)), np.float64)
+
     c_data = mujoco.MjData(model)
     rays = camera_rays(model, env.cam, width, height)
     groups = np.array([1, 1, 1, 0, 0, 0], np.uint8)
