@@ -6,7 +6,8 @@ the images of one camera, rendered inside the jitted step:
 - `obs`: uint8, shape `(height, width, channels * frame_stack)`; a frame's channels are RGB, then
   depth (with `depth=True`) as `uint8(255 * min(depth / depth_range, 1))`. The stack runs oldest to
   newest (the newest frame is `obs[..., -channels:]`); a reset fills it with the first frame.
-- `info["state_obs"]`: the task's own observation vector (for an asymmetric actor-critic).
+- `info["state_obs"]`: the task's own observation vector (for an asymmetric actor-critic); after an
+  auto-reset, `info["final_state_obs"]` holds the finished episode's, as `info["final_obs"]` its frames.
 - Depth is planar, as MuJoCo Warp's: the distance along the camera's optical axis (0 where no geom
   is hit). `Pixels.render` returns the float images a frame is made from.
 
@@ -321,6 +322,8 @@ class WarpRenderer:
 class Pixels(Wrapper):
     """An MJX task observed through a camera (see the module docstring). Build it with
     `envs.make(name, observation="pixels", ...)`; it wraps the task (or its `Randomize`)."""
+
+    final_info = ("state_obs",)  # auto-reset keeps the finished episode's as info["final_state_obs"]
 
     def __init__(self, env, camera: str | int | None = None, width: int = 64, height: int = 64,
                  depth: bool = False, frame_stack: int = 1):

@@ -62,7 +62,7 @@ class AutoReset(Wrapper):
     def reset(self, key: jax.Array) -> State:
         key, episode_key = jax.random.split(key)
         state = self.env.reset(episode_key)
-        return state.replace(info={**state.info, "rng": episode_keys(key), "final_obs": state.obs})
+        return state.replace(info={**state.info, "rng": episode_keys(key), **final_entries(self.env, state)})
 
     def step(self, state: State, action: jax.Array) -> State:
         return self.reset_if_done(self.env.step(state, action))
@@ -77,7 +77,14 @@ class AutoReset(Wrapper):
             return jnp.where(jnp.reshape(done, done.shape + (1,) * (new.ndim - done.ndim)), new, old)
 
         merged = _merge_fresh(stepped, fresh, next_rng, pick, kept_info(self.env))
-        return merged.replace(info={**merged.info, "final_obs": stepped.obs})
+        return merged.replace(info={**merged.info, **final_entries(self.env, stepped)})
+
+
+def final_entries(env: Env, stepped: State) -> dict:
+    """What an auto-reset keeps of the state a step produced: its observation as `final_obs`, and
+    each info entry the env names in `final_info` as `final_<name>` (e.g. `envs.pixels.Pixels`'s
+    `state_obs`, for a critic that bootstraps from the state rather than the pixels)."""
+    return {"final_obs": stepped.obs, **{f"final_{name}": stepped.info[name] for name in getattr(env, "final_info", ())}}
 
 
 def kept_info(env: Env) -> tuple[str, ...]:
@@ -154,7 +161,7 @@ class BatchedAutoReset(Wrapper):
             one = self.auto_reset.step(jax.tree.map(lambda x: x[0], state), action[0])
             return jax.tree.map(lambda x: x[None], one)
         stepped = jax.vmap(self.env.step)(state, action)
-        stepped = stepped.replace(info={**stepped.info, "final_obs": stepped.obs})
+        stepped = stepped.replace(info={**stepped.info, **final_entries(self.env, stepped)})
         every = jax.vmap(self.auto_reset.reset_if_done)
         if not self.reset_by_index:
             return every(stepped)

@@ -84,6 +84,16 @@ def test_state_observation_in_info(env, rollout):
         np.testing.assert_allclose(states.info["state_obs"][t], expected, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(first.info["state_obs"], jax.vmap(task.observation)(first.pipeline_state),
                                rtol=1e-6, atol=1e-6)
+    # The finished episode's state observation survives the auto-reset: the pendulum's (cos, sin, speed)
+    # one semi-implicit Euler step on from the step before (angle += dt * new speed).
+    final, done = np.asarray(states.info["final_state_obs"]), np.asarray(states.done)
+    t = EPISODE - 1
+    assert done[t].all() and task.n_substeps == 1
+    np.testing.assert_array_equal(final[:t], np.asarray(states.info["state_obs"])[:t])
+    before, after = np.asarray(states.info["state_obs"][t - 1]), final[t]
+    turned = np.arctan2(after[:, 1], after[:, 0]) - np.arctan2(before[:, 1], before[:, 0])
+    np.testing.assert_allclose(np.angle(np.exp(1j * (turned - env.dt * after[:, 2]))), 0, atol=1e-4)
+    assert not np.allclose(final[t], np.asarray(states.info["state_obs"][t]))  # a fresh episode's
 
 
 def test_newest_frame_is_the_render_of_the_state(env, rollout):
