@@ -198,7 +198,8 @@ def train_run(
         agent = registry.name_of(config)
         run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent, judge_every)
         out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
-        if placement.agree(stop.requested is not None):  # a signal while the command started: nothing to compile
+        # a signal while the command started: nothing to compile
+        if placement.same_on_every_process(stop.requested is not None):
             saved = checkpoint.chunks_saved(out) if out is not None and resume else 0
             return RunResult(params=None, train_state=None, interrupted=True, stop_signal=stop.name,
                              saved_chunks=None if out is None else saved, total_chunks=config.num_chunks,
@@ -296,13 +297,14 @@ def train_run(
             for index in range(chunks_done, config.num_chunks):
                 if stop_after_chunks is not None and index >= stop_after_chunks:
                     break
-                if placement.agree(stop.requested is not None):  # a signal during compile, a chunk or a save
+                # a signal during compile, a chunk or a save
+                if placement.same_on_every_process(stop.requested is not None):
                     result.interrupted = True
                     break
                 tick = time.perf_counter()
                 ts, metrics, eval_key = train_program(ts)
                 eval_episode = None
-                judging = placement.agree(judge_clock.due(index, tick - start))  # process 0's clock decides
+                judging = placement.same_on_every_process(judge_clock.due(index, tick - start))  # process 0's clock
                 if judging:
                     jax.block_until_ready(metrics)  # the chunk's training done: the judge is timed alone
                     judge_tick = time.perf_counter()
@@ -336,7 +338,7 @@ def train_run(
                 if stop_when_solved and judging and None not in result.solve_wall_s:
                     solved_early = True
                     break
-                if placement.agree(out is not None and clock.due(last)):  # process 0's clock decides
+                if placement.same_on_every_process(out is not None and clock.due(last)):  # process 0's clock
                     save_start = time.perf_counter()
                     save(out, env_name, placement, ts, last)
                     clock.saved(last, save_start)
@@ -357,7 +359,7 @@ def train_run(
         result.judges = judge_clock.judges
         # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
         # short once it runs): the checkpoint holds every chunk, and --resume evaluates.
-        if placement.agree(stop.requested is not None):
+        if placement.same_on_every_process(stop.requested is not None):
             result.interrupted = True
         result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
         if result.interrupted or (last < config.num_chunks and not solved_early):  # checkpoint saved, no final eval

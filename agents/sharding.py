@@ -144,7 +144,7 @@ class Placement:
             return multihost_utils.process_allgather(tree, tiled=True)
         return jax.device_get(tree)
 
-    def agree(self, decision: bool) -> bool:
+    def same_on_every_process(self, decision: bool) -> bool:
         """Process 0's `decision` on every process (e.g. whether to save now, which depends on
         each host's clock): a multi-host run's processes must gather at the same chunks."""
         if jax.process_count() == 1:
