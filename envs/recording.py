@@ -12,6 +12,7 @@ CartPole's qpos, so both backends are drawn the same way.
 
 Entity paths, for env `i` under an optional `root`:
   env/<i>/obs/<name>, env/<i>/action, env/<i>/reward       every step
+  env/<i>/camera/rgb, env/<i>/camera/depth                  a pixel task's newest frame, every step
   env/<i>/episode_done, env/<i>/episode/return, .../length  at the steps where episodes end
   world/env_<i>/<geom name>                                 static shape + per-step pose
 Timelines: `step` (sequence) and `sim_time` (seconds).
@@ -316,6 +317,22 @@ def _log_env_plots(rec, root: str, data: Rollout, i: int, names: list[str], time
         _send_scalars(rec, _path(root, "episode", "length"), end_times, data.episode_length[ends, i])
 
 
+def _log_camera(rec, path: str, frames: np.ndarray, channels: int, times: list, static: bool) -> None:
+    """The newest frame of each step's stack as images: `<path>/rgb`, and `<path>/depth` (the
+    uint8 depth channel, grey) where the frames carry one."""
+    newest = np.asarray(frames[..., -channels:], np.uint8)
+    steps, height, width = newest.shape[:3]
+    for name, pixels, model in (("rgb", newest[..., :3], "RGB"), ("depth", newest[..., 3:4], "L")):
+        if pixels.shape[-1] == 0:
+            continue
+        if static:
+            image_format = rr.components.ImageFormat(width=width, height=height, color_model=model,
+                                                     channel_datatype="U8")
+            rec.log(f"{path}/{name}", rr.Image.from_fields(format=image_format), static=True)
+        rec.send_columns(f"{path}/{name}", indexes=times,
+                         columns=rr.Image.columns(buffer=np.ascontiguousarray(pixels).reshape(steps, -1)))
+
+
 def log_rollout(rec: rr.RecordingStream, env: Env, rollout: Rollout, *, root: str = "",
                 plot_envs: int | None = None, step_offset: int = 0, static: bool = True,
                 scene: Scene | None = None) -> None:
@@ -331,9 +348,13 @@ def log_rollout(rec: rr.RecordingStream, env: Env, rollout: Rollout, *, root: st
     dt = env_dt(env)
     steps = np.arange(step_offset, step_offset + num_steps, dtype=np.int64)
     times = _times(steps, dt)
-    names = observation_names(env)
+    images = np.ndim(data.obs) == 5  # camera frames (steps, envs, H, W, C*k): envs.pixels
+    names = [] if images else observation_names(env)
     for i in range(min(num_envs, plot_envs or num_envs)):
         _log_env_plots(rec, _path(root, "env", i), data, i, names, times, steps, dt, static)
+        if images:
+            _log_camera(rec, _path(root, "env", i, "camera"), data.obs[:, i], getattr(env, "channels", 3),
+                        times, static)
     if data.scene_qpos is None:
         return
     scene = env_scene(env) if scene is None else scene
@@ -344,21 +365,24 @@ def log_rollout(rec: rr.RecordingStream, env: Env, rollout: Rollout, *, root: st
                   static=static, origin=(0.0, i * scene.spacing, 0.0))
 
 
-def rollout_blueprint(root: str = ""):
-    """A default layout: the 3D scene beside env 0's plots."""
+def rollout_blueprint(root: str = "", camera: bool = False):
+    """A default layout: the 3D scene beside env 0's plots (and, with `camera`, env 0's camera
+    images between them: a pixel task's)."""
     import rerun.blueprint as rrb
 
     env0 = "/" + _path(root, "env", 0)
+    cameras = [rrb.Spatial2DView(name="camera", origin=env0 + "/camera")] if camera else []
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(name="scene", origin="/" + _path(root, "world")),
+            *cameras,
             rrb.Vertical(
                 rrb.TimeSeriesView(name="observation", origin=env0 + "/obs"),
                 rrb.TimeSeriesView(name="action, reward, episodes", origin=env0,
                                    contents=["$origin/action/**", "$origin/reward", "$origin/episode_done"]),
                 rrb.TimeSeriesView(name="episode return", origin=env0 + "/episode/return"),
             ),
-            column_shares=[3, 2],
+            column_shares=[3, 2, 2] if camera else [3, 2],
         ),
         rrb.TimePanel(state="collapsed", timeline="step", play_state="paused"),
         collapse_panels=True,

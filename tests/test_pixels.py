@@ -216,3 +216,35 @@ def test_default_camera_keeps_the_model_options():
     assert state_model.ncam == 0 and model.ncam == 1
     assert model.opt.solver == state_model.opt.solver and model.opt.iterations == 7
     assert model.opt.timestep == state_model.opt.timestep
+
+
+def test_rerun_recording_logs_the_camera_frames(env, rollout, tmp_path):
+    """A pixel task's rollout in Rerun: each step's newest frame as images (rgb, depth) beside the scene."""
+    from rerun.chunk import RrdReader
+
+    from envs import recording
+
+    _, states = rollout
+    data = recording.Rollout(obs=states.obs, action=jnp.zeros((N_STEPS, N_ENVS, env.action_size)),
+                             reward=states.reward, done=states.done, episode_return=states.reward,
+                             episode_length=jnp.ones((N_STEPS, N_ENVS), jnp.int32),
+                             scene_qpos=states.pipeline_state.qpos[:, :1])
+    path = tmp_path / "pixels.rrd"
+    rec = recording.open_recording(path, blueprint=recording.rollout_blueprint(camera=True))
+    try:
+        recording.log_rollout(rec, env, data)
+    finally:
+        recording.close_recording(rec)
+    images, entities = {}, set()
+    for chunk in RrdReader(path).store().stream():
+        entity = chunk.entity_path.lstrip("/")
+        entities.add(entity)
+        batch = chunk.to_record_batch()
+        if not chunk.is_static and entity.startswith("env/0/camera/"):
+            buffers = [column for column in batch.schema.names if column.endswith("buffer")]
+            images[entity] = np.stack([np.asarray(row[0], np.uint8) for row in batch.column(buffers[0]).to_pylist()])
+    newest = np.asarray(states.obs[:, 0, ..., -CHANNELS:])
+    np.testing.assert_array_equal(images["env/0/camera/rgb"], newest[..., :3].reshape(N_STEPS, -1))
+    np.testing.assert_array_equal(images["env/0/camera/depth"], newest[..., 3].reshape(N_STEPS, -1))
+    assert any(entity.startswith("world/env_0/") for entity in entities)  # the 3D scene beside them
+    assert not any("/obs/" in entity for entity in entities)  # no plot per pixel
