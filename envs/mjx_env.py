@@ -34,6 +34,10 @@ ActionBins = Mapping[str, Sequence[float]]
 IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
 
 
+# Hooks under their former names, which a task would now set to no effect: refused by name.
+_RENAMED_HOOKS = {"forward_on_reset": "reset_computes_derived", "forward_at_reset": "compute_derived_at_reset"}
+
+
 class MjxEnv(Env):
     """An MJX-stepped environment. Subclasses set `xml` and `observation_size` and
     implement `initial_qpos_qvel`, `observation`, `reward` and `terminated`.
@@ -59,10 +63,16 @@ class MjxEnv(Env):
     # Reset only sets qpos/qvel; mjx.step recomputes everything else before it
     # integrates. Tasks whose observation or reward at reset needs derived
     # quantities (site positions, sensors...) set this to run mjx.forward there.
-    forward_on_reset: bool = False
+    reset_computes_derived: bool = False
     # A batch of one stays a batch: one MJX env stepped unbatched was slower on a GPU than as a
     # batch of one (docs/results.md, "The GPU step"), and MuJoCo Warp steps batches of worlds.
     batch_of_one_as_scalars = False
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        renamed = [f"`{old}` is now `{new}`" for old, new in _RENAMED_HOOKS.items() if old in vars(cls)]
+        if renamed:
+            raise TypeError(f"task {cls.__name__}: " + "; ".join(renamed))
 
     def __init__(self, xml: str | os.PathLike | None = None, action_bins: ActionBins | int | None = None):
         xml = xml if xml is not None else getattr(self, "xml", None)
@@ -200,15 +210,15 @@ class MjxEnv(Env):
         implementation does). The default changes nothing."""
         return data
 
-    def forward_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
-        """What reset runs with `forward_on_reset` under impl="jax" (impl="warp" runs mjx.forward):
+    def compute_derived_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """What reset runs with `reset_computes_derived` under impl="jax" (impl="warp" runs mjx.forward):
         `mjx.forward`. A task whose reset observation reads positions only may run the cheaper
         `mjx.kinematics` (no collisions, no constraint solve); the first step is the same either
         way, since `mjx.step` recomputes everything from qpos and qvel and only the integrator
         writes `qacc_warmstart`."""
         return mjx.forward(model, data)
 
-    def forward(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
+    def compute_derived(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
         """`mjx.forward` of `data` (an env state's `pipeline_state`) with this task's model or
         `model`: everything MuJoCo derives from qpos and qvel (positions, contacts, forces). Under
         impl="warp" MuJoCo Warp's buffers that a batch shares are lent for the call."""
@@ -243,11 +253,11 @@ class MjxEnv(Env):
             qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
         )
         data = self._warp.without_shared(data) if self._warp else data
-        if self.forward_on_reset:
+        if self.reset_computes_derived:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
-            forwarded = self.forward(data, model) if self._warp else self.forward_at_reset(model, data)
-            data = forwarded.replace(qpos=data.qpos)
+            derived = self.compute_derived(data, model) if self._warp else self.compute_derived_at_reset(model, data)
+            data = derived.replace(qpos=data.qpos)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
             raise ValueError(

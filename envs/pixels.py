@@ -316,7 +316,7 @@ class WarpRenderer:
             return render_batch(data), (True, True)
 
         # The camera and geoms where data.qpos puts them (a step leaves the previous step's positions).
-        return render_one(task.forward(data))
+        return render_one(task.compute_derived(data))
 
 
 class Pixels(Wrapper):

@@ -242,7 +242,7 @@ class Randomize(Wrapper):
         self.per = per
         # With per="env", auto-reset keeps these info entries (the env's draw) for every episode.
         # (A fresh episode's `reset` still runs with a fresh draw: only a task with
-        # `forward_on_reset` would see it, in its first observation.)
+        # `reset_computes_derived` would see it, in its first observation.)
         self.info_kept_across_episodes = ("randomized", "model") if per == "env" else ()
         self._recompute_constants = any(v.field in SETCONST_INPUTS for v in self.variations)
 

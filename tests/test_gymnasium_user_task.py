@@ -39,7 +39,7 @@ class HumanoidStandup(envs.GymnasiumMujocoEnv):
     xml_file = "humanoidstandup.xml"
     frame_skip = 5
     skipped_qpos = 2  # the torso's x and y
-    forward_on_reset = True  # the reset observation reads cinert and cvel
+    reset_computes_derived = True  # the reset observation reads cinert and cvel
     reads_contact_forces = True  # the impact cost and the observation read cfrc_ext
 
     def __init__(self, params: StandupParams = StandupParams()):

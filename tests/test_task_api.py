@@ -141,6 +141,14 @@ def test_non_scalar_reward_is_caught(slider_xml):
         jax.jit(env.step)(env.reset(jax.random.PRNGKey(0)), jnp.zeros(1))
 
 
+def test_a_hook_under_its_former_name_is_refused_by_name():
+    """`forward_on_reset` and `forward_at_reset` were renamed: a task setting them would skip its
+    reset's derived quantities without a word, so defining the class fails and names the new hook."""
+    with pytest.raises(TypeError, match="task Old: `forward_on_reset` is now `reset_computes_derived`"):
+        class Old(envs.MjxEnv):
+            forward_on_reset = True
+
+
 def test_duplicate_registration_names_the_env(slider_xml):
     envs.register("test-slider", lambda: Slider(slider_xml), episode_length=10)
     with pytest.raises(ValueError, match=r"an env named 'test-slider' is already registered"):

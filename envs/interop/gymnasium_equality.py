@@ -86,7 +86,7 @@ def transitions(env: Env | str, num_envs: int = 32, num_steps: int = 40, keep: i
 
         def step(state, action):
             if forward_first:
-                state = state.replace(pipeline_state=env.forward(state.pipeline_state))
+                state = state.replace(pipeline_state=env.compute_derived(state.pipeline_state))
             before = state.pipeline_state
             state = env.step(state, action)
             return state, (before.qpos, before.qvel, before.qacc_warmstart, state.obs, state.reward,

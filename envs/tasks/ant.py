@@ -135,7 +135,7 @@ class Ant(GymnasiumMujocoEnv):
     xml_file = "ant.xml"
     frame_skip = 5
     skipped_qpos = 2  # the torso's x and y
-    forward_on_reset = True  # the first step's velocity needs the reset pose's xpos
+    reset_computes_derived = True  # the first step's velocity needs the reset pose's xpos
     reads_contact_forces = True  # cfrc_ext after each step (GymnasiumMujocoEnv)
 
     def __init__(self, params: AntParams = AntParams(), xml: str | None = None):

@@ -147,7 +147,7 @@ class Humanoid(GymnasiumMujocoEnv):
     xml_file = "humanoid.xml"
     frame_skip = 5
     skipped_qpos = 2  # the torso's x and y
-    forward_on_reset = True  # the reset observation's cinert/cvel, and the first step's centre of mass
+    reset_computes_derived = True  # the reset observation's cinert/cvel, and the first step's centre of mass
     reads_contact_forces = True  # cfrc_ext after each step (GymnasiumMujocoEnv)
 
     def __init__(self, params: HumanoidParams = HumanoidParams(), xml: str | None = None):

@@ -148,7 +148,7 @@ class InvertedDoublePendulum(GymnasiumMujocoEnv):
                          "cart_velocity", "hinge1_velocity", "hinge2_velocity", "cart_constraint_force")
     # The observation reads the tip site and the cart's constraint force, which mjx.forward
     # computes at reset as Gymnasium's set_state (mj_forward) does.
-    forward_on_reset = True
+    reset_computes_derived = True
     min_tip_height = 1.0  # m; Gymnasium terminates when the tip is at or below it
     observation_clip = 10.0  # Gymnasium clips qvel and the constraint force to +-10 in the observation
 

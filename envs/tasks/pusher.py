@@ -114,7 +114,7 @@ class Pusher(GymnasiumMujocoEnv):
     observation_size = 23
     observation_names = (*(f"{j}_angle" for j in _JOINTS), *(f"{j}_velocity" for j in _JOINTS),
                          *(f"{body}_{axis}" for body in ("tips_arm", "object", "goal") for axis in "xyz"))
-    forward_on_reset = True  # the observation reads body positions, which mj_forward computes at reset
+    reset_computes_derived = True  # the observation reads body positions, which mj_forward computes at reset
     arm_joints = 7  # qpos[:7], qvel[:7]: the arm; then the object's two slide joints, then the goal's
     arm_speed_noise = 0.005  # arm velocities U(-0.005, 0.005) at reset
     object_low, object_high = (-0.3, -0.2), (0.0, 0.2)  # qpos[7], qpos[8] before the rejection
@@ -142,7 +142,7 @@ class Pusher(GymnasiumMujocoEnv):
                                        maxval=self.arm_speed_noise)
         return qpos, jnp.concatenate([arm_speed, jnp.zeros(self.mj_model.nv - self.arm_joints)])
 
-    def forward_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    def compute_derived_at_reset(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         # The reset observation reads body positions only: kinematics, not the whole mj_forward
         # (which adds the contacts and the constraint solve: reset compiles several times faster on
         # the CPU, and a batch auto-resetting every env per step does less work).

@@ -105,7 +105,7 @@ class Reacher(GymnasiumMujocoEnv):
     observation_size = 10
     observation_names = ("cos_joint0", "cos_joint1", "sin_joint0", "sin_joint1", "target_x", "target_y",
                          "joint0_velocity", "joint1_velocity", "fingertip_minus_target_x", "fingertip_minus_target_y")
-    forward_on_reset = True  # the observation reads body positions, which mj_forward computes at reset
+    reset_computes_derived = True  # the observation reads body positions, which mj_forward computes at reset
     arm_angle_noise = 0.1  # arm angles = qpos0 + U(-0.1, 0.1) at reset
     arm_speed_noise = 0.005  # arm angular velocities U(-0.005, 0.005) at reset
     target_radius = 0.2  # the target is uniform in the disc of this radius
