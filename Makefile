@@ -16,10 +16,10 @@ train: $(BIN)/.installed  ## train DQN on the MJX CartPole: checkpoint + Rerun r
 	$(BIN)/mjxsuite train --env cartpole-mjx --out runs/cartpole-mjx --rerun runs/cartpole-mjx/train.rrd --overwrite
 
 test: $(BIN)/.installed  ## the fast test suite (what CI runs)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once): 7.5 min on 2 cores, 2026-11-25
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once); at most 6 minutes on 2 cores
 
 test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
-	$(BIN)/python -m pytest -q -m slow -n 2  # two workers: the slow tests are independent runs (32 min on 2 cores, 2026-11-25)
+	$(BIN)/python -m pytest -q -m slow -n 2  # two workers: the slow tests are independent runs
 
 # `make bench BENCH_TAG=gpu` on a GPU machine
 BENCH_TAG ?= cpu
