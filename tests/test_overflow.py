@@ -81,6 +81,7 @@ def test_the_report_names_the_buffer_and_the_override():
     assert "naconmax=5000 for the batch" in env_options.overflow_report(task, 1, 0, 10)
 
 
+@pytest.mark.slow  # the benchmark script's counter (benchmark scripts run in the slow run)
 def test_throughput_runs_count_the_steps_that_overflowed():
     from benchmarks import env_throughput
 
