@@ -271,7 +271,6 @@ def train_run(
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
         train_program = train_program.result()
 
-
         if inputs is not None:
             init_args, eval_keys = inputs.result()
         if init_program is not None:
@@ -316,7 +315,6 @@ def train_run(
                 record = _host(placement.to_host(metrics))
                 if judging:
                     judge_clock.judged(time.perf_counter() - judge_tick)
-                    result.judge_s += judge_clock.last_s
                     result.train_s += judge_tick - tick
                 else:
                     result.train_s += time.perf_counter() - tick
@@ -356,7 +354,7 @@ def train_run(
             clock.saved(last, save_start)
             result.save_s += time.perf_counter() - save_start
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
-        result.judges = judge_clock.judges
+        result.judges, result.judge_s = judge_clock.judges, judge_clock.judge_s  # the clock keeps the count
         # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
         # short once it runs): the checkpoint holds every chunk, and --resume evaluates.
         if placement.same_on_every_process(stop.requested is not None):
