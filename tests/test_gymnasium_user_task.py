@@ -96,6 +96,7 @@ def test_a_users_task_has_gymnasiums_spaces_and_hooks():
     assert task.mj_model.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON  # the MJCF's PGS, as for humanoid
 
 
+@pytest.mark.slow  # three compiles of inverted-pendulum's step; gymnasium_mujoco's tests use the same proof by default
 def test_the_public_proof_reports_each_steps_error():
     """The helper on a cheap built-in task: an error per step, within test_inverted_pendulums'
     tolerances; a task that differs from Gymnasium's is caught."""
