@@ -324,6 +324,7 @@ class Pixels(Wrapper):
     `envs.make(name, observation="pixels", ...)`; it wraps the task (or its `Randomize`)."""
 
     final_info = ("state_obs",)  # auto-reset keeps the finished episode's as info["final_state_obs"]
+    costly_reset = True  # a reset renders: `BatchedAutoReset` resets only the envs that ended
 
     def __init__(self, env, camera: str | int | None = None, width: int = 64, height: int = 64,
                  depth: bool = False, frame_stack: int = 1):

@@ -137,6 +137,11 @@ class BatchedAutoReset(Wrapper):
     Not `under_vmap` (a batch that is itself vmapped, e.g. over seeds, where the arrays
     have more elements anyway and the scalar step made the DQN slower at 16 and 256 seeds:
     the same section), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
+
+    An env whose reset is costly (`costly_reset = True`: `envs.pixels.Pixels` renders a frame)
+    resets by index on every backend, so a step renders the fresh frames of the envs that
+    ended rather than a fresh frame for every env; except `under_vmap`, where the switch
+    would run all three branches.
     """
 
     def __init__(self, env: Env, num_envs: int, max_resets: int | None = None, reset_by_index: bool | None = None,
@@ -148,7 +153,10 @@ class BatchedAutoReset(Wrapper):
         self.max_resets = max(1, num_envs // 16) if max_resets is None else max_resets
         if not 1 <= self.max_resets <= num_envs:
             raise ValueError(f"max_resets must be in [1, num_envs={num_envs}], got {max_resets}")
-        self.reset_by_index = jax.default_backend() == "cpu" if reset_by_index is None else reset_by_index
+        if reset_by_index is None:
+            costly_reset = getattr(env, "costly_reset", False) and not under_vmap
+            reset_by_index = jax.default_backend() == "cpu" or costly_reset
+        self.reset_by_index = reset_by_index
         self.auto_reset = AutoReset(env)
         self.step_unbatched = num_envs == 1 and not (self.reset_by_index or under_vmap) and env.batch_of_one_as_scalars
 

@@ -123,7 +123,7 @@ DEPTH_CASES = {
 
 
 @pytest.mark.parametrize("impl", ["jax", "warp"])
-@pytest.mark.parametrize("task_name", ["cartpole-swingup-mjx", "half-cheetah"])  # a default camera, a tracking one
+@pytest.mark.parametrize("task_name", ["cartpole-swingup-mjx", "half-cheetah"])  # a fixed camera, a tracking one
 def test_depth_equals_c_mujoco_mj_ray(task_name, impl):
     """Planar depth (MuJoCo Warp's convention) against C MuJoCo's mj_ray through the same pixels,
     float64, wherever both hit; the two agree on which pixels hit anything (impl="warp": on a GPU)."""
@@ -172,7 +172,7 @@ def test_depth_equals_c_mujoco_mj_ray(task_name, impl):
     ({"observation": "pixels", "height": 5000}, ["height=5000", "at most 4096"]),
     ({"observation": "pixels", "depth": "yes"}, ["depth='yes'", "true or false"]),
     ({"width": 32}, ["'width': 32", "observation='state'", "observation=pixels"]),
-    ({"observation": "pixels", "camera": "side"}, ["camera='side'", DEFAULT_CAMERA]),
+    ({"observation": "pixels", "camera": "side"}, ["camera='side'", "'fixed'"]),
     ({"observation": "pixels", "camera": 3}, ["camera=3", "1 camera(s)"]),
 ])
 def test_bad_options_say_which_and_how_to_fix(overrides, words):
@@ -248,3 +248,12 @@ def test_rerun_recording_logs_the_camera_frames(env, rollout, tmp_path):
     np.testing.assert_array_equal(images["env/0/camera/depth"], newest[..., 3].reshape(N_STEPS, -1))
     assert any(entity.startswith("world/env_0/") for entity in entities)  # the 3D scene beside them
     assert not any("/obs/" in entity for entity in entities)  # no plot per pixel
+
+
+def test_a_batch_of_pixel_envs_resets_only_the_envs_that_ended(env, monkeypatch):
+    """A reset renders, so on an accelerator too the batch resets the ended envs by index (not a
+    fresh frame for every env on every step); a batch vmapped over seeds keeps the default select."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    assert envs.BatchedAutoReset(env, 4).reset_by_index
+    assert not envs.BatchedAutoReset(env, 4, under_vmap=True).reset_by_index
+    assert not envs.BatchedAutoReset(envs.make(ROLLOUT_TASK), 4).reset_by_index
