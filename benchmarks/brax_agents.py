@@ -7,18 +7,21 @@ evaluation); the figure is the last chunk's (epoch's) env-steps/s, compile and t
 left out. Ours and Brax's alternate in one process, on one device.
 
     python -m benchmarks.brax_agents --env hopper --agent ppo --impl warp --steps 4000000 --seeds 1,8 \\
-        [--repeats 1] [--json FILE]
+        [--repeats 1] [--json FILE] [--profile DIR]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks import gpu_profile
 
 
 def recipe(env_name: str, agent: str, steps: int):
@@ -65,6 +68,8 @@ def main(argv=None) -> None:
     parser.add_argument("--seeds", default="1,8", help="comma-separated seed counts of our runs")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--json", metavar="FILE")
+    parser.add_argument("--profile", metavar="DIR", help="trace each run with jax.profiler under DIR and add "
+                        "its kernel summary to the record (benchmarks.gpu_profile)")
     args = parser.parse_args(argv)
     import jax
 
@@ -73,7 +78,11 @@ def main(argv=None) -> None:
     records = []
     for repeat in range(args.repeats):
         for run in [("brax", 1)] + [("ours", int(s)) for s in args.seeds.split(",")]:
-            record = brax(args.env, config, options) if run[0] == "brax" else ours(args.env, config, run[1], options)
+            trace_dir = Path(args.profile or ".") / f"{run[0]}-{run[1]}-{repeat}"
+            with gpu_profile.traced(trace_dir) if args.profile else contextlib.nullcontext():
+                record = brax(args.env, config, options) if run[0] == "brax" else ours(args.env, config, run[1], options)
+            if args.profile:
+                record["profile"] = gpu_profile.summary(trace_dir)
             record.update(kind="brax-agents", env=args.env, agent=args.agent, impl=args.impl, repeat=repeat,
                           steps_per_seed=args.steps, device=jax.devices()[0].device_kind)
             records.append(record)

@@ -50,6 +50,7 @@ def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.determinism", description=__doc__.splitlines()[0])
     parser.add_argument("--impl", default="jax", help="comma-separated: jax, warp")
     parser.add_argument("--job", dest="jobs", action="append", help='"AGENT ENV [TRAIN ARGS]", repeatable')
+    parser.add_argument("--modes", default="plain,deterministic", help="comma-separated: plain, deterministic")
     parser.add_argument("--out", default="runs/determinism")
     parser.add_argument("--json", metavar="FILE")
     args = parser.parse_args(argv)
@@ -60,7 +61,7 @@ def main(argv=None) -> None:
     for impl in args.impl.split(","):
         for job in args.jobs or DEFAULT_JOBS:
             agent, task, *extra = shlex.split(job)
-            for mode in ("plain", "deterministic"):
+            for mode in args.modes.split(","):
                 name = f"{agent}-{task}-{impl}-{mode}"
                 dirs = [root / f"{name}-{rep}" for rep in "ab"]
                 runs = [subprocess.Popen([sys.executable, "-m", "agents.cli", "train", "--env", task, "--agent", agent,
