@@ -256,7 +256,8 @@ def _ray_cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
 
 
 class WarpRenderer:
-    """One camera's images by MuJoCo Warp's batch ray tracer (impl="warp"). NOT YET RUN ON A GPU.
+    """One camera's images by MuJoCo Warp's batch ray tracer (impl="warp"): the model's lights,
+    materials and textures, no shadows.
 
     `mjx.create_render_context(mjm, nworld, ...)` fixes the number of worlds and cannot go under
     `vmap`; so `render` is a `custom_vmap` function (as `WarpWorlds.run`): each vmap over it folds
