@@ -134,14 +134,18 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
         kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
         raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
                          f"{' or '.join(fits)}" + ("" if discrete else " (or a discrete variant of the task with dqn)"))
+    if getattr(env, "observation_shape", None) is not None and agent != "ppo":
+        raise UsageError(f"--agent {agent} has no network for camera images (--env-opt observation=pixels); "
+                         "train them with --agent ppo, or drop observation=pixels")
     return agent
 
 
 def _agent_config(env_name: str, agent: str, preset: str | None, extra: list[str], steps: int | None,
-                  replay: str | None):
+                  replay: str | None, observation: str = "state"):
     """The agent's config: DQN's preset, or PPO's/SAC's base recipe with the task's row of
-    agents/brax_defaults.py (`--preset` picks another); then --FIELD VALUE and the command's own
-    options (`--steps`: env steps per seed for every agent)."""
+    agents/brax_defaults.py (`--preset` picks another; without it, camera images take the task's
+    "pixels" recipe where it has one); then --FIELD VALUE and the command's own options
+    (`--steps`: env steps per seed for every agent)."""
     from agents import brax_defaults, registry
 
     if agent == "dqn":
@@ -150,7 +154,8 @@ def _agent_config(env_name: str, agent: str, preset: str | None, extra: list[str
         raise UsageError(f"--replay chooses DQN's replay; --agent {agent} has "
                          + ("none (drop --replay)" if agent == "ppo" else "a uniform one (drop --replay)"))
     try:
-        base = registry.config_class(agent)(**brax_defaults.settings(env_name, agent, preset or "default"))
+        preset = preset or brax_defaults.default_preset(env_name, agent, observation)
+        base = registry.config_class(agent)(**brax_defaults.settings(env_name, agent, preset))
     except ValueError as err:
         raise UsageError(str(err))
     return config_from_args(base, extra, num_timesteps=steps)
@@ -183,7 +188,8 @@ def cmd_train(args, extra: list[str]) -> int:
     options = env_options.from_args(args.env, args)
     agent = _choose_agent(args.env, args.agent, options)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
-    config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay)
+    config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay,
+                           observation=options.get("observation", "state"))
     _say_rounding(config)
     result = _train(args, config, env_options=options)
     return _report(args, config, result)

@@ -59,7 +59,7 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
     if record:
         first = jax.tree.map(lambda x: x[0], state.pipeline_state)
         episode = EvalEpisode(
-            obs=jnp.zeros((horizon, env.observation_size), state.obs.dtype),
+            obs=jnp.zeros((horizon, *state.obs.shape[1:]), state.obs.dtype),  # a vector or an image
             action=jnp.zeros((horizon, *action.shape), action.dtype),
             reward=jnp.zeros((horizon,), state.reward.dtype),
             scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),

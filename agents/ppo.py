@@ -31,6 +31,9 @@ from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
 
+CNN_FIELDS = ("cnn_output_channels", "cnn_kernel_size", "cnn_stride")
+
+
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
     """Every hyperparameter of a run, with the names and meanings of `brax.training.agents.ppo.train`.
@@ -41,7 +44,9 @@ class PPOConfig:
     `num_evals - 1` evaluations after training steps split `num_timesteps`, rounded up to
     whole training steps (`rounding()` says how); Brax's first evaluation, of the untrained
     policy, is not a chunk. The defaults are sized for small tasks on a CPU (they balance
-    inverted-pendulum); agents/brax_defaults.py holds the per-task recipes."""
+    inverted-pendulum); agents/brax_defaults.py holds the per-task recipes. On camera images
+    (`observation="pixels"`) the networks put the `cnn_*` convolutions in front of their MLPs
+    (`make_vision_networks`)."""
 
     num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
     num_envs: int = 64
@@ -56,11 +61,17 @@ class PPOConfig:
     clipping_epsilon: float = 0.3
     max_grad_norm: float | None = None  # None: no clipping
     reward_scaling: float = 1.0
-    normalize_observations: bool = True
+    normalize_observations: bool = True  # state vectors only: camera images are scaled to [0, 1] instead
     num_evals: int = 11  # Brax's count, its evaluation of the untrained policy included
     num_eval_envs: int = 64  # episodes per evaluation
     policy_hidden: tuple[int, ...] = (64, 64)
     value_hidden: tuple[int, ...] = (64, 64)
+    # The convolutional torso in front of each MLP when the observation is a camera image
+    # (`envs.make(task, observation="pixels")`), one entry per layer, in Brax's `networks_vision`
+    # names; the default is the Nature DQN network's, sized for 64x64 images.
+    cnn_output_channels: tuple[int, ...] = (32, 64, 64)
+    cnn_kernel_size: tuple[int, ...] = (8, 4, 3)
+    cnn_stride: tuple[int, ...] = (4, 2, 1)
     solve_return: float | None = None  # a deterministic mean return that counts as solved; not Brax's
 
     RANGES: ClassVar[dict[str, Range]] = {
@@ -73,12 +84,17 @@ class PPOConfig:
 
     def __post_init__(self):
         check_fields(self, self.RANGES)
-        for field in ("policy_hidden", "value_hidden"):
+        for field in ("policy_hidden", "value_hidden", *CNN_FIELDS):
             widths = getattr(self, field)
             if not widths:
-                raise ValueError(f"PPOConfig.{field} needs at least one layer width, got {widths!r}")
+                raise ValueError(f"PPOConfig.{field} needs at least one layer's value, got {widths!r}")
             for width in widths:
-                COUNT.check(f"PPOConfig.{field} (layer widths {widths})", width)
+                COUNT.check(f"PPOConfig.{field} (one value per layer: {widths})", width)
+        layers = {field: len(getattr(self, field)) for field in CNN_FIELDS}
+        if len(set(layers.values())) > 1:
+            raise ValueError(f"PPOConfig's convolution layers disagree: {layers}; give "
+                             f"{', '.join(CNN_FIELDS)} one value per layer each, e.g. --cnn_output_channels 32,64 "
+                             "--cnn_kernel_size 8,4 --cnn_stride 4,2")
         if not isinstance(self.normalize_observations, bool):
             raise ValueError(f"PPOConfig.normalize_observations must be True or False, got {self.normalize_observations!r}")
         if self.max_grad_norm is not None:
@@ -133,6 +149,64 @@ class PPOConfig:
                 f"{self.num_chunks} chunks of {self.training_steps_per_chunk} training steps of "
                 f"{self.env_steps_per_training_step:,} env steps (batch_size {self.batch_size} x num_minibatches "
                 f"{self.num_minibatches} x unroll_length {self.unroll_length})")
+
+
+# Brax's vision networks take a dict of observations and convolve every entry whose key starts
+# with "pixels/"; our image observation is a plain array, passed to them under this key.
+PIXELS_KEY = "pixels/camera"
+
+
+def image_shape(env: Env) -> tuple[int, int, int] | None:
+    """(height, width, channels) where `env` observes camera images (`envs.pixels.Pixels`, whose
+    `observation_shape` every wrapper forwards); None where it observes a state vector."""
+    shape = getattr(env, "observation_shape", None)
+    return tuple(shape) if shape is not None and len(shape) == 3 else None
+
+
+def check_image_fits(config: PPOConfig, shape: tuple[int, int, int]) -> None:
+    """Refuse convolutions that shrink `shape`'s images to nothing (they run without padding)."""
+    height, width = shape[:2]
+    for layer, (kernel, stride) in enumerate(zip(config.cnn_kernel_size, config.cnn_stride)):
+        if min(height, width) < kernel:
+            raise ValueError(
+                f"PPOConfig.cnn_kernel_size {config.cnn_kernel_size}: the {kernel}x{kernel} kernel of convolution "
+                f"{layer + 1} does not fit the {height}x{width} map that {shape[0]}x{shape[1]} images leave it "
+                f"(cnn_stride {config.cnn_stride}, no padding); use larger images (--env-opt width=64 --env-opt "
+                "height=64) or fewer, smaller kernels (e.g. --cnn_output_channels 16 --cnn_kernel_size 3 --cnn_stride 1)")
+        height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
+
+
+def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: PPOConfig):
+    """Brax's vision PPO networks (`networks_vision.make_ppo_networks_vision`) for uint8 images of `shape`.
+
+    The policy and the value network share nothing: each has its own convolutions (`cnn_*` of
+    `config`, ReLU, no padding), flattened rather than pooled (where the cart is in the image is
+    what the policy must see), then its own MLP (`policy_hidden`, `value_hidden`; swish, as the
+    state networks). Initialisers and padding are MuJoCo Playground's CartpoleBalance vision
+    recipe's: orthogonal, scale sqrt(2) for the convolutions and 0.01 for the policy's last layer
+    (near-zero mean actions at first). Frames are scaled from uint8 to [0, 1] inside the networks,
+    so rollouts store uint8 frames (a quarter of float32's memory); no running-statistics
+    normaliser sees them."""
+    import math
+
+    from brax.training import networks as brax_networks
+    from brax.training.agents.ppo import networks_vision
+    check_image_fits(config, shape)
+    orthogonal = jax.nn.initializers.orthogonal
+    vision = networks_vision.make_ppo_networks_vision(
+        {PIXELS_KEY: shape}, action_size, policy_hidden_layer_sizes=config.policy_hidden,
+        value_hidden_layer_sizes=config.value_hidden, cnn_output_channels=config.cnn_output_channels,
+        cnn_kernel_size=config.cnn_kernel_size, cnn_stride=config.cnn_stride, cnn_padding="valid",
+        cnn_global_pool="none", cnn_kernel_init_fn=orthogonal, cnn_kernel_init_kwargs={"scale": math.sqrt(2)},
+        output_kernel_init_fn=orthogonal, output_kernel_init_kwargs={"scale": 0.01})
+
+    def on_frames(network):
+        def apply(normalizer_params, params, frames):
+            return network.apply(normalizer_params, params, {PIXELS_KEY: frames.astype(jnp.float32) / 255.0})
+
+        return brax_networks.FeedForwardNetwork(init=network.init, apply=apply)
+
+    return vision.replace(policy_network=on_frames(vision.policy_network), value_network=on_frames(vision.value_network))
 
 
 # ---- hyperparameters that may be traced: what a sweep may vary within one program ----
@@ -229,12 +303,16 @@ class PPO:
         self.env = env
         self.platform, self.agents = platform, agents
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
-        preprocess = running_statistics.normalize if config.normalize_observations else (lambda obs, _: obs)
-        # Brax's networks as Brax's trainer makes them (`benchmarks.brax_trainers.network_factory`):
-        # the params are what Brax's ppo.train returns.
-        self.networks = ppo_networks.make_ppo_networks(
-            env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
-            policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
+        self.image_shape = image_shape(env)  # None: a state vector
+        if self.image_shape is None:
+            preprocess = running_statistics.normalize if config.normalize_observations else (lambda obs, _: obs)
+            # Brax's networks as Brax's trainer makes them (`benchmarks.brax_trainers.network_factory`):
+            # the params are what Brax's ppo.train returns.
+            self.networks = ppo_networks.make_ppo_networks(
+                env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
+                policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
+        else:
+            self.networks = make_vision_networks(self.image_shape, env.action_size, config)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         # Adam's direction only; the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
         # would, so a sweep can trace the learning rate.
@@ -334,7 +412,8 @@ class PPO:
         env_state, data = self.collect(ts, key_unroll)
         data, stats = self.without_faults(data)
         normalizer, policy, value = ts.params
-        normalizer = running_statistics.update(normalizer, data.observation)  # before SGD, as Brax does
+        if self.image_shape is None:  # images have no normalizer (`make_vision_networks`)
+            normalizer = running_statistics.update(normalizer, data.observation)  # before SGD, as Brax does
         nets = ppo_losses.PPONetworkParams(policy=policy, value=value)
         (opt_state, nets, _), metrics = jax.lax.scan(
             functools.partial(self.sgd_step, data=data, normalizer=normalizer), (ts.opt_state, nets, key_sgd),
@@ -355,10 +434,12 @@ class PPO:
 
     # ---- a training run ---------------------------------------------------------
     def init_params(self, policy_key: jax.Array, value_key: jax.Array):
-        """Fresh (normalizer, policy, value) params, initialised as Brax's ppo.train does."""
+        """Fresh (normalizer, policy, value) params, initialised as Brax's ppo.train does. On images
+        the normalizer's place holds the state of one over no values: Brax's layout, never updated."""
         from brax.training.acme import running_statistics
         from brax.training.acme import specs
-        obs_spec = specs.Array((self.env.observation_size,), jnp.dtype("float32"))
+        normalized = 0 if self.image_shape is not None else self.env.observation_size
+        obs_spec = specs.Array((normalized,), jnp.dtype("float32"))
         return (running_statistics.init_state(obs_spec), self.networks.policy_network.init(policy_key),
                 self.networks.value_network.init(value_key))
 

@@ -488,13 +488,24 @@ def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
     return obs
 
 
+def checked_frames(frames, env_name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """`frames` (one camera image or a batch) as uint8 numpy, refused with a clear error unless
+    they are uint8 images of `shape`: float images (say in [0, 1]) would be read as nearly black."""
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8 or frames.shape[-3:] != tuple(shape):
+        raise ValueError(f"{env_name} observes uint8 camera images of shape {tuple(shape)} (height, width, "
+                         f"channels); got {frames.dtype} of shape {frames.shape}: pass the env's `obs` as it is")
+    return frames
+
+
 def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
     """The policy of a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
 
     Takes one observation or a batch (numpy or JAX). DQN's greedy policy returns integer
     actions; PPO's and SAC's deterministic policy (the mode) float32 actions in the task's
     Gymnasium action space. With several trained seeds it uses the run's best seed
-    (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused.
+    (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused;
+    a run trained on camera images (`observation="pixels"`) takes uint8 frames as its env gives them.
     """
     env_name, env, agent, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
@@ -506,7 +517,11 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
         act = jax.jit(lambda obs: to_action_space(agent.policy(params, obs), low, high))
         to_numpy = lambda action: np.asarray(action, np.float32)  # noqa: E731
 
+    image = getattr(env, "observation_shape", None)
+
     def policy(obs):
+        if image is not None:
+            return to_numpy(act(checked_frames(obs, env_name, image)))
         return to_numpy(act(checked_observations(obs, env_name, env.observation_size)))
 
     return policy

@@ -26,6 +26,7 @@ TASKS = (
     ("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", 500, ()),
     ("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", 500, ()),
     ("cartpole-swingup-mjx", "envs.tasks.cartpole_swingup_mjx:CartPoleSwingUpMjx", 1000, ("SwingUpRules",)),
+    ("cartpole-balance-mjx", "envs.tasks.cartpole_balance_mjx:CartPoleBalanceMjx", 1000, ("BalanceRules",)),
     ("pendulum-mjx", "envs.tasks.pendulum_mjx:PendulumMjx", 200, ("PendulumParams", "DISCRETE_TORQUE_BINS")),
     ("pendulum-mjx-discrete", "envs.tasks.pendulum_mjx:PendulumMjxDiscrete", 200, ()),
     # MJX: Gymnasium's MuJoCo v5 tasks

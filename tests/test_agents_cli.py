@@ -64,7 +64,7 @@ def test_the_table_holds_valid_recipes_for_tasks_registered_or_not():
             for preset in presets:
                 registry.config_class(agent)(**brax_defaults.settings(task, agent, preset))
     assert brax_defaults.settings("my-own-task", "ppo") == {}  # the base recipe
-    assert brax_defaults.presets("cartpole-swingup-mjx", "ppo") == ["default", "playground"]
+    assert brax_defaults.presets("cartpole-swingup-mjx", "ppo") == ["default", "pixels", "playground"]
 
 
 def test_default_agent_follows_the_action_space_and_steps_are_per_seed(monkeypatch, capsys):
