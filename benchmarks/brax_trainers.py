@@ -22,7 +22,8 @@ from agents.sac import SACConfig
 DETERMINISTIC_EVAL = True
 
 
-NOT_BRAX_ARGUMENTS = ("policy_hidden", "value_hidden", "hidden", "solve_return")
+NOT_BRAX_ARGUMENTS = ("policy_hidden", "value_hidden", "hidden", "solve_return",
+                      "cnn_output_channels", "cnn_kernel_size", "cnn_stride")
 
 
 def _is_ppo(config: PPOConfig | SACConfig) -> bool:
