@@ -11,6 +11,7 @@ measurements: docs/results.md, "DQN on the GPU".
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -136,10 +137,14 @@ def init_compiler_options(platform: str | None = None) -> dict:
     return {"xla_gpu_autotune_level": 0}
 
 
-def training_compiler_options(platform: str | None = None) -> dict:
+def training_compiler_options(platform: str | None = None, env: Any = None) -> dict:
     """XLA options for the training programs: on a GPU, CUDA graphs for loops whose independent
     kernels run concurrently; on the CPU, XLA:CPU's classic fusion emitters
     (`CPU_COMPILER_OPTIONS`); nothing elsewhere.
+
+    An env that renders camera frames with MuJoCo Warp (`env.warp_renders`, `envs.pixels`) keeps
+    XLA's default CUDA graphs: inside a WHILE graph Warp's renderer stopped the run with CUDA
+    error 906 (the legacy stream made to depend on a capturing stream).
 
     GEMM autotuning stays on: turning it off (`xla_gpu_autotune_level` 0) halved the chunk's
     compile but cost a large part of the training speed (docs/results.md, "DQN on the GPU: what
@@ -147,7 +152,7 @@ def training_compiler_options(platform: str | None = None) -> dict:
     platform = platform or jax.default_backend()
     if platform == "cpu":
         return known_cpu_options(CPU_COMPILER_OPTIONS)
-    if platform != "gpu":
+    if platform != "gpu" or getattr(env, "warp_renders", False):
         return {}
     return {"xla_gpu_enable_command_buffer": GPU_COMMAND_BUFFERS,
             "xla_gpu_command_buffer_scheduling_mode": GPU_COMMAND_BUFFER_SCHEDULING}

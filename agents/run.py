@@ -137,7 +137,7 @@ def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: i
     the training chunk and the evaluation) is most of a warm start."""
     return traced_programs.lower_env_program(program, fn, args, learner.env, env_name, env_options,
                                           extra=key_parts(learner, seeds), donate=donate,
-                                          compiler_options=training_compiler_options())
+                                          compiler_options=training_compiler_options(env=learner.env))
 
 
 def key_parts(learner: Any, seeds: int) -> dict:
@@ -265,7 +265,7 @@ def train_run(
             judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
                                          env_name, env_options, donate=True).compile()
         else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-            options = training_compiler_options()
+            options = training_compiler_options(env=learner.env)
             train_program = _in_background(
                 partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile, options), "train")
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)

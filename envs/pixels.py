@@ -337,7 +337,8 @@ class Pixels(Wrapper):
         self.observation_shape = (height, width, self.channels * frame_stack)
         self.state_observation_size = env.observation_size
         self.depth_range = 2.0 * float(task.mj_model.stat.extent)  # depth at or past it is 255
-        if task.impl == "warp":
+        self.warp_renders = task.impl == "warp"  # the training programs then keep XLA's default CUDA graphs
+        if self.warp_renders:
             self.renderer = WarpRenderer(task, self.cam, width, height, depth)
         else:
             self.renderer = RayRenderer(task, self.cam, width, height)

@@ -257,3 +257,15 @@ def test_a_batch_of_pixel_envs_resets_only_the_envs_that_ended(env, monkeypatch)
     assert envs.BatchedAutoReset(env, 4).reset_by_index
     assert not envs.BatchedAutoReset(env, 4, under_vmap=True).reset_by_index
     assert not envs.BatchedAutoReset(envs.make(ROLLOUT_TASK), 4).reset_by_index
+
+
+def test_programs_that_render_with_warp_keep_xlas_default_cuda_graphs():
+    """Warp's renderer fails inside the WHILE/CONDITIONAL CUDA graphs the training programs use on a GPU."""
+    from agents.device_options import training_compiler_options
+
+    class RendersWithWarp:
+        warp_renders = True
+
+    assert training_compiler_options("gpu", env=RendersWithWarp()) == {}
+    assert "xla_gpu_enable_command_buffer" in training_compiler_options("gpu", env=envs.make(ROLLOUT_TASK))
+    assert not envs.make(ROLLOUT_TASK, observation="pixels", width=2, height=2).warp_renders
