@@ -122,6 +122,21 @@ def _in_background(work: Callable[[], Any], name: str) -> Future:
         pool.shutdown(wait=False)  # its one thread ends with its one task
 
 
+def _right_here(work: Callable[[], Any], name: str) -> Future:
+    """`work()` on this thread, as a finished `Future`: `_in_background`'s stand-in for envs that run
+    MuJoCo Warp. A Warp kernel launched while another thread's XLA autotuner captures a CUDA graph
+    fails (CUDA error 906, the legacy stream made to depend on a capturing stream), which stopped PPO
+    from pixels in its first chunk while its final evaluation's convolutions compiled beside it."""
+    done: Future = Future()
+    done.set_result(work())
+    return done
+
+
+def runs_warp(env: Any) -> bool:
+    """Whether `env`'s physics runs on MuJoCo Warp (impl="warp")."""
+    return getattr(getattr(env, "unwrapped", env), "impl", None) == "warp"
+
+
 def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                    env_options: dict | None, donate: bool = False) -> Callable:
     """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) compiled for `args` with the
@@ -206,6 +221,7 @@ def train_run(
                              wall_s=time.perf_counter() - start, started=False)
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
+        in_background = _right_here if runs_warp(learner.env) else _in_background
 
         def run_inputs():  # the init program's arguments and the final evaluation's keys
             keys, eval_keys = run_keys(seed, seeds)
@@ -218,7 +234,7 @@ def train_run(
             # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
             # a GPU the first allocation, where XLA reserves most of the device's memory: spent while
             # XLA compiles (docs/bench-gpu.json, "dqn-run-inputs").
-            inputs = _in_background(run_inputs, "inputs")
+            inputs = in_background(run_inputs, "inputs")
             init_args, eval_keys = jax.eval_shape(run_inputs)
         else:
             init_args, eval_keys = placement.put(run_inputs())
@@ -232,7 +248,7 @@ def train_run(
         else:  # a run killed before its first checkpoint resumes from the start, as it began
             if placement.mesh is None:
                 traced = init.trace(*init_args)
-                init_program = _in_background(traced.lower().compile, "init")
+                init_program = in_background(traced.lower().compile, "init")
                 ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
             else:
                 ts = init(*init_args)
@@ -260,13 +276,13 @@ def train_run(
             judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
                       + ("" if record_episode else ", no episode recorded"))
             trained = f"{kind}.train_steps over seeds by {seed_axis}"
-            train_program = _in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
+            train_program = in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
                                                         env_options, donate=True).compile, "train")
             judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
                                          env_name, env_options, donate=True).compile()
         else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
             options = training_compiler_options(env=learner.env)
-            train_program = _in_background(
+            train_program = in_background(
                 partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile, options), "train")
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
         train_program = train_program.result()
@@ -280,7 +296,7 @@ def train_run(
         if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
             params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
                                         ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = _in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+            final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
                                                       (params_shape, eval_keys), learner, agents, env_name, env_options),
                                               "evaluation")
 
