@@ -6,7 +6,8 @@
 recipe. Rows are keyed by name only, so a row for a task that is not registered (yet) costs
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default"; without it a
 run on camera images (`--env-opt observation=pixels`) takes the task's "pixels" recipe where it
-has one (`default_preset`).
+has one (`default_preset`), and the task's `PIXEL_ENV_OPTIONS` (e.g. `frame_stack`) where
+`--env-opt` does not give them (`pixel_env_options`).
 
 Where each row comes from:
 - "measured here": run with `mjxsuite train` on a CPU; docs/agents.md has the results.
@@ -37,14 +38,26 @@ _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10
 # Playground's CartpoleBalance vision PPO recipe, for a GPU: its hyperparameters as first
 # published, for dm_control's smooth reward and 1000-step episodes as our cart-pole tasks have
 # (a later revision trains a 250-step variant with another reward); the network (the Nature CNN
-# that PPOConfig's cnn_* default to, two layers of 256) as that later revision has it. Not run
-# here yet: starting points. Two changes: 128 evaluation episodes instead of 1024, so the rendered
+# that PPOConfig's cnn_* default to, two layers of 256) as that later revision has it; the env
+# stacks 3 frames as Playground's does (`PIXEL_ENV_OPTIONS`). Not run here yet with 3 frames:
+# starting points. Two changes: 128 evaluation episodes instead of 1024, so the rendered
 # evaluations stay a small part of the run, and a budget above Playground's 1M steps, room that
 # an untried recipe may need.
 _PLAYGROUND_VISION_PPO = dict(num_timesteps=5_000_000, num_evals=10, reward_scaling=0.1, unroll_length=10,
                               num_minibatches=8, num_updates_per_batch=8, discounting=0.97, learning_rate=5e-4,
                               entropy_cost=5e-3, num_envs=1024, num_eval_envs=128, batch_size=256, max_grad_norm=1.0,
                               policy_hidden=(256, 256), value_hidden=(256, 256))
+# The env options a run on camera images takes by default, per task (`pixel_env_options`): what
+# MuJoCo Playground's CartpoleBalance vision env observes besides the image size (64x64, our
+# default). Its every revision stacks the last 3 frames (mujoco_playground/_src/dm_control_suite/
+# cartpole.py: `vision_config.history=3` in the first, `frame_stack` of 3 grey frames since): one
+# frame shows where the pole and cart are but not how fast they move, and a policy of positions
+# only cannot balance a cart-pole (its closed loop has no damping). With one frame, the recipe
+# ran 5.6M steps on an H200 (impl="warp") and never balanced (returns 290-440, falling).
+PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {
+    "cartpole-balance-mjx": {"frame_stack": 3},
+    "cartpole-swingup-mjx": {"frame_stack": 3},
+}
 _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, learning_rate=1e-3, num_envs=128,
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 
@@ -148,6 +161,14 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 def default_agent(task: str) -> str:
     """The agent a continuous task trains with when --agent is not given."""
     return DEFAULT_AGENT.get(task, "ppo")
+
+
+def pixel_env_options(task: str, options: dict[str, Any]) -> dict[str, Any]:
+    """`options` (the run's `envs.make` overrides) with the task's `PIXEL_ENV_OPTIONS` added where
+    it observes camera images (`observation="pixels"`) and the options do not say otherwise."""
+    if options.get("observation") != "pixels":
+        return options
+    return {**PIXEL_ENV_OPTIONS.get(task, {}), **options}
 
 
 def default_preset(task: str, agent: str, observation: str = "state") -> str:

@@ -185,7 +185,7 @@ def cmd_train(args, extra: list[str]) -> int:
     if args.env is None:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
-    options = env_options.from_args(args.env, args)
+    options = _train_env_options(args)
     agent = _choose_agent(args.env, args.agent, options)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
     config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay,
@@ -193,6 +193,15 @@ def cmd_train(args, extra: list[str]) -> int:
     _say_rounding(config)
     result = _train(args, config, env_options=options)
     return _report(args, config, result)
+
+
+def _train_env_options(args) -> dict:
+    """A new run's `envs.make` overrides: the --env-opt/--impl/--randomize ones, and on camera
+    images the task's own defaults for what they leave out (`brax_defaults.pixel_env_options`:
+    e.g. the frame stack of cartpole-balance-mjx); config.json saves them all."""
+    from agents import brax_defaults
+
+    return brax_defaults.pixel_env_options(args.env, env_options.from_args(args.env, args))
 
 
 def _dqn_preset(preset: str | None) -> DQNConfig:

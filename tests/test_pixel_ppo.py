@@ -87,6 +87,27 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
         _choose_agent(TASK, "sac", PIXELS)
 
 
+def test_pixel_runs_stack_frames_as_playground():
+    """A pixel run of the cart-pole sees the last 3 frames by default, as Playground's vision
+    CartpoleBalance: one frame has no velocities, and with it the recipe never balanced (H200,
+    5.6M steps). --env-opt frame_stack=N still wins; state runs get no pixel options."""
+    import argparse
+
+    from agents.cli import _train_env_options
+
+    def options(*pairs):
+        return _train_env_options(argparse.Namespace(env=TASK, env_opts=list(pairs), impl=None, randomize=[],
+                                                     randomize_per=None))
+
+    given = options("observation=pixels", f"width={SIZE}", f"height={SIZE}")
+    assert given == dict(PIXELS, frame_stack=3)
+    assert image_shape(envs.make(TASK, **given)) == (SIZE, SIZE, 9)
+    assert options("observation=pixels", "frame_stack=1")["frame_stack"] == 1
+    assert options() == {} and options("episode_length=200") == {"episode_length": 200}
+    for task in brax_defaults.PIXEL_ENV_OPTIONS:
+        assert brax_defaults.default_preset(task, "ppo", "pixels") == "pixels"
+
+
 def test_pixel_training_keeps_uint8_frames():
     """PPO's whole training chunk on 8x8 frames, traced (not compiled: the ray-cast camera's step
     takes most of a minute to compile on a CPU; the slow test below runs it): the rollouts hold
