@@ -40,6 +40,7 @@ IDS: dict[str, tuple[str, int]] = {
     "CartPoleMjx-v0": ("cartpole-mjx", 500),
     "AcrobotMjx-v0": ("acrobot-mjx", 500),
     "CartPoleSwingUpMjx-v0": ("cartpole-swingup-mjx", 1000),
+    "CartPoleBalanceMjx-v0": ("cartpole-balance-mjx", 1000),
     "PendulumMjx-v0": ("pendulum-mjx", 200),
     "PendulumMjxDiscrete-v0": ("pendulum-mjx-discrete", 200),
 }
