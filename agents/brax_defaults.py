@@ -53,7 +53,7 @@ _PLAYGROUND_VISION_PPO = dict(num_timesteps=5_000_000, num_evals=10, reward_scal
 # cartpole.py: `vision_config.history=3` in the first, `frame_stack` of 3 grey frames since): one
 # frame shows where the pole and cart are but not how fast they move, and a policy of positions
 # only cannot balance a cart-pole (its closed loop has no damping). With one frame, the recipe
-# ran 5.6M steps on an H200 (impl="warp") and never balanced (returns 290-440, falling).
+# never balanced (docs/bench-gpu.json, "pixels-training").
 PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {
     "cartpole-balance-mjx": {"frame_stack": 3},
     "cartpole-swingup-mjx": {"frame_stack": 3},
