@@ -12,6 +12,16 @@ sweep of `--sweep-configs` configs (a square grid of learning rates x Polyak tau
 agent env-steps/s: env steps summed over every agent, per second of wall time. The ratio is
 each device count's figure over one device's.
 
+`--whole-process` times what a user waits for instead: the whole `mjxsuite train` process
+(start-up, compile, training, the judge, the saves, the final evaluation) with `--out`, its
+defaults and a fresh compilation cache, once per device count, the run given by `--train`:
+
+    python -m benchmarks.scaling --whole-process --devices 1,2,4 --train "--env cartpole --seeds 8192"
+    python -m benchmarks.scaling --whole-process --devices 1,2 --train "--env hopper --agent ppo --impl warp --seeds 8"
+
+The ratio is one device's process seconds over each count's; `linear_share` is that ratio over
+the count (1.0: linear).
+
 Smoke test on a CPU (forced host devices share the cores, so the ratio says nothing there):
 
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python -m benchmarks.scaling --env cartpole \\
@@ -24,7 +34,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shlex
 import sys
+import tempfile
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -32,6 +45,7 @@ import numpy as np
 from agents.cli import config_from_args
 from agents.dqn import DQNConfig
 from agents.run import train_run
+from benchmarks.end_to_end import _OUR_PROGRAM, _environment, _run, wall_parts
 
 
 def sweep_grid(configs: int) -> dict[str, list[float]]:
@@ -53,6 +67,31 @@ def throughput(env: str, config: DQNConfig, seeds: int, devices: int, chunks: in
             "agent_steps_per_s": float(np.median([h["steps_per_s"] for h in result.history[1:]]))}
 
 
+def whole_process(train_args: str, devices: int, timeout: float) -> dict:
+    """`mjxsuite train TRAIN_ARGS --devices K --out D` as one fresh process, timed from start to exit."""
+    with tempfile.TemporaryDirectory(prefix="scaling-") as tmp:
+        command = ["train", *shlex.split(train_args), "--devices", str(devices), "--out", f"{tmp}/run", "--overwrite"]
+        done, wall = _run([sys.executable, "-c", _OUR_PROGRAM, *command], timeout,
+                          _environment(cache=Path(tmp) / "jax-cache"))
+        summary = json.loads((Path(tmp) / "run" / "eval.json").read_text())
+    return {"lib": "mjxsuite", "kind": "whole-process-scaling", "command": "mjxsuite " + " ".join(command[:-3]),
+            "devices": devices, "process_s": wall, "parts_s": wall_parts(done.stdout.strip().splitlines()[-1]),
+            "agents": len(summary["mean_return"]), "median_return": float(np.median(summary["mean_return"]))}
+
+
+def whole_process_scaling(train_args: str, counts: list[int], timeout: float) -> list[dict]:
+    records = []
+    for devices in counts:
+        record = whole_process(train_args, devices, timeout)
+        one = records[0] if records else record
+        record["ratio_to_one_device"] = one["process_s"] / record["process_s"]
+        record["linear_share"] = record["ratio_to_one_device"] / devices
+        records.append(record)
+        print(f"{devices} device(s): {record['process_s']:7.1f} s whole process, {record['ratio_to_one_device']:.2f}x "
+              f"one device ({record['linear_share']:.2f} of linear); {record['parts_s']}", flush=True)
+    return records
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.scaling", description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", default="cartpole-mjx")
@@ -62,7 +101,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--devices", help="comma-separated device counts (default: 1 and all local devices)")
     parser.add_argument("--chunks", type=int, default=3, help="timed chunks after the first (default %(default)s)")
     parser.add_argument("--json", metavar="FILE", help="write the records (a JSON list) to FILE")
+    parser.add_argument("--whole-process", action="store_true",
+                        help="time whole `mjxsuite train --train ... --devices K --out D` processes instead")
+    parser.add_argument("--train", default="--env cartpole --seeds 8192", help="the run of --whole-process")
+    parser.add_argument("--timeout", type=float, default=1800.0, help="seconds allowed to each --whole-process run")
     args, extra = parser.parse_known_args(argv)
+    if args.whole_process:
+        counts = [int(k) for k in args.devices.split(",")] if args.devices else [1, jax.local_device_count()]
+        if counts[0] != 1:
+            raise SystemExit(f"--devices must start with 1 (the baseline of the ratio), got {args.devices}")
+        records = whole_process_scaling(args.train, counts, args.timeout)
+        if args.json:
+            Path(args.json).write_text(json.dumps(records, indent=2))
+        return 0
     config = config_from_args(DQNConfig(), extra)  # --FIELD VALUE, as mjxsuite train takes them
     counts = [int(k) for k in args.devices.split(",")] if args.devices else sorted({1, jax.local_device_count()})
     workloads = [("seeds", args.seeds, None), ("sweep", args.sweep_seeds, sweep_grid(args.sweep_configs))]
