@@ -8,7 +8,10 @@ A run directory (`mjxsuite train --out DIR`) holds:
   everything an exact resume needs;
 - best_params.msgpack: the best parameters of each seed and their greedy returns (eval, rollout);
 - metrics.jsonl: one record per chunk (its training steps, then an evaluation); progress.json:
-  chunks done and best returns, for people.
+  chunks done and best returns, for people;
+- processes.json, for a run trained by several processes (`agents.processes`): which run
+  directory under processes/ holds which seeds; the two msgpack files then live there, and
+  `load_best_params` and `load_best_returns` read every seed from them.
 
 Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
 kill at any moment leaves the previous complete file. Each msgpack file is self-contained (its
@@ -36,6 +39,7 @@ STATE_FILE = "train_state.msgpack"
 POLICY_FILE = "best_params.msgpack"
 PROGRESS_FILE = "progress.json"
 METRICS_FILE = "metrics.jsonl"
+PROCESSES_FILE = "processes.json"
 FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
 
 
@@ -54,6 +58,14 @@ class SavedRun(NamedTuple):
     sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
     agent: str = "dqn"
     judge_every: int | None = None  # chunks between greedy judges; None: by the time budget (`run_steps.JudgeClock`)
+    # (start, stop): this directory trains seeds start..stop-1 of the `seeds` (one process of several,
+    # `agents.processes`), with the keys the whole run gives them; None: every seed
+    seed_slice: tuple[int, int] | None = None
+
+    @property
+    def trained_seeds(self) -> int:
+        """The seeds this directory trains (its train state's leading axis, per config)."""
+        return self.seeds if self.seed_slice is None else self.seed_slice[1] - self.seed_slice[0]
 
 
 def check_writable(out_dir: str | os.PathLike) -> Path:
@@ -71,7 +83,7 @@ def check_writable(out_dir: str | os.PathLike) -> Path:
     return out
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def atomic_write(path: Path, data: bytes) -> None:
     """Write a temporary file, flush it to disk, then rename it over `path`: a kill or a full
     disk at any moment leaves the previous `path` whole."""
     tmp = path.with_name(path.name + ".tmp")
@@ -91,7 +103,7 @@ def _atomic_write(path: Path, data: bytes) -> None:
 def start_run(out_dir: Path, run: SavedRun) -> None:
     """Write config.json for a new run, first removing the checkpoint an earlier run left in
     `out_dir`: a resume must never continue a run other than this one."""
-    for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json"):
+    for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json", PROCESSES_FILE):
         (out_dir / stale).unlink(missing_ok=True)
     record = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "seed": run.seed,
               "env_options": run.env_options or {}, "config": dataclasses.asdict(run.config)}
@@ -99,7 +111,9 @@ def start_run(out_dir: Path, run: SavedRun) -> None:
         record["sweep"] = run.sweep
     if run.judge_every is not None:
         record["judge_every"] = run.judge_every
-    _atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
+    if run.seed_slice is not None:
+        record["seed_slice"] = list(run.seed_slice)
+    atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
 
 
 def load_config(out_dir: str | os.PathLike) -> SavedRun:
@@ -110,8 +124,9 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
         record = json.loads(path.read_text())
         agent = record.get("agent", "dqn")  # runs from before PPO and SAC existed are DQN's
         config = config_from_record(registry.config_class(agent), record["config"])
+        seed_slice = tuple(record["seed_slice"]) if record.get("seed_slice") is not None else None
         return SavedRun(record["env"], record["seeds"], config, record.get("env_options", {}),
-                        record.get("seed", 0), record.get("sweep"), agent, record.get("judge_every"))
+                        record.get("seed", 0), record.get("sweep"), agent, record.get("judge_every"), seed_slice)
     except (ValueError, KeyError, TypeError) as err:  # json's errors are ValueErrors
         raise CheckpointError(f"{path} is damaged or was written by another mjxsuite version "
                               f"({type(err).__name__}: {err}); restore it or start a new run") from err
@@ -236,10 +251,10 @@ def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int) -> N
     files one save apart, each whole: a resume reads only the train state (with its own
     chunk count) and rewrites the policy file at its next save."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
-    _atomic_write(out_dir / POLICY_FILE, _pack("best_params", train_state.best_params,
+    atomic_write(out_dir / POLICY_FILE, _pack("best_params", train_state.best_params,
                                                {"env": env, "best_return": best_return}))
-    _atomic_write(out_dir / STATE_FILE, _pack("train_state", train_state, {"env": env, "chunks_done": chunks_done}))
-    _atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
+    atomic_write(out_dir / STATE_FILE, _pack("train_state", train_state, {"env": env, "chunks_done": chunks_done}))
+    atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
 
 
 def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any, int]:
@@ -248,8 +263,24 @@ def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any
     return _unflatten(path, record, template, RESUME_FIX), int(record["meta"]["chunks_done"])
 
 
+def process_dirs(out_dir: str | os.PathLike) -> list[tuple[Path, tuple[int, int]]] | None:
+    """The run directories of a run trained by several processes, each with the seeds (start,
+    stop) it trains, in seed order (processes.json); None for a run trained by one."""
+    path = Path(out_dir) / PROCESSES_FILE
+    if not path.is_file():
+        return None
+    try:
+        return [(Path(out_dir) / entry["directory"], tuple(entry["seed_slice"]))
+                for entry in json.loads(path.read_text())["processes"]]
+    except (ValueError, KeyError, TypeError) as err:
+        raise CheckpointError(f"{path} is damaged ({type(err).__name__}: {err}); restore it or start a new run") from err
+
+
 def load_best_returns(out_dir: str | os.PathLike) -> list[float]:
     out = Path(out_dir)
+    parts = process_dirs(out)
+    if parts is not None:
+        return [value for directory, _ in parts for value in load_best_returns(directory)]
     return _read(out / POLICY_FILE, "best_params", load_config(out).env, POLICY_FIX)["meta"]["best_return"]
 
 
@@ -267,7 +298,15 @@ def best_seed(out_dir: str | os.PathLike) -> int:
 
 
 def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:
+    """The best parameters of every seed, shaped like `template` (leading seed axis); a run of
+    several processes gathers them from each process's directory, in seed order."""
     out = Path(out_dir)
+    parts = process_dirs(out)
+    if parts is not None:
+        loaded = [load_best_params(directory, jax.tree.map(lambda t: jax.ShapeDtypeStruct((stop - start, *t.shape[1:]),
+                                                                                         t.dtype), template))
+                  for directory, (start, stop) in parts]
+        return jax.tree.map(lambda *slices: np.concatenate(slices), *loaded)
     path = out / POLICY_FILE
     return _unflatten(path, _read(path, "best_params", load_config(out).env, POLICY_FIX), template, POLICY_FIX)
 
@@ -278,7 +317,7 @@ def keep_metrics(out_dir: Path, chunks_done: int) -> None:
     as an uninterrupted run's (timings aside)."""
     path = out_dir / METRICS_FILE
     lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
-    _atomic_write(path, "".join(lines[:chunks_done]).encode())
+    atomic_write(path, "".join(lines[:chunks_done]).encode())
 
 
 def check_resumable(out_dir: Path, run: SavedRun) -> None:

@@ -178,21 +178,73 @@ def _require_registered(env_name: str) -> None:
 
 
 def cmd_train(args, extra: list[str]) -> int:
+    from agents import checkpoint, processes
+
     if args.resume:
         saved = _saved_run(args, extra, sweep=False)
-        result = _train(args, saved.config, resume=True, env_options=saved.env_options)
+        parts = checkpoint.process_dirs(args.out)
+        if parts is None and args.processes not in (None, 1):
+            raise UsageError(f"--processes {args.processes}: {args.out} holds a run of one process; resume it without")
+        if parts is None:
+            result = _train(args, saved.config, resume=True, env_options=saved.env_options, seed_slice=saved.seed_slice)
+        else:
+            if args.processes not in (None, len(parts)):
+                raise UsageError(f"--processes {args.processes}: {args.out} holds a run of {len(parts)} processes; "
+                                 "resume it without --processes")
+            result = _train_in_processes(args, saved, fresh=False)
         return _report(args, saved.config, result)
     if args.env is None:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
     _require_registered(args.env)
     options = _train_env_options(args)
-    agent = _choose_agent(args.env, args.agent, options)
     args.seeds, args.seed = args.seeds or 1, args.seed or 0
+    gpus = processes.local_gpus()
+    count = processes.count(args.env, args.seeds, args.devices, args.processes, gpus)
+    if count > 1:
+        processes.keep_off_the_gpus(gpus)  # before _choose_agent makes the env (JAX's backend starts there)
+    agent = _choose_agent(args.env, args.agent, options)
     config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay,
                            observation=options.get("observation", "state"))
     _say_rounding(config)
-    result = _train(args, config, env_options=options)
+    if count > 1:
+        run = checkpoint.SavedRun(args.env, args.seeds, config, options, args.seed, None, agent, args.judge_every)
+        result = _train_in_processes(args, run, fresh=True, count=count, gpus=gpus)
+    else:
+        result = _train(args, config, env_options=options)
     return _report(args, config, result)
+
+
+def _train_in_processes(args, run, fresh: bool, count: int = 0, gpus: list[str] | None = None):
+    """The run's seeds trained by child processes, one per GPU (`agents.processes`): a new run
+    (`fresh`, `count` processes) or the one `args.out` holds. Without --out the children write
+    to a temporary directory, removed at the end."""
+    import contextlib
+    import tempfile
+
+    from agents import processes
+
+    for flag, given in (("--rerun", args.rerun), ("--distributed", args.distributed)):
+        if given:
+            raise UsageError(f"{flag} runs in one process; training in several processes (one per GPU) takes "
+                             f"none: drop {flag}, or add --devices 1")
+    if gpus is None:
+        gpus = processes.local_gpus()
+        processes.keep_off_the_gpus(gpus)
+    options = ["--checkpoint-every", str(args.checkpoint_every), "--checkpoint-seconds", str(args.checkpoint_seconds)]
+    options += ["--judge-every", str(args.judge_every)] if args.judge_every is not None else []
+    options += ["--no-compile-cache"] if args.no_compile_cache else []
+    options += ["--deterministic"] if args.deterministic else []
+    for module in args.imports:
+        options += ["--import", str(Path(module).resolve()) if module.endswith(".py") else module]
+    with tempfile.TemporaryDirectory(prefix="mjxsuite-") if args.out is None else contextlib.nullcontext() as temporary:
+        out = Path(args.out or temporary)
+        if fresh:
+            print(f"training {run.seeds} seeds in {count} processes, one per "
+                  + (f"GPU ({', '.join(gpus[:count])})" if len(gpus) >= count else "device")
+                  + f" (docs/scaling.md){'' if args.out else '; no --out: their files are removed at the end'}",
+                  flush=True)
+            processes.start(out, run, count, args.overwrite)
+        return processes.train(out, run, run.config.num_chunks, options, gpus)
 
 
 def _train_env_options(args) -> dict:
@@ -330,6 +382,9 @@ def wall_line(result) -> str:
 
 
 def _report_devices(result) -> None:
+    if result.processes > 1:
+        print(f"trained in {result.processes} processes, one device each")
+        return
     import jax
 
     available = jax.device_count() if jax.process_count() > 1 else jax.local_device_count()
@@ -538,7 +593,8 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
 
     spread = argparse.ArgumentParser(add_help=False)
     spread.add_argument("--devices", type=ranged(int, COUNT),
-                        help="local devices to spread the agents over (default: all that split them evenly)")
+                        help="local devices to spread the agents over (default: all that split them evenly); "
+                             "an MJX task's `train` on several GPUs runs one process per device (see --processes)")
     spread.add_argument("--deterministic", action="store_true",
                         help="bit-for-bit repeatable runs: XLA's deterministic ops on a GPU (also "
                              "MJXSUITE_DETERMINISTIC=1) and, without --judge-every, a judge after every chunk; "
@@ -547,7 +603,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                         help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
                              "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
 
-    from agents import registry
+    from agents import processes, registry
 
     train = sub.add_parser("train", help="train DQN, PPO or SAC (--agent), many seeds at once; any field of the "
                                          "agent's config can be set with --FIELD VALUE", parents=[cached, tasks, spread],
@@ -583,6 +639,11 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                        help="judge the greedy policy (keep the best parameters, find the solve step) every CHUNKS "
                             "chunks and after the last (default: as often as keeps judging within "
                             f"{100 * JUDGE_BUDGET:g}%% of the run's time)")
+    train.add_argument("--processes", type=ranged(int, COUNT), metavar="K",
+                        help="train the seeds in K child processes, each an ordinary one-device run of its share "
+                             "(one GPU each, in turn; on a CPU each uses the CPU), merged into --out (default: "
+                             "for an MJX task on a host with several GPUs, as many as --devices says; else 1; "
+                             f"also {processes.PROCESSES_ENV}=K; docs/scaling.md)")
     train.add_argument("--rerun", metavar="FILE.rrd", help="log training curves and greedy rollouts to a Rerun file")
     train.add_argument("--overwrite", action="store_true",
                        help="replace the run that --out holds (else refused: --resume continues it) "
@@ -649,6 +710,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
                 **{name: command.run for name, command in more.items()}}
     handler = handlers[args.command]
     from agents.checkpoint import CheckpointError
+    from agents.processes import ProcessFailed
     from envs.mjx_warp import WarpUnavailable  # not envs.mjx_env: that loads mujoco.mjx (start-up time)
 
     from agents import signals
@@ -683,7 +745,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     except WarpUnavailable as err:
         print(f"mjxsuite: --impl warp: {err}", file=sys.stderr)
         return 2
-    except (CheckpointError, OSError) as err:
+    except (CheckpointError, OSError, ProcessFailed) as err:
         print(f"mjxsuite: {err}", file=sys.stderr)
         return 1
 

@@ -68,6 +68,7 @@ class RunResult:
     chunk_unit: str = "chunks"
     started: bool = True  # False: stopped by a signal before the run touched its directory
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
+    processes: int = 1  # processes that trained them, one device each (`agents.processes`)
     best_seed: int = 0  # the seed `load_policy` acts with (`break_ties`)
 
 
@@ -184,6 +185,7 @@ def train_run(
     sweep: dict[str, list[float]] | None = None,  # a grid over the agent's SWEEPABLE fields: every config x `seeds`
     overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
     judge_every: int | None = None,  # judge every this many chunks; None: within run_steps.JUDGE_BUDGET of the time
+    seed_slice: tuple[int, int] | None = None,  # (start, stop): train only these of the `seeds` (`agents.processes`)
 ) -> RunResult:
     """Train `seeds` agents (DQN, PPO or SAC, as `config` says) on `env_name` at once; see
     docs/training.md for the files written to `out_dir`.
@@ -195,23 +197,34 @@ def train_run(
     The agents (seeds, or with `sweep` every config of the grid times `seeds`, config-major:
     agent `c * seeds + s` is config c with seed s's key) are spread over `devices` devices
     (`agents.sharding`; in a multi-host run every device of every process). One device runs
-    the same program as ever; several give every agent the same result."""
+    the same program as ever; several give every agent the same result.
+
+    With `seed_slice` (start, stop) the run trains seeds start..stop-1 of `seeds`, each with the
+    keys a run of all `seeds` gives it, so it ends as that run's seeds do: `agents.processes`
+    trains a run's seeds in several processes this way."""
     with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
         start = time.perf_counter()
         COUNT.check("seeds", seeds)
+        first, stop_seed = seed_slice or (0, seeds)
+        if not 0 <= first < stop_seed <= seeds:
+            raise ValueError(f"seed_slice {seed_slice} must be (start, stop) with 0 <= start < stop <= seeds ({seeds})")
+        if seed_slice is not None and sweep:
+            raise ValueError("seed_slice trains part of a train run's seeds; a sweep runs in one process")
+        trained_seeds = stop_seed - first
         clock = run_steps.SaveClock(checkpoint_every, checkpoint_seconds)
         if resume and judge_every is None and out_dir is not None and (Path(out_dir) / checkpoint.CONFIG_FILE).is_file():
             judge_every = checkpoint.load_config(out_dir).judge_every  # the run's own cadence
         judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
         sweep = sweep or None
         configs = sweep_configs(config, sweep)
-        agents = seeds * len(configs)
+        agents = trained_seeds * len(configs)
         env = envs.make(env_name, **(env_options or {}))
         mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
-        placement = sharding.Placement(sharding.choose_devices(seeds, devices, configs=len(configs), mjx_task=mjx_task))
+        placement = sharding.Placement(sharding.choose_devices(trained_seeds, devices, configs=len(configs), mjx_task=mjx_task))
         writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
         agent = registry.name_of(config)
-        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent, judge_every)
+        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent, judge_every,
+                                  None if seed_slice is None else tuple(seed_slice))
         out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
         # a signal while the command started: nothing to compile
         if placement.same_on_every_process(stop.requested is not None):
@@ -225,8 +238,8 @@ def train_run(
 
         def run_inputs():  # the init program's arguments and the final evaluation's keys
             keys, eval_keys = run_keys(seed, seeds)
-            if sweep is None:
-                return (keys,), eval_keys
+            if sweep is None:  # every seed's keys made, these seeds' kept: the same keys whatever the slice
+                return (keys[first:stop_seed],), eval_keys[first:stop_seed]
             return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
 
         inputs = None  # on one device the inputs are made on another thread while the programs compile
@@ -397,7 +410,7 @@ def train_run(
         result.eval_s = time.perf_counter() - eval_start
         result.finish(start)
         if writer:
-            run_steps.write_eval(out, {"agent": agent, "env": env_name, "seeds": seeds, "best_seed": result.best_seed,
+            run_steps.write_eval(out, {"agent": agent, "env": env_name, "seeds": trained_seeds, "best_seed": result.best_seed,
                                     "mean_return": result.mean_return,
                                     "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                                     "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
@@ -461,7 +474,7 @@ def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, e
     saved = checkpoint.load_config(out_dir)
     env = env or checkpoint.saved_env(out_dir)[1]
     agent = registry.make(saved.config, env)
-    agents = saved.seeds * len(sweep_configs(saved.config, saved.sweep))
+    agents = saved.trained_seeds * len(sweep_configs(saved.config, saved.sweep))
     template = jax.eval_shape(jax.vmap(agent.init), seed_keys(0, agents)).best_params
     return saved.env, env, agent, checkpoint.load_best_params(out_dir, template)
 

@@ -56,8 +56,10 @@ def is_writer() -> bool:
 # Seen with jax 0.11.2 on two GPUs (docs/upstream-two-gpu-mjx.md): XLA's GPU compiler
 # segfaults compiling a batched MJX step under shard_map over two GPUs (`benchmarks.two_gpu_mjx`
 # reproduces it; the same env's reset, a batched Cholesky and the analytic CartPole compile fine).
+# So `mjxsuite train` spreads an MJX task's seeds over GPUs as one process per GPU (`agents.processes`).
 MJX_OVER_GPUS = ("an MJX task's step, spread over several GPUs in one program, crashes XLA's GPU compiler "
-                 "(a segmentation fault; docs/scaling.md)")
+                 "(a segmentation fault; docs/scaling.md), so an MJX task takes one GPU per process: "
+                 "`mjxsuite train` starts one process per GPU")
 
 
 def choose_devices(seeds: int, devices: int | None = None, configs: int = 1, mjx_task: str | None = None) -> list:
@@ -66,18 +68,18 @@ def choose_devices(seeds: int, devices: int | None = None, configs: int = 1, mjx
     over them, else the most that do, so one seed still runs on a machine with several GPUs).
     ValueError when they do not split evenly, naming the --seeds that would. An MJX task
     (`mjx_task`, its name) stays on one GPU: by default with a warning, refused when asked for more
-    (`MJX_OVER_GPUS`)."""
+    (`MJX_OVER_GPUS`; `mjxsuite train` runs one process per GPU instead, `agents.processes`)."""
     multi_host = jax.process_count() > 1
     available = jax.devices() if multi_host else jax.local_devices()
     agents = configs * seeds
     if mjx_task and len(available) > 1 and available[0].platform == "gpu":
         if multi_host or (devices or 1) > 1:
             asked = "a multi-host run" if multi_host else f"--devices {devices}"
-            raise ValueError(f"{asked}: {MJX_OVER_GPUS}, so {mjx_task} trains on one GPU per process: use "
-                             "--devices 1, or one process per GPU (CUDA_VISIBLE_DEVICES=0, 1, ...) with its own --out")
+            raise ValueError(f"{asked}: {MJX_OVER_GPUS}; {mjx_task} trains on one GPU per process: use "
+                             "--devices 1, or `mjxsuite train` (not sweep) for one process per GPU")
         if devices is None:
-            warnings.warn(f"{mjx_task}: training on 1 of {len(available)} GPUs: {MJX_OVER_GPUS}; run one process "
-                          "per GPU (CUDA_VISIBLE_DEVICES) to use the others", stacklevel=2)
+            warnings.warn(f"{mjx_task}: training on 1 of {len(available)} GPUs: {MJX_OVER_GPUS} (a sweep, or "
+                          "train_run called directly, runs in this one)", stacklevel=2)
             devices = 1
 
     def splitting(count: int) -> list[int]:  # device counts up to `count` that split the agents evenly
@@ -91,14 +93,19 @@ def choose_devices(seeds: int, devices: int | None = None, configs: int = 1, mjx
     elif not 1 <= devices <= len(available):
         raise ValueError(f"--devices must be between 1 and the {len(available)} local devices, got {devices}")
     if agents % devices:
-        fitting = [n for n in range(1, 2 * seeds + devices + 1) if configs * n % devices == 0]
-        near = sorted(fitting, key=lambda n: abs(n - seeds))[:2]
         what = f"{seeds} seeds" if configs == 1 else f"{configs} configs x {seeds} seeds"
-        fix = f"--seeds {' or '.join(map(str, sorted(near)))}"
+        fix = seeds_that_split(seeds, devices, configs)
         if not multi_host:
             fix += f", or --devices {max(splitting(devices))}"
         raise ValueError(f"{what} do not split evenly over {devices} devices: use {fix}")
     return available[:devices]
+
+
+def seeds_that_split(seeds: int, parts: int, configs: int = 1) -> str:
+    """The two --seeds nearest `seeds` whose agents split evenly into `parts`, e.g. "--seeds 4 or 8"."""
+    fitting = [n for n in range(1, 2 * seeds + parts + 1) if configs * n % parts == 0]
+    near = sorted(fitting, key=lambda n: abs(n - seeds))[:2]
+    return f"--seeds {' or '.join(map(str, sorted(near)))}"
 
 
 class Placement:

@@ -100,3 +100,43 @@ class StopSignals:
     def name(self) -> str | None:
         """The first signal's name ("SIGINT", "SIGTERM"), None before any."""
         return None if self.requested is None else signal.Signals(self.requested).name
+
+
+class ForwardSignals:
+    """While active, SIGINT and SIGTERM are passed on to the child processes `children()` returns
+    (`subprocess.Popen`s) instead of stopping this one: `agents.processes`'s children are runs
+    that stop and save on a first signal and exit at once on a second (`StopSignals`), so each
+    signal this process gets reaches each child exactly once. `requested`: the first signal's
+    number (one that came before, during the imports, included)."""
+
+    def __init__(self, children):
+        self.children = children
+        self.requested: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _handle(self, signum, frame) -> None:
+        again = self.requested is not None
+        self.requested = self.requested or signum
+        os.write(2, f"\n{signal.Signals(signum).name}{' again' if again else ''}: passed on to the training "
+                    f"processes ({'they exit now, without saving' if again else 'they stop and save'})\n".encode())
+        for child in self.children():
+            if child.poll() is None:
+                child.send_signal(signum)
+
+    def __enter__(self) -> "ForwardSignals":
+        global _pending
+        self.requested, _pending = _pending, None
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    @property
+    def name(self) -> str | None:
+        """The first signal's name ("SIGINT", "SIGTERM"), None before any."""
+        return None if self.requested is None else signal.Signals(self.requested).name

@@ -110,6 +110,12 @@ def is_mjx_task(env: Env) -> bool:
     return mjx_env is not None and isinstance(env.unwrapped, mjx_env)
 
 
+def makes_mjx_task(name: str) -> bool:
+    """Whether `make(name)` builds an MJX task, known without building it: making an MJX task puts
+    its model on a device, which starts JAX's backend (`agents.processes` asks before it may)."""
+    return _makes_mjx_env(_lookup(name)[0])
+
+
 def _makes_mjx_env(factory: Callable[..., Env]) -> bool:
     """Whether `factory` is an MjxEnv subclass (or a functools.partial of one)."""
     mjx_env = _loaded_mjx_env()

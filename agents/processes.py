@@ -1,0 +1,260 @@
+"""Seeds of a run trained by several processes, one per GPU, started by `mjxsuite train` itself.
+
+Why processes: XLA's GPU compiler crashes compiling a batched MJX step spread over several GPUs in
+one program (`agents.sharding.MJX_OVER_GPUS`, docs/upstream-two-gpu-mjx.md). Each child here is an
+ordinary one-device `mjxsuite train` that sees one GPU (CUDA_VISIBLE_DEVICES), so it compiles the
+program every one-GPU run compiles and nothing multi-device is ever compiled. The seeds never talk
+to each other, so nothing is lost by keeping them apart.
+
+The run directory D (`--out`) stays the user's one run:
+
+    D/config.json       the whole run (every seed), as a one-process run writes it
+    D/processes.json    which directory trains which seeds (`agents.checkpoint.process_dirs`)
+    D/processes/K/      an ordinary run directory of seeds start..stop-1, trained with the keys the
+                        whole run gives them (`train_run`'s `seed_slice`), and log.txt, its output
+    D/eval.json         written when every process finished: one row per seed, in seed order
+
+`load_policy`, `mjxsuite eval` and `rollout` read every seed's parameters from the processes'
+directories (`agents.checkpoint.load_best_params`); `mjxsuite train --out D --resume` resumes each
+unfinished process in its own directory, exactly, as every run resumes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+from agents import checkpoint, run_steps, sharding, signals
+
+PROCESSES_DIR = "processes"
+LOG_FILE = "log.txt"
+PROGRESS_SECONDS = 10.0  # between the parent's lines of progress
+# The environment's variable that asks for N processes where --processes is not given (e.g. in a
+# job script); `--processes` wins.
+PROCESSES_ENV = "MJXSUITE_PROCESSES"
+
+
+class ProcessFailed(Exception):
+    """A child process failed: the command exits 1, naming it and its log."""
+
+
+class Child(NamedTuple):
+    index: int
+    directory: Path
+    seed_slice: tuple[int, int]
+    gpu: str | None  # CUDA_VISIBLE_DEVICES for it; None: the environment's as it is (a CPU)
+
+    def describe(self) -> str:
+        start, stop = self.seed_slice
+        seeds = f"seed {start}" if stop - start == 1 else f"seeds {start}-{stop - 1}"
+        return f"process {self.index} ({seeds}{'' if self.gpu is None else f', GPU {self.gpu}'})"
+
+
+def local_gpus() -> list[str]:
+    """This host's NVIDIA GPUs as CUDA_VISIBLE_DEVICES names them, found without starting JAX's
+    backend: a started backend would hold memory on every GPU while the children train there.
+    Empty where JAX_PLATFORMS leaves CUDA out or no NVIDIA driver answers."""
+    platforms = os.environ.get("JAX_PLATFORMS", "")
+    if platforms and not any(name in platforms for name in ("cuda", "gpu")):
+        return []
+    visible = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if visible is not None:
+        return [name.strip() for name in visible.split(",") if name.strip() not in ("", "-1")]
+    try:
+        listed = subprocess.run(["nvidia-smi", "--list-gpus"], capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return []
+    count = sum(line.startswith("GPU ") for line in listed.stdout.splitlines()) if listed.returncode == 0 else 0
+    return [str(i) for i in range(count)]
+
+
+def count(env_name: str, seeds: int, devices: int | None, processes: int | None, gpus: list[str]) -> int:
+    """How many processes train a new run's seeds: `processes` when given (any task, also on a CPU);
+    for an MJX task on a host with several GPUs, `devices` (None: as many GPUs as split the seeds
+    evenly, the rule of `agents.sharding.choose_devices`); else 1: this process trains them, as ever.
+    ValueError when the seeds do not split, naming the option, its value and the fix."""
+    from envs.registry import makes_mjx_task
+
+    if processes is None and os.environ.get(PROCESSES_ENV):
+        processes = int(os.environ[PROCESSES_ENV])
+    if processes is not None:
+        if processes > 1 and devices not in (None, 1):
+            raise ValueError(f"--processes {processes} gives each process one device; drop --devices {devices}")
+        option, asked = "--processes", processes
+    elif makes_mjx_task(env_name) and len(gpus) > 1:
+        if devices is not None and devices > len(gpus):
+            raise ValueError(f"--devices must be between 1 and the {len(gpus)} local GPUs, got {devices}")
+        option, asked = "--devices", devices or max(k for k in range(1, len(gpus) + 1) if seeds % k == 0)
+    else:
+        return 1
+    if seeds % asked:
+        fix = max(k for k in range(1, asked + 1) if seeds % k == 0)
+        raise ValueError(f"{option} {asked}: {seeds} seeds do not split evenly over {asked} processes (one per GPU): "
+                         f"use {sharding.seeds_that_split(seeds, asked)}, or {option} {fix}")
+    return asked
+
+
+def keep_off_the_gpus(gpus: list[str]) -> None:
+    """This (the parent) process's JAX on the first GPU only, taking memory as it needs it: it makes
+    the env once to check the command, and breaks ties between seeds at the end, beside the children
+    that train there. Must run before JAX starts its backend."""
+    if gpus:
+        os.environ["CUDA_VISIBLE_DEVICES"] = gpus[0]
+        os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+
+
+def children_of(out: Path, gpus: list[str]) -> list[Child]:
+    """The processes of the run in `out` (processes.json), each given a GPU in turn (several share
+    one where there are fewer GPUs than processes; none on a CPU)."""
+    return [Child(index, directory, seed_slice, gpus[index % len(gpus)] if gpus else None)
+            for index, (directory, seed_slice) in enumerate(checkpoint.process_dirs(out))]
+
+
+def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) -> None:
+    """A new run in `out` for `processes` processes: its config.json, each process's own run
+    directory (config.json with its `seed_slice`) and processes.json. Checked as a one-process
+    run's directory is (`run_steps.open_run_dir`)."""
+    run_steps.open_run_dir(out, run, resume=False, writer=True, overwrite=overwrite)
+    shutil.rmtree(out / PROCESSES_DIR, ignore_errors=True)  # an overwritten run's processes
+    checkpoint.start_run(out, run)
+    per_process = run.seeds // processes
+    entries = []
+    for index in range(processes):
+        seed_slice = (index * per_process, (index + 1) * per_process)
+        directory = Path(PROCESSES_DIR) / str(index)
+        (out / directory).mkdir(parents=True)
+        checkpoint.start_run(out / directory, run._replace(seed_slice=seed_slice))
+        entries.append({"directory": str(directory), "seed_slice": list(seed_slice)})
+    checkpoint.atomic_write(out / checkpoint.PROCESSES_FILE, json.dumps({"processes": entries}, indent=2).encode())
+
+
+def child_command(child: Child, options: list[str]) -> list[str]:
+    """The child's `mjxsuite train`: --resume of its own directory (which start() wrote, or an
+    earlier run left), on one device."""
+    script = "import sys; from agents.console import main; sys.exit(main())"
+    return [sys.executable, "-c", script, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
+
+
+def child_environment(child: Child) -> dict[str, str]:
+    env = dict(os.environ)
+    if child.gpu is not None:
+        env["CUDA_VISIBLE_DEVICES"] = child.gpu
+    # mjxsuite as this process imported it (a checkout too), and no second round of processes
+    package_root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
+    env.pop(PROCESSES_ENV, None)
+    return env
+
+
+def finished(child: Child) -> bool:
+    return (child.directory / "eval.json").is_file()
+
+
+def chunks_done(child: Child) -> int:
+    """Chunks (PPO/SAC: evaluations) the child has done: its metrics.jsonl's lines."""
+    try:
+        with open(child.directory / checkpoint.METRICS_FILE, "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return 0
+
+
+def run_children(children: list[Child], options: list[str], total_chunks: int) -> tuple[dict[int, int], str | None]:
+    """Start the unfinished children, pass signals on to them, say how they progress, and wait
+    for them all: (exit status by child index, the name of the signal that stopped the run)."""
+    pending = [child for child in children if not finished(child)]
+    running: dict[int, subprocess.Popen] = {}
+    statuses: dict[int, int] = {child.index: 0 for child in children if finished(child)}
+    with signals.ForwardSignals(lambda: list(running.values())) as forwarding:
+        if forwarding.requested is not None:  # a signal during the imports: nothing started
+            return statuses, forwarding.name
+        for child in pending:
+            log = open(child.directory / LOG_FILE, "a")
+            # A session of its own: a Ctrl-C in the terminal reaches this process alone, which passes
+            # it on once; sent to the whole group it would reach each child twice (the second exits
+            # without saving).
+            running[child.index] = subprocess.Popen(child_command(child, options), stdout=log, stderr=subprocess.STDOUT,
+                                                    env=child_environment(child), start_new_session=True)
+            log.close()
+            print(f"{child.describe()}: training, log {child.directory / LOG_FILE}", flush=True)
+        said, last_said = "", time.monotonic()
+        while running:
+            time.sleep(0.2)
+            for index, process in list(running.items()):
+                if process.poll() is not None:
+                    statuses[index] = running.pop(index).returncode
+                    child = children[index]
+                    print(f"{child.describe()}: " + ("done" if process.returncode == 0 else
+                                                     f"exited with status {process.returncode}"), flush=True)
+            if running and time.monotonic() - last_said >= PROGRESS_SECONDS:
+                line = "chunks done: " + ", ".join(f"process {child.index} {chunks_done(child)}/{total_chunks}"
+                                                    for child in children)
+                if line != said:
+                    print(line, flush=True)
+                said, last_said = line, time.monotonic()
+        return statuses, forwarding.name
+
+
+def failure(children: list[Child], statuses: dict[int, int]) -> ProcessFailed:
+    """What failed, and where each failed child's log is (with its last line)."""
+    lines = []
+    for child in children:
+        if statuses.get(child.index, 0) != 0:
+            log = child.directory / LOG_FILE
+            tail = [line for line in log.read_text(errors="replace").splitlines() if line.strip()][-1:] if log.is_file() else []
+            lines.append(f"{child.describe()} failed with exit status {statuses[child.index]}; its log: {log}"
+                         + (f" (last line: {tail[0].strip()})" if tail else ""))
+    return ProcessFailed("; ".join(lines))
+
+
+def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time: float):
+    """The finished run's eval.json in `out` from its processes' ones: every seed in seed order,
+    the best seed by the rule of a one-process run (`agents.run.break_ties`, over every seed), and
+    the same keys; the `RunResult` the command reports."""
+    from agents.run import RunResult, break_ties, load_agent
+
+    evals = [json.loads((child.directory / "eval.json").read_text()) for child in children]
+    mean_return = [value for e in evals for value in e["mean_return"]]
+    env_name, _, agent, params = load_agent(out)
+    best_seed = break_ties(agent, env_name, run.env_options, params, mean_return, run.seed)
+    slowest = max(evals, key=lambda e: e["wall_s"])  # where the run's time went: its slowest process
+    parts = slowest["wall_parts_s"]
+    result = RunResult(params=params, train_state=None, mean_return=mean_return,
+                       solve_step=[s for e in evals for s in e["solve_step"]],
+                       solve_wall_s=[s for e in evals for s in e["solve_wall_s"]],
+                       compile_s=max(e["compile_s"] for e in evals), setup_s=parts["setup"], train_s=parts["train"],
+                       judge_s=parts["judge"], save_s=parts["saves"], eval_s=parts["evaluation"],
+                       judges=max(e["judged_chunks"] for e in evals), chunks_done=max(e["chunks"] for e in evals),
+                       devices=len(children), processes=len(children), best_seed=best_seed)
+    result.finish(start_time)  # the parent's wall time; what its processes' parts leave is "other"
+    summary = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "best_seed": best_seed,
+               "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
+               "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,
+               "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges, "chunks": result.chunks_done,
+               "processes": len(children)}
+    checkpoint.atomic_write(out / "eval.json", json.dumps(summary, indent=2).encode())
+    return result
+
+
+def train(out: Path, run: checkpoint.SavedRun, total_chunks: int, options: list[str], gpus: list[str]):
+    """Train (or, after `start` or a stop, go on training) the processes of the run in `out` and
+    merge their results: the `RunResult` to report, interrupted when a signal stopped them.
+    ProcessFailed when one failed."""
+    from agents.run import RunResult
+
+    start_time = time.perf_counter()
+    children = children_of(out, gpus)
+    statuses, stop_signal = run_children(children, options, total_chunks)
+    if stop_signal is not None:
+        saved = min(checkpoint.chunks_saved(child.directory) for child in children)
+        return RunResult(params=None, train_state=None, interrupted=True, stop_signal=stop_signal,
+                         saved_chunks=saved, total_chunks=total_chunks, processes=len(children))
+    if any(statuses.values()) or len(statuses) < len(children):
+        raise failure(children, statuses)
+    return merge(out, run, children, start_time)
