@@ -1,0 +1,162 @@
+"""Seeds trained by several processes (`agents.processes`, `mjxsuite train --processes K`): what an
+MJX task does on a host with several GPUs, forced here on the CPU. The reference is a one-process
+run of the same seeds: each process trains its slice with the keys the whole run gives it, so
+every seed ends bit for bit as it does there."""
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from agents import checkpoint, load_policy, processes
+from agents.cli import main as cli_main
+from agents.run import load_agent
+
+DQN_ARGS = ["--env", "cartpole-mjx", "--seeds", "2", "--steps", "600", "--learning_starts", "64", "--batch_size", "32",
+            "--buffer_size", "256", "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16",
+            "--judge-every", "1", "--checkpoint-seconds", "0"]
+CLI = [sys.executable, "-c", "import sys; from agents.console import main; sys.exit(main())"]
+
+
+def same_params(a, b) -> bool:
+    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A one-process and a two-process run of the same two seeds."""
+    one, two = tmp_path_factory.mktemp("one") / "run", tmp_path_factory.mktemp("two") / "run"
+    assert cli_main(["train", *DQN_ARGS, "--out", str(one)]) == 0
+    assert cli_main(["train", *DQN_ARGS, "--out", str(two), "--processes", "2"]) == 0
+    return one, two
+
+
+def test_two_processes_train_each_seed_as_one_process_does(runs):
+    one, two = runs
+    assert same_params(load_agent(one)[3], load_agent(two)[3])
+    for k, child in enumerate(sorted((two / processes.PROCESSES_DIR).iterdir())):
+        assert checkpoint.load_config(child).seed_slice == (k, k + 1)
+        ours = [json.loads(line)["eval_return"] for line in (child / "metrics.jsonl").read_text().splitlines()]
+        theirs = [json.loads(line)["eval_return"][k] for line in (one / "metrics.jsonl").read_text().splitlines()]
+        assert np.array_equal(np.ravel(ours), theirs)  # every judged chunk, not just the end
+
+
+def test_the_merged_run_reads_as_one_run(runs, capsys):
+    """eval.json has one row per seed, the keys of a one-process run and its best seed;
+    load_policy, eval and best_seed read every seed from the processes' directories."""
+    one, two = runs
+    merged, single = (json.loads((d / "eval.json").read_text()) for d in (two, one))
+    assert set(merged) == set(single) | {"processes"} and merged["processes"] == 2
+    for key in ("seeds", "mean_return", "best_seed", "solve_step", "agent", "env", "chunks"):
+        assert merged[key] == single[key], key
+    assert checkpoint.load_config(two) == checkpoint.load_config(one)
+    obs = np.random.default_rng(0).normal(size=(5, 4)).astype(np.float32)
+    for seed_index in (0, 1, None):
+        assert np.array_equal(load_policy(two, seed_index=seed_index)(obs), load_policy(one, seed_index=seed_index)(obs))
+    assert checkpoint.load_best_returns(two) == checkpoint.load_best_returns(one)
+    capsys.readouterr()
+    assert cli_main(["eval", "--checkpoint", str(two), "--episodes", "4"]) == 0
+    assert capsys.readouterr().out.count("seed ") == 2
+
+
+def test_resume_trains_the_unfinished_process_only(runs, tmp_path, capsys):
+    """A process killed before its first checkpoint starts again; the finished one is left as it is."""
+    one, two = runs
+    run = tmp_path / "run"
+    shutil.copytree(two, run)
+    child = run / processes.PROCESSES_DIR / "1"
+    for name in (checkpoint.STATE_FILE, checkpoint.POLICY_FILE, checkpoint.PROGRESS_FILE, "eval.json",
+                 checkpoint.METRICS_FILE):
+        (child / name).unlink()
+    (run / "eval.json").unlink()
+    capsys.readouterr()
+    assert cli_main(["train", "--out", str(run), "--resume"]) == 0
+    said = capsys.readouterr().out
+    assert "process 1 (seed 1): training" in said and "process 0" not in said.split("process 1 (seed 1): done")[0]
+    assert same_params(load_agent(run)[3], load_agent(one)[3])
+    assert json.loads((run / "eval.json").read_text())["mean_return"] == json.loads((one / "eval.json").read_text())["mean_return"]
+
+
+def test_a_failing_process_fails_the_run_naming_its_log(runs, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(runs[1], run)
+    child = run / processes.PROCESSES_DIR / "1"
+    (child / "eval.json").unlink()
+    (child / checkpoint.CONFIG_FILE).write_text("{ damaged")
+    capsys.readouterr()
+    assert cli_main(["train", "--out", str(run), "--resume"]) == 1
+    err = capsys.readouterr().err
+    assert f"process 1 (seed 1) failed with exit status 1; its log: {child / processes.LOG_FILE}" in err
+    assert "is damaged" in err  # the log's last line says why
+
+
+def test_how_many_processes(monkeypatch):
+    """An MJX task on several GPUs takes as many processes as split the seeds (as choose_devices
+    splits them over devices); --devices K asks for K; an analytic task or one GPU: one process;
+    seeds that do not split are refused naming the option, its value and the fix."""
+    two_gpus = ["0", "1"]
+    assert processes.count("cartpole-mjx", 4, None, None, two_gpus) == 2
+    assert processes.count("cartpole-mjx", 3, None, None, two_gpus) == 1
+    assert processes.count("cartpole-mjx", 4, 1, None, two_gpus) == 1
+    assert processes.count("cartpole", 4, None, None, two_gpus) == 1  # one program over the devices, as ever
+    assert processes.count("cartpole-mjx", 4, None, None, ["0"]) == 1
+    assert processes.count("cartpole", 4, None, 2, []) == 2  # forced, on a CPU
+    with pytest.raises(ValueError, match=r"--devices 2: 3 seeds do not split evenly over 2 processes .* use --seeds 2 or 4, or --devices 1"):
+        processes.count("cartpole-mjx", 3, 2, None, two_gpus)
+    with pytest.raises(ValueError, match=r"--processes 4: 6 seeds .* --processes 3"):
+        processes.count("cartpole-mjx", 6, None, 4, [])
+    with pytest.raises(ValueError, match="drop --devices 2"):
+        processes.count("cartpole-mjx", 4, 2, 2, two_gpus)
+    with pytest.raises(ValueError, match="between 1 and the 2 local GPUs"):
+        processes.count("cartpole-mjx", 4, 4, None, two_gpus)
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "2,3")
+    monkeypatch.setenv("JAX_PLATFORMS", "")
+    assert processes.local_gpus() == ["2", "3"]
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")
+    assert processes.local_gpus() == []
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_every_process_with_a_checkpoint_and_resume_ends_as_one_process(runs, tmp_path):
+    """SIGINT to the parent reaches each child once: each saves and stops; --resume then ends with
+    the parameters of the uninterrupted one-process run."""
+    one, _ = runs
+    run = tmp_path / "run"
+    steps = ["--steps", "60000"]  # long enough to be stopped; the reference below trains as long
+    parent = subprocess.Popen([*CLI, "train", *DQN_ARGS, *steps, "--out", str(run), "--processes", "2"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    states = [run / processes.PROCESSES_DIR / str(k) / checkpoint.STATE_FILE for k in range(2)]
+    deadline = time.monotonic() + 300
+    while not all(state.is_file() for state in states) and parent.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.1)
+    parent.send_signal(signal.SIGINT)
+    out, err = parent.communicate(timeout=300)
+    assert parent.returncode == 130, out + err
+    assert "stopped by SIGINT; checkpoint saved" in out
+    for k in range(2):
+        log = (run / processes.PROCESSES_DIR / str(k) / processes.LOG_FILE).read_text()
+        assert "stopped by SIGINT; checkpoint saved" in log and "again" not in log
+    done = subprocess.run([*CLI, "train", "--out", str(run), "--resume"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    whole = run.parent / "whole"
+    assert cli_main(["train", *DQN_ARGS, *steps, "--out", str(whole)]) == 0
+    assert same_params(load_agent(run)[3], load_agent(whole)[3])
+
+
+@pytest.mark.slow
+def test_ppo_in_two_processes_equals_one_process(tmp_path):
+    from tests.test_agents_cli import TINY_PPO_ARGS
+
+    argv = ["train", "--env", "pendulum-mjx", "--agent", "ppo", "--seeds", "2", *TINY_PPO_ARGS, "--judge-every", "1"]
+    assert cli_main([*argv, "--out", str(tmp_path / "one")]) == 0
+    assert cli_main([*argv, "--out", str(tmp_path / "two"), "--processes", "2"]) == 0
+    assert same_params(load_agent(tmp_path / "one")[3], load_agent(tmp_path / "two")[3])
+    returns = [json.loads((tmp_path / d / "eval.json").read_text())["mean_return"] for d in ("one", "two")]
+    assert returns[0] == returns[1]
