@@ -82,7 +82,10 @@ def count(env_name: str, seeds: int, devices: int | None, processes: int | None,
     from envs.registry import makes_mjx_task
 
     if processes is None and os.environ.get(PROCESSES_ENV):
-        processes = int(os.environ[PROCESSES_ENV])
+        text = os.environ[PROCESSES_ENV]
+        if not text.isdigit() or int(text) < 1:
+            raise ValueError(f"{PROCESSES_ENV}={text}: must be a number of processes, 1 or more")
+        processes = int(text)
     if processes is not None:
         if processes > 1 and devices not in (None, 1):
             raise ValueError(f"--processes {processes} gives each process one device; drop --devices {devices}")
@@ -149,6 +152,7 @@ def child_environment(child: Child) -> dict[str, str]:
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     env.pop(PROCESSES_ENV, None)
+    env["PYTHONUNBUFFERED"] = "1"  # its log.txt as it happens, not when a buffer fills
     return env
 
 
