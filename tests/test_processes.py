@@ -160,3 +160,34 @@ def test_ppo_in_two_processes_equals_one_process(tmp_path):
     assert same_params(load_agent(tmp_path / "one")[3], load_agent(tmp_path / "two")[3])
     returns = [json.loads((tmp_path / d / "eval.json").read_text())["mean_return"] for d in ("one", "two")]
     assert returns[0] == returns[1]
+
+
+def test_the_parent_keeps_jax_off_the_gpus_until_it_has_chosen_processes(tmp_path):
+    """On a host with several GPUs the command decides on processes before JAX's backend starts
+    (a started backend takes memory on every GPU the children train on), then keeps its own JAX on
+    the first GPU without reserving memory. Two GPUs are pretended; the check stops the command."""
+    code = """
+import os, sys
+from jax._src import xla_bridge
+from agents import processes
+processes.local_gpus = lambda: ["0", "1"]
+def check(gpus):
+    print("backend started:", xla_bridge.backends_are_initialized(), "gpus:", gpus)
+    sys.exit(0)
+processes.keep_off_the_gpus = check
+from agents.console import main
+sys.exit(main())
+"""
+    done = subprocess.run([sys.executable, "-c", code, "train", "--env", "cartpole-mjx", "--seeds", "4", "--out",
+                           str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
+    assert "backend started: False gpus: ['0', '1']" in done.stdout, done.stdout + done.stderr
+
+
+def test_what_runs_in_one_process_is_refused_before_anything_starts(tmp_path, capsys):
+    from agents.cli import UsageError
+
+    with pytest.raises(UsageError, match="--rerun runs in one process.*drop --rerun, or add --devices 1"):
+        cli_main(["train", *DQN_ARGS, "--processes", "2", "--rerun", str(tmp_path / "x.rrd")])
+    assert cli_main(["train", *DQN_ARGS, "--processes", "3"]) == 2
+    assert "--processes 3: 2 seeds do not split evenly over 3 processes" in capsys.readouterr().err
+    assert not (tmp_path / "x.rrd").exists()
