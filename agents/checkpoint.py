@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import shutil
 import zlib
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -40,6 +41,7 @@ POLICY_FILE = "best_params.msgpack"
 PROGRESS_FILE = "progress.json"
 METRICS_FILE = "metrics.jsonl"
 PROCESSES_FILE = "processes.json"
+PROCESSES_DIR = "processes"  # where a run of several processes keeps each one's run directory
 FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
 
 
@@ -103,6 +105,8 @@ def atomic_write(path: Path, data: bytes) -> None:
 def start_run(out_dir: Path, run: SavedRun) -> None:
     """Write config.json for a new run, first removing the checkpoint an earlier run left in
     `out_dir`: a resume must never continue a run other than this one."""
+    if (out_dir / PROCESSES_FILE).is_file():  # a run of several processes replaced: their directories too
+        shutil.rmtree(out_dir / PROCESSES_DIR, ignore_errors=True)
     for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json", PROCESSES_FILE):
         (out_dir / stale).unlink(missing_ok=True)
     record = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "seed": run.seed,

@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 from agents import checkpoint, run_steps, sharding, signals
 
-PROCESSES_DIR = "processes"
+PROCESSES_DIR = checkpoint.PROCESSES_DIR
 LOG_FILE = "log.txt"
 PROGRESS_SECONDS = 10.0  # between the parent's lines of progress
 # The environment's variable that asks for N processes where --processes is not given (e.g. in a

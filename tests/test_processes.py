@@ -191,3 +191,10 @@ def test_what_runs_in_one_process_is_refused_before_anything_starts(tmp_path, ca
     assert cli_main(["train", *DQN_ARGS, "--processes", "3"]) == 2
     assert "--processes 3: 2 seeds do not split evenly over 3 processes" in capsys.readouterr().err
     assert not (tmp_path / "x.rrd").exists()
+
+
+def test_a_new_run_over_a_run_of_processes_removes_their_directories(runs, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(runs[1], run)
+    checkpoint.start_run(run, checkpoint.load_config(run))  # what --overwrite with --devices 1 does first
+    assert not (run / processes.PROCESSES_DIR).exists() and checkpoint.process_dirs(run) is None
