@@ -186,7 +186,10 @@ def run_children(children: list[Child], options: list[str], total_chunks: int) -
             running[child.index] = subprocess.Popen(child_command(child, options), stdout=log, stderr=subprocess.STDOUT,
                                                     env=child_environment(child), start_new_session=True)
             log.close()
+            forwarding.catch_up(running[child.index])
             print(f"{child.describe()}: training, log {child.directory / LOG_FILE}", flush=True)
+            if forwarding.requested is not None:  # stopping: start no more
+                break
         said, last_said = "", time.monotonic()
         while running:
             time.sleep(0.2)

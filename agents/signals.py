@@ -112,6 +112,7 @@ class ForwardSignals:
     def __init__(self, children):
         self.children = children
         self.requested: int | None = None
+        self.reached: set[int] = set()  # the pids the first signal was passed on to
         self._previous: dict[int, object] = {}
 
     def _handle(self, signum, frame) -> None:
@@ -122,6 +123,14 @@ class ForwardSignals:
         for child in self.children():
             if child.poll() is None:
                 child.send_signal(signum)
+                self.reached.add(child.pid)
+
+    def catch_up(self, child) -> None:
+        """Pass the first signal on to `child` if it started while the signal came (before
+        `children()` listed it), once."""
+        if self.requested is not None and child.pid not in self.reached:
+            self.reached.add(child.pid)
+            child.send_signal(self.requested)
 
     def __enter__(self) -> "ForwardSignals":
         global _pending
