@@ -198,3 +198,20 @@ def test_a_new_run_over_a_run_of_processes_removes_their_directories(runs, tmp_p
     shutil.copytree(runs[1], run)
     checkpoint.start_run(run, checkpoint.load_config(run))  # what --overwrite with --devices 1 does first
     assert not (run / processes.PROCESSES_DIR).exists() and checkpoint.process_dirs(run) is None
+
+
+def test_tied_seeds_are_told_apart_over_every_seed_as_in_one_process(runs, tmp_path):
+    """The merge breaks ties by `break_ties` over all the seeds' parameters, as one process does."""
+    from agents.run import break_ties
+
+    one, two = runs
+    run = tmp_path / "run"
+    shutil.copytree(two, run)
+    for child in (run / processes.PROCESSES_DIR).iterdir():
+        record = json.loads((child / "eval.json").read_text())
+        (child / "eval.json").write_text(json.dumps({**record, "mean_return": [10.0]}))
+    saved = checkpoint.load_config(run)
+    merged = processes.merge(run, saved, processes.children_of(run, []), time.perf_counter())
+    env_name, _, agent, params = load_agent(one)
+    assert merged.best_seed == break_ties(agent, env_name, saved.env_options, params, [10.0, 10.0], saved.seed)
+    assert json.loads((run / "eval.json").read_text())["best_seed"] == merged.best_seed
