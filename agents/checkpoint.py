@@ -3,20 +3,24 @@
 A run directory (`mjxsuite train --out DIR`) holds:
 - config.json: the agent ("dqn", "ppo", "sac"), env, env options, seeds, seed and the agent's
   config (DQNConfig, PPOConfig, SACConfig), written when the run starts;
-- train_state.msgpack: the whole seed-batched train state of any agent (parameters, optimizer
+- train_state.ckpt: the whole seed-batched train state of any agent (parameters, optimizer
   states, normalizer, envs, replay buffer, key) and the number of chunks it has done:
   everything an exact resume needs;
-- best_params.msgpack: the best parameters of each seed and their greedy returns (eval, rollout);
+- best_params.ckpt: the best parameters of each seed and their greedy returns (eval, rollout);
 - metrics.jsonl: one record per chunk (its training steps, then an evaluation); progress.json:
   chunks done and best returns, for people;
 - processes.json, for a run trained by several processes (`agents.processes`): which run
-  directory under processes/ holds which seeds; the two msgpack files then live there, and
+  directory under processes/ holds which seeds; the two .ckpt files then live there, and
   `load_best_params` and `load_best_returns` read every seed from them.
 
 Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
-kill at any moment leaves the previous complete file. Each msgpack file is self-contained (its
-format version, env and chunk count travel with the arrays, under a CRC32), so a truncated,
-garbled or foreign file is refused with a message that names it, never loaded as nonsense.
+kill at any moment leaves the previous complete file. Each .ckpt file is self-contained: a JSON
+header (format version, kind, env, chunk count, and each array's dtype, shape, offset and CRC32,
+under a CRC32 of its own) followed by the arrays' raw bytes. So a truncated, garbled or foreign
+file is refused with a message that names it, never loaded as nonsense. The arrays are written
+straight from memory and read back in place: no copy into one serialized blob, and no size
+limit (msgpack, the earlier format, copied every array twice and stops at 4 GiB, which 8,192
+DQN replay buffers pass).
 """
 
 from __future__ import annotations
@@ -25,24 +29,29 @@ import dataclasses
 import json
 import os
 import shutil
+import struct
+import threading
 import zlib
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, BinaryIO, Callable, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
-from flax import serialization
-
 from agents import registry
 
 CONFIG_FILE = "config.json"
-STATE_FILE = "train_state.msgpack"
-POLICY_FILE = "best_params.msgpack"
+STATE_FILE = "train_state.ckpt"
+POLICY_FILE = "best_params.ckpt"
+OLDER_FILES = {STATE_FILE: "train_state.msgpack", POLICY_FILE: "best_params.msgpack"}  # format 2's names
 PROGRESS_FILE = "progress.json"
 METRICS_FILE = "metrics.jsonl"
 PROCESSES_FILE = "processes.json"
 PROCESSES_DIR = "processes"  # where a run of several processes keeps each one's run directory
-FORMAT, VERSION = "mjxsuite-checkpoint", 2  # bump VERSION when the layout of the msgpack files changes
+FORMAT, VERSION = "mjxsuite-checkpoint", 3  # bump VERSION when the layout of the .ckpt files changes
+MAGIC = b"MJXSCKPT"
+PREFIX = struct.Struct("<8sQI")  # MAGIC, the header's length, its CRC32
+ALIGN = 64  # every array starts at a multiple of this many bytes after the header
 
 
 class CheckpointError(Exception):
@@ -85,13 +94,13 @@ def check_writable(out_dir: str | os.PathLike) -> Path:
     return out
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write a temporary file, flush it to disk, then rename it over `path`: a kill or a full
-    disk at any moment leaves the previous `path` whole."""
+def atomic_write(path: Path, data: bytes | Callable[[BinaryIO], None]) -> None:
+    """Write a temporary file (`data`, or what `data(file)` writes), flush it to disk, then rename
+    it over `path`: a kill or a full disk at any moment leaves the previous `path` whole."""
     tmp = path.with_name(path.name + ".tmp")
     try:
         with open(tmp, "wb") as f:
-            f.write(data)
+            f.write(data) if isinstance(data, bytes) else data(f)
             f.flush()
             os.fsync(f.fileno())  # the rename must not reach the disk before the data (power loss)
         os.replace(tmp, path)
@@ -107,7 +116,7 @@ def start_run(out_dir: Path, run: SavedRun) -> None:
     `out_dir`: a resume must never continue a run other than this one."""
     if (out_dir / PROCESSES_FILE).is_file():  # a run of several processes replaced: their directories too
         shutil.rmtree(out_dir / PROCESSES_DIR, ignore_errors=True)
-    for stale in (STATE_FILE, POLICY_FILE, PROGRESS_FILE, "eval.json", PROCESSES_FILE):
+    for stale in (STATE_FILE, POLICY_FILE, *OLDER_FILES.values(), PROGRESS_FILE, "eval.json", PROCESSES_FILE):
         (out_dir / stale).unlink(missing_ok=True)
     record = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "seed": run.seed,
               "env_options": run.env_options or {}, "config": dataclasses.asdict(run.config)}
@@ -168,6 +177,12 @@ def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[st
     return saved.env, envs.make(saved.env, **options), options
 
 
+def has_state(out_dir: Path) -> bool:
+    """Whether the run directory holds a train state to resume from (an older mjxsuite's too:
+    `load_state` then refuses it by name, rather than a resume silently starting over)."""
+    return any((Path(out_dir) / name).is_file() for name in (STATE_FILE, OLDER_FILES[STATE_FILE]))
+
+
 def chunks_saved(out_dir: Path) -> int:
     """Chunks the run directory's checkpoint holds (0: none yet)."""
     if not (Path(out_dir) / STATE_FILE).is_file():
@@ -199,50 +214,97 @@ def config_from_record(config_class: type, fields: dict) -> Any:
     return config_class(**{name: tuple(value) if name in tuples else value for name, value in fields.items()})
 
 
-def _pack(kind: str, tree: Any, meta: dict) -> bytes:
-    """Any pytree (an `mjx.Data` env state included) as msgpack of its leaves, in order, with `meta`."""
-    arrays = serialization.msgpack_serialize({str(i): np.asarray(x) for i, x in enumerate(jax.tree.leaves(tree))})
-    return serialization.msgpack_serialize({"format": FORMAT, "version": VERSION, "kind": kind, "meta": meta,
-                                            "crc32": zlib.crc32(arrays), "arrays": arrays})
+def _write_arrays(path: Path, kind: str, tree: Any, meta: dict) -> None:
+    """Any pytree (an `mjx.Data` env state included) as its leaves' raw bytes, in order, after a
+    header that describes them and carries `meta` (see the module docstring); atomically."""
+    leaves = [np.asarray(x, order="C") for x in jax.tree.leaves(tree)]  # (ascontiguousarray makes scalars 1-D)
+    specs, offset = [], 0
+    for x in leaves:
+        specs.append({"dtype": x.dtype.name, "shape": list(x.shape), "offset": offset, "nbytes": x.nbytes,
+                      "crc32": zlib.crc32(_bytes_of(x))})
+        offset += -(-x.nbytes // ALIGN) * ALIGN
+    header = json.dumps({"format": FORMAT, "version": VERSION, "kind": kind, "meta": meta, "leaves": specs,
+                         "data_bytes": offset}).encode()
+    header += b" " * (-(PREFIX.size + len(header)) % ALIGN)  # the arrays start aligned
+
+    def write(f: BinaryIO) -> None:
+        f.write(PREFIX.pack(MAGIC, len(header), zlib.crc32(header)) + header)
+        for x, spec in zip(leaves, specs):
+            f.write(_bytes_of(x))
+            f.write(b"\0" * (-spec["nbytes"] % ALIGN))
+
+    atomic_write(path, write)
 
 
-def _read(path: Path, kind: str, env: str, fix: str) -> dict:
-    """The checked outer record of a file `_pack` wrote; CheckpointError saying what is wrong and `fix`."""
+def _bytes_of(x: np.ndarray) -> memoryview:
+    return memoryview(x.reshape(-1).view(np.uint8)) if x.size else memoryview(b"")
+
+
+def _read(path: Path, kind: str, env: str, fix: str) -> tuple[dict, bytearray]:
+    """The checked header of a file `_write_arrays` wrote, and the bytes of its arrays;
+    CheckpointError saying what is wrong and `fix`."""
     if not path.is_file():
+        older = path.with_name(OLDER_FILES.get(path.name, path.name))
+        if older != path and older.is_file():
+            raise CheckpointError(f"{older} was written by an older mjxsuite (checkpoint format 2, before "
+                                  f"{path.name}); {fix}")
         raise FileNotFoundError(f"{path} not found: no checkpoint in {path.parent}")
 
     def damaged(what: str) -> CheckpointError:
         return CheckpointError(f"{path} {what}; {fix}")
 
-    try:
-        record = serialization.msgpack_restore(path.read_bytes())
-    except Exception as err:  # msgpack raises many types on garbage; "incomplete input" when cut short
-        cut = "incomplete" in str(err)
-        raise damaged("is truncated" if cut else f"is not a readable checkpoint ({err})") from err
-    if not isinstance(record, dict) or record.get("format") != FORMAT:
-        older = isinstance(record, dict) and "0" in record  # format 1: the bare leaves
-        raise damaged("was written by an older mjxsuite (checkpoint format 1)" if older
-                      else "is not an mjxsuite checkpoint")
-    if record.get("version") != VERSION or record.get("kind") != kind:
-        raise damaged(f"was written by another mjxsuite version (format {record.get('version')}, "
-                      f"{record.get('kind')}; this one reads format {VERSION}, {kind})")
-    if zlib.crc32(record["arrays"]) != record["crc32"]:
-        raise damaged("is corrupted (its arrays fail their CRC32 check)")
-    if record["meta"].get("env") != env:
-        raise damaged(f"was written for env {record['meta'].get('env')!r}, not {env!r}")
-    return record
+    with open(path, "rb") as f:
+        prefix = f.read(PREFIX.size)
+        if prefix[:len(MAGIC)] != MAGIC:
+            older = prefix[:1] and (0x80 <= prefix[0] <= 0x8F or prefix[0] in (0xDE, 0xDF))  # a msgpack map
+            if len(prefix) < len(MAGIC) and MAGIC.startswith(prefix):
+                raise damaged("is truncated")
+            raise damaged("was written by an older mjxsuite (checkpoint format 1 or 2)" if older
+                          else "is not an mjxsuite checkpoint")
+        if len(prefix) < PREFIX.size:
+            raise damaged("is truncated")
+        _, header_size, header_crc = PREFIX.unpack(prefix)
+        header_bytes = f.read(header_size)
+        if len(header_bytes) < header_size:
+            raise damaged("is truncated")
+        if zlib.crc32(header_bytes) != header_crc:
+            raise damaged("is corrupted (its header fails its CRC32 check)")
+        header = json.loads(header_bytes)
+        if header.get("format") != FORMAT or header.get("version") != VERSION or header.get("kind") != kind:
+            raise damaged(f"was written by another mjxsuite version (format {header.get('version')}, "
+                          f"{header.get('kind')}; this one reads format {VERSION}, {kind})")
+        data = bytearray(header["data_bytes"])
+        if f.readinto(data) < len(data):
+            raise damaged("is truncated")
+    for spec in header["leaves"]:
+        if zlib.crc32(memoryview(data)[spec["offset"]:spec["offset"] + spec["nbytes"]]) != spec["crc32"]:
+            raise damaged("is corrupted (its arrays fail their CRC32 check)")
+    if header["meta"].get("env") != env:
+        raise damaged(f"was written for env {header['meta'].get('env')!r}, not {env!r}")
+    return header, data
 
 
-def _unflatten(path: Path, record: dict, template: Any, fix: str) -> Any:
-    """The arrays of `record`, shaped like `template` (arrays or ShapeDtypeStructs)."""
-    leaves = serialization.msgpack_restore(record["arrays"])
-    expected = jax.tree.leaves(template)
-    if len(leaves) != len(expected) or any(
-        np.shape(leaves[str(i)]) != tuple(t.shape) for i, t in enumerate(expected)
-    ):
+def _unflatten(path: Path, record: tuple[dict, bytearray], template: Any, fix: str) -> Any:
+    """The arrays of `record` (what `_read` returned), shaped like `template` (arrays or ShapeDtypeStructs)."""
+    header, data = record
+    specs, expected = header["leaves"], jax.tree.leaves(template)
+    if len(specs) != len(expected) or any(tuple(spec["shape"]) != tuple(t.shape) for spec, t in zip(specs, expected)):
         raise CheckpointError(f"{path} does not match its {CONFIG_FILE} (another network, buffer, env or number "
                               f"of seeds); {fix}")
-    return jax.tree.unflatten(jax.tree.structure(template), [leaves[str(i)] for i in range(len(expected))])
+    leaves = [np.frombuffer(data, jnp.dtype(spec["dtype"]), int(np.prod(spec["shape"])), spec["offset"])
+              .reshape(spec["shape"]) for spec in specs]
+    return jax.tree.unflatten(jax.tree.structure(template), leaves)
+
+
+def read_leaves(path: str | os.PathLike, kind: str) -> tuple[dict, list[np.ndarray]]:
+    """A .ckpt file's meta and its arrays in order, checked, for tools that compare runs."""
+    path = Path(path)
+    with open(path, "rb") as f:
+        _, header_size, _ = PREFIX.unpack(f.read(PREFIX.size))
+        env = json.loads(f.read(header_size))["meta"].get("env")
+    header, data = _read(path, kind, env, POLICY_FIX)
+    shapes = [jax.ShapeDtypeStruct(tuple(spec["shape"]), jnp.dtype(spec["dtype"])) for spec in header["leaves"]]
+    return header["meta"], _unflatten(path, (header, data), shapes, POLICY_FIX)
 
 
 RESUME_FIX = "it cannot be resumed: start the run again without --resume, or in a new --out"
@@ -255,16 +317,48 @@ def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int) -> N
     files one save apart, each whole: a resume reads only the train state (with its own
     chunk count) and rewrites the policy file at its next save."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
-    atomic_write(out_dir / POLICY_FILE, _pack("best_params", train_state.best_params,
-                                               {"env": env, "best_return": best_return}))
-    atomic_write(out_dir / STATE_FILE, _pack("train_state", train_state, {"env": env, "chunks_done": chunks_done}))
+    _write_arrays(out_dir / POLICY_FILE, "best_params", train_state.best_params, {"env": env, "best_return": best_return})
+    _write_arrays(out_dir / STATE_FILE, "train_state", train_state, {"env": env, "chunks_done": chunks_done})
     atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
+
+
+class BackgroundSaves:
+    """`save_state` on a thread of its own while other work goes on (a run's final evaluation),
+    one save at a time: `save` first waits for the previous one (raising its error), `wait`
+    before the files are read or the run returns. Each save is still atomic, so a kill mid-write
+    leaves the previous checkpoint. The thread is not a daemon: a run that dies of an error
+    still finishes the write under way."""
+
+    def __init__(self):
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int) -> None:
+        """Write `host_state` (numpy arrays that nothing else changes) in the background."""
+        self.wait()
+
+        def write():
+            try:
+                save_state(out_dir, env, host_state, chunks_done)
+            except BaseException as err:  # raised again by the next save or wait, on the run's thread
+                self._error = err
+
+        self._thread = threading.Thread(target=write, name="checkpoint-save")
+        self._thread.start()
+
+    def wait(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
 
 
 def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any, int]:
     path = Path(out_dir) / STATE_FILE
     record = _read(path, "train_state", env, RESUME_FIX)
-    return _unflatten(path, record, template, RESUME_FIX), int(record["meta"]["chunks_done"])
+    return _unflatten(path, record, template, RESUME_FIX), int(record[0]["meta"]["chunks_done"])
 
 
 def process_dirs(out_dir: str | os.PathLike) -> list[tuple[Path, tuple[int, int]]] | None:
@@ -285,7 +379,7 @@ def load_best_returns(out_dir: str | os.PathLike) -> list[float]:
     parts = process_dirs(out)
     if parts is not None:
         return [value for directory, _ in parts for value in load_best_returns(directory)]
-    return _read(out / POLICY_FILE, "best_params", load_config(out).env, POLICY_FIX)["meta"]["best_return"]
+    return _read(out / POLICY_FILE, "best_params", load_config(out).env, POLICY_FIX)[0]["meta"]["best_return"]
 
 
 def best_seed(out_dir: str | os.PathLike) -> int:

@@ -212,6 +212,7 @@ def train_run(
             raise ValueError("seed_slice trains part of a train run's seeds; a sweep runs in one process")
         trained_seeds = stop_seed - first
         clock = run_steps.SaveClock(checkpoint_every, checkpoint_seconds)
+        saves = checkpoint.BackgroundSaves()
         if resume and judge_every is None and out_dir is not None and (Path(out_dir) / checkpoint.CONFIG_FILE).is_file():
             judge_every = checkpoint.load_config(out_dir).judge_every  # the run's own cadence
         judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
@@ -254,7 +255,7 @@ def train_run(
         chunks_done = 0
         compile_start = time.perf_counter()
         init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
-        if resume and (out / checkpoint.STATE_FILE).is_file():
+        if resume and checkpoint.has_state(out):
             ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
             ts = placement.put(ts)  # saved from any number of devices, split over this run's
             compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
@@ -367,7 +368,7 @@ def train_run(
                     break
                 if placement.same_on_every_process(out is not None and clock.due(last)):  # process 0's clock
                     save_start = time.perf_counter()
-                    save(out, env_name, placement, ts, last)
+                    save(saves, out, env_name, placement, ts, last)
                     clock.saved(last, save_start)
                     result.save_s += clock.save_s
         except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
@@ -379,7 +380,7 @@ def train_run(
         # over it, and a failed chunk may have consumed its donated train state).
         if out is not None and clock.last != last:
             save_start = time.perf_counter()
-            save(out, env_name, placement, ts, last)
+            save(saves, out, env_name, placement, ts, last, background=True)  # written during the final evaluation
             clock.saved(last, save_start)
             result.save_s += time.perf_counter() - save_start
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
@@ -390,6 +391,7 @@ def train_run(
             result.interrupted = True
         result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
         if result.interrupted or (last < config.num_chunks and not solved_early):  # checkpoint saved, no final eval
+            result.save_s += _waited(saves)
             result.finish(start)
             return result
 
@@ -408,6 +410,7 @@ def train_run(
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
         result.best_seed = break_ties(learner, env_name, env_options, result.params, result.mean_return, seed)
         result.eval_s = time.perf_counter() - eval_start
+        result.save_s += _waited(saves)
         result.finish(start)
         if writer:
             run_steps.write_eval(out, {"agent": agent, "env": env_name, "seeds": trained_seeds, "best_seed": result.best_seed,
@@ -417,6 +420,13 @@ def train_run(
                                     "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges,
                                     "chunks": result.chunks_done})
         return result
+
+
+def _waited(saves: checkpoint.BackgroundSaves) -> float:
+    """Seconds spent waiting for the save under way to reach the disk."""
+    start = time.perf_counter()
+    saves.wait()
+    return time.perf_counter() - start
 
 
 def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
@@ -460,11 +470,20 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
     return int(tied[int(np.argmax(np.asarray(longer_returns)))])
 
 
-def save(out: Path, env_name: str, placement: sharding.Placement, ts: Any, chunks_done: int) -> None:
-    """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it)."""
+def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
+         chunks_done: int, background: bool = False) -> None:
+    """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
+
+    Periodic saves return once the files are on disk: a kill loses at most the chunks since the
+    last one. The final save (`background`) is written while the final evaluation runs; it needs
+    its own host arrays where they could share memory with device buffers (a CPU's)."""
     host = placement.to_host(ts)
     if sharding.is_writer():
-        checkpoint.save_state(out, env_name, host, chunks_done)
+        if background:
+            host = jax.tree.map(lambda x: x if x.flags.owndata else np.array(x), host)
+        saves.save(out, env_name, host, chunks_done)
+        if not background:
+            saves.wait()
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:

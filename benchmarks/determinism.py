@@ -24,18 +24,16 @@ import numpy as np
 DEFAULT_JOBS = ("dqn cartpole-mjx --steps 50000", "ppo hopper --steps 2000000 --num_evals 3")
 
 
-def leaves(path: Path) -> list[np.ndarray]:
-    """The arrays of a checkpoint file, in order (`agents.checkpoint`'s format, read raw)."""
-    from flax import serialization
+def best_params_leaves(run_dir: Path) -> list[np.ndarray]:
+    """The arrays of a run directory's best parameters, in order."""
+    from agents import checkpoint
 
-    record = serialization.msgpack_restore(path.read_bytes())
-    arrays = serialization.msgpack_restore(record["arrays"])
-    return [np.asarray(arrays[str(i)]) for i in range(len(arrays))]
+    return checkpoint.read_leaves(run_dir / checkpoint.POLICY_FILE, "best_params")[1]
 
 
 def compare(a: Path, b: Path) -> dict:
     try:
-        la, lb = leaves(a / "best_params.msgpack"), leaves(b / "best_params.msgpack")
+        la, lb = (best_params_leaves(d) for d in (a, b))
     except FileNotFoundError:
         return {"error": "a run failed: " + (a.parent / f"{a.name}.log").read_text(errors="replace")[-400:]}
     diffs = [float(np.max(np.abs(x.astype(np.float64) - y.astype(np.float64)), initial=0.0))

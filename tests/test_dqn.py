@@ -135,8 +135,8 @@ def test_cli_train_and_eval(tmp_path, capsys):
     code = cli_main(["train", "--env", "cartpole", "--steps", "200", "--out", str(out), "--eval_every", "100",
                      "--learning_starts", "64", "--eval-episodes", "4", "--hidden", "16"])
     assert code == 0
-    assert {p.name for p in out.iterdir()} >= {"config.json", "metrics.jsonl", "eval.json", "best_params.msgpack",
-                                                 "train_state.msgpack"}
+    assert {p.name for p in out.iterdir()} >= {"config.json", "metrics.jsonl", "eval.json", "best_params.ckpt",
+                                                 "train_state.ckpt"}
     assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "3"]) == 0
     assert '"episodes": 3' in capsys.readouterr().out
 

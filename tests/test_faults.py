@@ -91,7 +91,7 @@ def wait_for(condition, out, process, timeout=120.0):
 
 KILL_MOMENTS = {
     "before the first checkpoint": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
-    "during a save": lambda out: any(out.glob("*.msgpack.tmp")),
+    "during a save": lambda out: any(out.glob("*.ckpt.tmp")),
     "between saves": lambda out: (out / checkpoint.PROGRESS_FILE).is_file()
     and json.loads((out / checkpoint.PROGRESS_FILE).read_text())["chunks_done"] >= 2,
 }
@@ -145,6 +145,18 @@ def test_damaged_files_are_refused_naming_the_file(tmp_path, reference, capsys, 
     err = capsys.readouterr().err
     assert str(out / name) in err and message in err
     assert "start the run again" in err or "train the agent again" in err or "restore it" in err
+
+
+def test_a_run_directory_of_the_msgpack_format_is_refused_not_restarted(tmp_path, reference, capsys):
+    """An older mjxsuite's run directory (train_state.msgpack) is refused by name: a resume
+    that started over would silently drop its training."""
+    out = tmp_path / "run"
+    shutil.copytree(reference, out)
+    for name, older in checkpoint.OLDER_FILES.items():
+        (out / name).rename(out / older)
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 1
+    err = capsys.readouterr().err
+    assert str(out / checkpoint.OLDER_FILES[checkpoint.STATE_FILE]) in err and "older mjxsuite" in err
 
 
 def test_a_checkpoint_from_another_env_is_refused(tmp_path, reference, capsys):
@@ -271,7 +283,7 @@ def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int],
 
     clock, saves = _FakeTime(), []
 
-    def slow_save(out, env_name, placement, ts, chunks_done):
+    def slow_save(background_saves, out, env_name, placement, ts, chunks_done, background=False):
         clock.now += save_s
         saves.append(chunks_done)
 
@@ -318,7 +330,7 @@ SIGNAL_MOMENTS = {  # the run's phases, told from its directory (renames slowed 
     "during compile": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
     "during training": lambda out: (out / checkpoint.METRICS_FILE).is_file()
     and len((out / checkpoint.METRICS_FILE).read_text().splitlines()) >= 2,
-    "during a save": lambda out: any(out.glob("*.msgpack.tmp")),
+    "during a save": lambda out: any(out.glob("*.ckpt.tmp")),
     "during the final evaluation": lambda out: _progress(out) == CONFIG.num_chunks,
 }
 

@@ -361,7 +361,7 @@ def test_interrupted_training_leaves_a_readable_file(tmp_path, monkeypatch):
     assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(path), *TINY]) == 130
     # Ctrl-C keeps the checkpoint too: one chunk done, resumable.
     assert json.loads((out / "progress.json").read_text())["chunks_done"] == 1
-    assert (out / "train_state.msgpack").is_file()
+    assert (out / "train_state.ckpt").is_file()
     contents = Contents(path)
     assert contents.rows["train/seed_0/loss"] == 1
     assert contents.rows["eval/seed_0/env/0/reward"] > 0
