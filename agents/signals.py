@@ -65,27 +65,20 @@ def release_early() -> None:
         os._exit(exit_status(_pending))
 
 
-class StopSignals:
-    """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
-    raising; a second one exits the process at once with `exit_status`."""
+class _Catching:
+    """While active (in the main thread), SIGINT and SIGTERM go to `_handle`; `requested` is the
+    first signal's number, one that came during the imports (`catch_early`) included."""
 
     def __init__(self):
         self.requested: int | None = None
         self._previous: dict[int, object] = {}
 
     def _handle(self, signum, frame) -> None:
-        if self.requested is not None:
-            # Nothing else runs here: the process may be inside an XLA or Warp call.
-            os.write(2, f"\n{signal.Signals(signum).name} again: exiting now, without saving\n".encode())
-            os._exit(exit_status(signum))
-        self.requested = signum
-        # os.write, not print: print is not reentrant, and the signal may arrive inside a print.
-        os.write(2, f"\n{signal.Signals(signum).name}: stopping after the current step of work and saving "
-                    "(send it again to exit now, without saving)\n".encode())
+        raise NotImplementedError
 
-    def __enter__(self) -> "StopSignals":
+    def __enter__(self):
         global _pending
-        self.requested, _pending = self.requested or _pending, None  # a signal before the run: stop at once
+        self.requested, _pending = self.requested or _pending, None  # a signal before the run: act at once
         if threading.current_thread() is threading.main_thread():
             for signum in STOP_SIGNALS:
                 self._previous[signum] = signal.signal(signum, self._handle)
@@ -102,7 +95,22 @@ class StopSignals:
         return None if self.requested is None else signal.Signals(self.requested).name
 
 
-class ForwardSignals:
+class StopSignals(_Catching):
+    """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
+    raising; a second one exits the process at once with `exit_status`."""
+
+    def _handle(self, signum, frame) -> None:
+        if self.requested is not None:
+            # Nothing else runs here: the process may be inside an XLA or Warp call.
+            os.write(2, f"\n{signal.Signals(signum).name} again: exiting now, without saving\n".encode())
+            os._exit(exit_status(signum))
+        self.requested = signum
+        # os.write, not print: print is not reentrant, and the signal may arrive inside a print.
+        os.write(2, f"\n{signal.Signals(signum).name}: stopping after the current step of work and saving "
+                    "(send it again to exit now, without saving)\n".encode())
+
+
+class ForwardSignals(_Catching):
     """While active, SIGINT and SIGTERM are passed on to the child processes `children()` returns
     (`subprocess.Popen`s) instead of stopping this one: `agents.processes`'s children are runs
     that stop and save on a first signal and exit at once on a second (`StopSignals`), so each
@@ -110,10 +118,9 @@ class ForwardSignals:
     number (one that came before, during the imports, included)."""
 
     def __init__(self, children):
+        super().__init__()
         self.children = children
-        self.requested: int | None = None
         self.reached: set[int] = set()  # the pids the first signal was passed on to
-        self._previous: dict[int, object] = {}
 
     def _handle(self, signum, frame) -> None:
         again = self.requested is not None
@@ -131,21 +138,3 @@ class ForwardSignals:
         if self.requested is not None and child.pid not in self.reached:
             self.reached.add(child.pid)
             child.send_signal(self.requested)
-
-    def __enter__(self) -> "ForwardSignals":
-        global _pending
-        self.requested, _pending = _pending, None
-        if threading.current_thread() is threading.main_thread():
-            for signum in STOP_SIGNALS:
-                self._previous[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()
-
-    @property
-    def name(self) -> str | None:
-        """The first signal's name ("SIGINT", "SIGTERM"), None before any."""
-        return None if self.requested is None else signal.Signals(self.requested).name
