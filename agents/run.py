@@ -480,7 +480,7 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     host = placement.to_host(ts)
     if sharding.is_writer():
         if background:
-            host = jax.tree.map(lambda x: x if x.flags.owndata else np.array(x), host)
+            host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
         saves.save(out, env_name, host, chunks_done)
         if not background:
             saves.wait()
