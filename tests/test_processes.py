@@ -1,5 +1,6 @@
 """Seeds trained by several processes (`agents.processes`, `mjxsuite train --processes K`): what an
-MJX task does on a host with several GPUs, forced here on the CPU. The reference is a one-process
+MJX task does on a host with several GPUs, forced here on the CPU for the analytic CartPole (the
+quickest to compile; the launcher treats every task alike). The reference is a one-process
 run of the same seeds: each process trains its slice with the keys the whole run gives it, so
 every seed ends bit for bit as it does there."""
 
@@ -19,7 +20,7 @@ from agents import checkpoint, load_policy, processes
 from agents.cli import main as cli_main
 from agents.run import load_agent
 
-DQN_ARGS = ["--env", "cartpole-mjx", "--seeds", "2", "--steps", "600", "--learning_starts", "64", "--batch_size", "32",
+DQN_ARGS = ["--env", "cartpole", "--seeds", "2", "--steps", "600", "--learning_starts", "64", "--batch_size", "32",
             "--buffer_size", "256", "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16",
             "--judge-every", "1", "--checkpoint-seconds", "0"]
 CLI = [sys.executable, "-c", "import sys; from agents.console import main; sys.exit(main())"]
