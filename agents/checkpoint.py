@@ -31,6 +31,7 @@ import os
 import shutil
 import struct
 import threading
+import time
 import zlib
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, NamedTuple
@@ -240,9 +241,9 @@ def _bytes_of(x: np.ndarray) -> memoryview:
     return memoryview(x.reshape(-1).view(np.uint8)) if x.size else memoryview(b"")
 
 
-def _read(path: Path, kind: str, env: str, fix: str) -> tuple[dict, bytearray]:
-    """The checked header of a file `_write_arrays` wrote, and the bytes of its arrays;
-    CheckpointError saying what is wrong and `fix`."""
+def _read(path: Path, kind: str, env: str | None, fix: str) -> tuple[dict, bytearray]:
+    """The checked header of a file `_write_arrays` wrote (for `env`; None: any), and the bytes
+    of its arrays; CheckpointError saying what is wrong and `fix`."""
     if not path.is_file():
         older = path.with_name(OLDER_FILES.get(path.name, path.name))
         if older != path and older.is_file():
@@ -279,7 +280,7 @@ def _read(path: Path, kind: str, env: str, fix: str) -> tuple[dict, bytearray]:
     for spec in header["leaves"]:
         if zlib.crc32(memoryview(data)[spec["offset"]:spec["offset"] + spec["nbytes"]]) != spec["crc32"]:
             raise damaged("is corrupted (its arrays fail their CRC32 check)")
-    if header["meta"].get("env") != env:
+    if env is not None and header["meta"].get("env") != env:
         raise damaged(f"was written for env {header['meta'].get('env')!r}, not {env!r}")
     return header, data
 
@@ -299,10 +300,7 @@ def _unflatten(path: Path, record: tuple[dict, bytearray], template: Any, fix: s
 def read_leaves(path: str | os.PathLike, kind: str) -> tuple[dict, list[np.ndarray]]:
     """A .ckpt file's meta and its arrays in order, checked, for tools that compare runs."""
     path = Path(path)
-    with open(path, "rb") as f:
-        _, header_size, _ = PREFIX.unpack(f.read(PREFIX.size))
-        env = json.loads(f.read(header_size))["meta"].get("env")
-    header, data = _read(path, kind, env, POLICY_FIX)
+    header, data = _read(path, kind, None, POLICY_FIX)
     shapes = [jax.ShapeDtypeStruct(tuple(spec["shape"]), jnp.dtype(spec["dtype"])) for spec in header["leaves"]]
     return header["meta"], _unflatten(path, (header, data), shapes, POLICY_FIX)
 
@@ -323,15 +321,16 @@ def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int) -> N
 
 
 class BackgroundSaves:
-    """`save_state` on a thread of its own while other work goes on (a run's final evaluation),
-    one save at a time: `save` first waits for the previous one (raising its error), `wait`
-    before the files are read or the run returns. Each save is still atomic, so a kill mid-write
-    leaves the previous checkpoint. The thread is not a daemon: a run that dies of an error
-    still finishes the write under way."""
+    """`save_state` on a thread of its own while other work goes on (a run's next chunks, its
+    final evaluation), one save at a time: `save` first waits for the previous one (raising its
+    error), `wait` before the files are read or the run returns. Each save is still atomic, so a
+    kill mid-write leaves the previous checkpoint. The thread is not a daemon: a run that dies of
+    an error still finishes the write under way. `written_s`: the last finished write's seconds."""
 
     def __init__(self):
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
+        self.written_s = 0.0
 
     def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int) -> None:
         """Write `host_state` (numpy arrays that nothing else changes) in the background."""
@@ -339,7 +338,9 @@ class BackgroundSaves:
 
         def write():
             try:
+                start = time.perf_counter()
                 save_state(out_dir, env, host_state, chunks_done)
+                self.written_s = time.perf_counter() - start
             except BaseException as err:  # raised again by the next save or wait, on the run's thread
                 self._error = err
 

@@ -368,9 +368,9 @@ def train_run(
                     break
                 if placement.same_on_every_process(out is not None and clock.due(last)):  # process 0's clock
                     save_start = time.perf_counter()
-                    save(saves, out, env_name, placement, ts, last)
-                    clock.saved(last, save_start)
-                    result.save_s += clock.save_s
+                    save(saves, out, env_name, placement, ts, last)  # written while the next chunks train
+                    clock.saved(last, save_start, saves.written_s)
+                    result.save_s += time.perf_counter() - save_start
         except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
             result.interrupted = True
         finally:
@@ -380,8 +380,8 @@ def train_run(
         # over it, and a failed chunk may have consumed its donated train state).
         if out is not None and clock.last != last:
             save_start = time.perf_counter()
-            save(saves, out, env_name, placement, ts, last, background=True)  # written during the final evaluation
-            clock.saved(last, save_start)
+            save(saves, out, env_name, placement, ts, last)  # written during the final evaluation
+            clock.saved(last, save_start, saves.written_s)
             result.save_s += time.perf_counter() - save_start
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
         result.judges, result.judge_s = judge_clock.judges, judge_clock.judge_s  # the clock keeps the count
@@ -471,19 +471,19 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int, background: bool = False) -> None:
+         chunks_done: int) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
-    Periodic saves return once the files are on disk: a kill loses at most the chunks since the
-    last one. The final save (`background`) is written while the final evaluation runs; it needs
-    its own host arrays where they could share memory with device buffers (a CPU's)."""
+    The files are written on another thread while the run goes on (the next chunks, or the final
+    evaluation): what waits is the copy to the host and the previous save's write, if still under
+    way. Each write is atomic, so a kill loses at most the chunks since the last save on disk (one
+    checkpoint interval, plus the write under way). A CPU's host arrays can share memory with the
+    device buffers that the next chunk reuses: those are copied."""
     host = placement.to_host(ts)
     if sharding.is_writer():
-        if background:
+        if placement.devices[0].platform == "cpu":
             host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
         saves.save(out, env_name, host, chunks_done)
-        if not background:
-            saves.wait()
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:

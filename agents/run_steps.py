@@ -91,10 +91,12 @@ class SaveClock:
         wait_s = max(self.seconds, SAVE_COST_FACTOR * self.save_s) if self.seconds > 0 else 0.0
         return done - self.last >= self.every and time.perf_counter() - self.at >= wait_s
 
-    def saved(self, done: int, started: float) -> None:
-        """Record a save of `done` units that began at `started` (time.perf_counter())."""
+    def saved(self, done: int, started: float, written_s: float = 0.0) -> None:
+        """Record a save of `done` units that began at `started` (time.perf_counter()). A save
+        written in the background costs its write too: `written_s`, the last write's seconds
+        (saves of one run are all the same size)."""
         self.last, self.at = done, time.perf_counter()
-        self.save_s = self.at - started
+        self.save_s = max(self.at - started, written_s)
 
 
 # The greedy judge (64 episodes per agent after a chunk) takes at most this share of a run's wall
