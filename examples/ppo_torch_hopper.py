@@ -1,23 +1,43 @@
-"""PPO in PyTorch on `mjxsuite/Hopper-v5`, single file, CleanRL style (after CleanRL's
-ppo_continuous_action.py), with thousands of envs stepped on the GPU by MJX.
+"""PPO in PyTorch on `mjxsuite/Hopper-v5`, single file, CleanRL style: Brax's PPO algorithm
+(brax/training/agents/ppo: train.py, losses.py, networks.py) written in plain PyTorch, with
+thousands of envs stepped on the GPU by MJX.
 
 The envs come from Gymnasium's own API: `gymnasium.make_vec("mjxsuite/Hopper-v5", num_envs=N)`
 is one JAX vector env; Gymnasium's `JaxToTorch` hands its arrays to PyTorch through DLPack, so
-observations, rewards and actions never leave the GPU. Autoreset is `SAME_STEP`: a truncated
-episode's last observation comes in `info["final_obs"]` and is bootstrapped with the critic.
+observations, rewards and actions never leave the GPU. Autoreset is `SAME_STEP`: the step that
+ends an episode returns the next episode's first observation, as Brax's auto-reset does, so every
+step of an unroll is a real transition.
 
-At the end the policy (mean action) plays Gymnasium's own `Hopper-v5` (C MuJoCo, float64) and
-the script prints its mean return over `--eval-episodes` episodes.
+What the learner does, as Brax's PPO does it (our JAX PPO, agents/ppo.py, is built from those parts
+and trains this env to 3,589 on Hopper-v5 with the same recipe):
+- policy: an MLP gives loc and raw scale per action dimension (a state-dependent Gaussian,
+  scale = softplus(raw) + 0.001) and the action is tanh of a Gaussian sample; log-probs carry the
+  tanh's log-det-Jacobian, the entropy is the Gaussian's plus the log-det at a sampled action;
+- networks: 64 x 64 MLPs with swish (SiLU), lecun_uniform weights and zero biases;
+- observations: Brax's running mean/std (Welford), updated with each collected batch before the
+  SGD passes on it, not clipped;
+- data: each iteration unrolls every env `batch_size * num_minibatches / num_envs` times for
+  `unroll_length` steps; a minibatch is `batch_size` whole unrolls;
+- loss, per minibatch: values and GAE recomputed with the current value network over each unroll
+  (bootstrapped from its last next-observation), rewards x `reward_scaling`, advantages normalized
+  per minibatch, clipped surrogate (epsilon 0.3), value loss mean(err^2) * 0.5 * 0.5, entropy bonus;
+  Adam at a constant learning rate, no gradient clipping.
+
+At the end the deterministic policy (tanh of the Gaussian's loc, as Brax evaluates) plays
+Gymnasium's own `Hopper-v5` (C MuJoCo, float64) and the script prints its mean return over
+`--eval-episodes` episodes.
 
     pip install -e ".[torch,warp]"
     python examples/ppo_torch_hopper.py --impl warp             # GPU: 12 minutes of training at most
-    python examples/ppo_torch_hopper.py --num-envs 8 --num-steps 8 --total-timesteps 256 \\
-        --num-minibatches 2 --update-epochs 2 --eval-episodes 1 --eval-max-steps 20 --device cpu  # a CPU smoke run
+    python examples/ppo_torch_hopper.py --num-envs 8 --unroll-length 8 --batch-size 4 --num-minibatches 2 \\
+        --update-epochs 2 --total-timesteps 128 --eval-episodes 1 --eval-max-steps 20 --device cpu  # a CPU smoke run
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 import os
 import time
 
@@ -27,100 +47,172 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.5")
 import gymnasium
 import numpy as np
 import torch
+import torch.nn.functional as F
 from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers.vector import JaxToTorch
 from torch import nn
-from torch.distributions import Normal
+
+MIN_STD = 1e-3  # Brax's NormalTanhDistribution: scale = softplus(raw) + min_std
+HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    # The defaults are MuJoCo Playground's PPO recipe for 2,048 envs (the `hopper` row of
-    # agents/brax_defaults.py, which trains this task to Gymnasium's Hopper-v5 threshold with Brax's
-    # PPO on one GPU) in CleanRL's terms: each iteration unrolls every env 16 x 30 steps, then
-    # makes 16 passes over the batch in 32 minibatches of 1,024 x 30 steps; discount 0.99 (the row's:
-    # Playground's 0.995 left policies standing still, here and in our PPO), learning
-    # rate 1e-3, entropy bonus 1e-2, 64 x 64 networks; 60M env steps. CleanRL's own choices stay
-    # where Brax has no equivalent: a state-independent Gaussian policy, tanh layers, advantage
-    # normalization, the clipped value loss, gradient clipping at 0.5, a linearly annealed learning
-    # rate and rewards divided by the running std of the discounted return (Brax multiplies by 10).
+    # The defaults are the `hopper` row of agents/brax_defaults.py: MuJoCo Playground's PPO recipe
+    # (2,048 envs, unrolls of 30 steps, 16 passes over each batch in 32 minibatches of 1,024
+    # unrolls, reward x10, learning rate 1e-3, entropy cost 1e-2, 60M steps) with the discount 0.99
+    # (Playground's 0.995 left policies standing still, here and in our PPO), and Brax's PPO
+    # defaults beside it (clipping 0.3, GAE lambda 0.95, 64 x 64 networks as PPOConfig has them).
     p.add_argument("--env-id", default="mjxsuite/Hopper-v5")
     p.add_argument("--eval-env-id", default="Hopper-v5", help="Gymnasium's own env the trained policy plays")
     p.add_argument("--impl", default=None, choices=["jax", "warp"],
                    help="MJX's implementation (default: the task's, jax; warp needs the [warp] extra and a GPU)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--num-envs", type=int, default=2048)
-    p.add_argument("--num-steps", type=int, default=480, help="steps of every env per rollout (one iteration)")
-    p.add_argument("--total-timesteps", type=int, default=60_000_000)
+    p.add_argument("--unroll-length", type=int, default=30, help="steps of one unroll (Brax's unroll_length)")
+    p.add_argument("--batch-size", type=int, default=1024, help="unrolls per minibatch (Brax's batch_size)")
+    p.add_argument("--num-minibatches", type=int, default=32,
+                   help="minibatches per pass; an iteration collects batch-size * num-minibatches unrolls")
+    p.add_argument("--update-epochs", type=int, default=16,
+                   help="passes over each collected batch (Brax's num_updates_per_batch)")
+    p.add_argument("--total-timesteps", type=int, default=60_000_000,
+                   help="env steps, rounded up to whole iterations")
     p.add_argument("--max-minutes", type=float, default=12.0,
-                   help="stop training after this long (wall clock, compile included); the learning rate anneals "
-                        "over whichever of this and --total-timesteps comes first")
+                   help="stop training after this long (wall clock, compile included)")
     p.add_argument("--learning-rate", type=float, default=1e-3)
     p.add_argument("--gamma", type=float, default=0.99)
     p.add_argument("--gae-lambda", type=float, default=0.95)
-    p.add_argument("--num-minibatches", type=int, default=32)
-    p.add_argument("--update-epochs", type=int, default=16)
-    p.add_argument("--clip-coef", type=float, default=0.2)
+    p.add_argument("--clip-coef", type=float, default=0.3)
     p.add_argument("--ent-coef", type=float, default=1e-2)
-    p.add_argument("--vf-coef", type=float, default=0.5)
-    p.add_argument("--max-grad-norm", type=float, default=0.5)
-    p.add_argument("--hidden", type=int, default=64)
+    p.add_argument("--vf-coef", type=float, default=0.5, help="value loss: mean(err^2) * 0.5 * vf-coef, as Brax's")
+    p.add_argument("--reward-scaling", type=float, default=10.0, help="rewards are multiplied by this in the loss")
+    p.add_argument("--max-grad-norm", type=float, default=None, help="clip gradients (default: no clipping, as Brax)")
+    p.add_argument("--hidden", type=int, nargs="+", default=[64, 64], help="hidden layer sizes of both networks")
     p.add_argument("--eval-episodes", type=int, default=10)
     p.add_argument("--eval-max-steps", type=int, default=1000)
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.batch_size * args.num_minibatches % args.num_envs:
+        p.error(f"--batch-size * --num-minibatches ({args.batch_size * args.num_minibatches}) must be a multiple "
+                f"of --num-envs ({args.num_envs}): each iteration unrolls every env the same number of times")
+    return args
 
 
-class RunningMeanStd(nn.Module):
-    """Running mean and variance of a stream of batches (Chan et al.'s parallel update), on the device."""
+class RunningStatistics:
+    """Brax's observation normalizer (acme/running_statistics.py, Welford's update): mean and std of
+    every observation seen so far, std clipped to [1e-6, 1e6]; on the device, no host syncs."""
 
-    def __init__(self, shape, device):
-        super().__init__()
-        self.register_buffer("mean", torch.zeros(shape, device=device))
-        self.register_buffer("var", torch.ones(shape, device=device))
-        self.register_buffer("count", torch.tensor(1e-4, device=device))
+    def __init__(self, size: int, device):
+        self.count = 0  # a Python int: the batch sizes are known on the host
+        self.mean = torch.zeros(size, device=device)
+        self.summed_variance = torch.zeros(size, device=device)
+        self.std = torch.ones(size, device=device)
 
     def update(self, x: torch.Tensor) -> None:
-        batch_mean, batch_var, batch_count = x.mean(0), x.var(0, unbiased=False), x.shape[0]
-        delta, total = batch_mean - self.mean, self.count + batch_count
-        self.mean += delta * batch_count / total
-        self.var = (self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total) / total
-        self.count = total
+        self.count += x.shape[0]
+        diff_to_old_mean = x - self.mean
+        self.mean = self.mean + diff_to_old_mean.sum(0) / self.count
+        self.summed_variance = self.summed_variance + (diff_to_old_mean * (x - self.mean)).sum(0)
+        self.std = torch.clamp(torch.sqrt(torch.clamp(self.summed_variance, min=0.0) / self.count), 1e-6, 1e6)
 
     def normalize(self, x: torch.Tensor) -> torch.Tensor:
-        return torch.clamp((x - self.mean) / torch.sqrt(self.var + 1e-8), -10.0, 10.0)
+        return (x - self.mean) / self.std  # not clipped, as Brax's PPO networks use it
 
 
-def layer(n_in, n_out, std=np.sqrt(2)):
-    linear = nn.Linear(n_in, n_out)
-    nn.init.orthogonal_(linear.weight, std)
-    nn.init.constant_(linear.bias, 0.0)
-    return linear
+def mlp(sizes: list[int]) -> nn.Sequential:
+    """Brax's MLP (training/networks.py): swish between layers, none after the last; weights
+    lecun_uniform (uniform in +-sqrt(3 / fan_in)), biases 0."""
+    layers: list[nn.Module] = []
+    for n_in, n_out in itertools.pairwise(sizes):
+        linear = nn.Linear(n_in, n_out)
+        bound = math.sqrt(3.0 / n_in)
+        nn.init.uniform_(linear.weight, -bound, bound)
+        nn.init.zeros_(linear.bias)
+        layers += [linear, nn.SiLU()]
+    return nn.Sequential(*layers[:-1])
 
 
 class Agent(nn.Module):
-    def __init__(self, obs_size: int, action_size: int, hidden: int, device):
+    def __init__(self, obs_size: int, action_size: int, hidden: list[int]):
         super().__init__()
-        self.obs_rms = RunningMeanStd((obs_size,), device)
-        self.critic = nn.Sequential(layer(obs_size, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh(), layer(hidden, 1, 1.0))
-        self.actor_mean = nn.Sequential(layer(obs_size, hidden), nn.Tanh(), layer(hidden, hidden), nn.Tanh(),
-                                        layer(hidden, action_size, 0.01))
-        self.actor_logstd = nn.Parameter(torch.full((1, action_size), -0.5))
+        self.policy = mlp([obs_size, *hidden, 2 * action_size])  # loc and raw scale of each action dimension
+        self.critic = mlp([obs_size, *hidden, 1])
 
-    def value(self, obs):
-        return self.critic(self.obs_rms.normalize(obs)).squeeze(-1)
+    def distribution(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The Gaussian (before the tanh) at normalized observations x: loc, scale."""
+        loc, raw_scale = self.policy(x).chunk(2, dim=-1)
+        return loc, F.softplus(raw_scale) + MIN_STD
 
-    def act(self, obs, action=None):
-        x = self.obs_rms.normalize(obs)
-        mean = self.actor_mean(x)
-        dist = Normal(mean, self.actor_logstd.expand_as(mean).exp())
-        if action is None:
-            action = dist.sample()
-        return action, dist.log_prob(action).sum(-1), dist.entropy().sum(-1), self.critic(x).squeeze(-1)
+    def value(self, x: torch.Tensor) -> torch.Tensor:
+        return self.critic(x).squeeze(-1)
 
 
-def evaluate(agent: Agent, env_id: str, episodes: int, max_steps: int, seed: int, low, high) -> list[float]:
-    """Returns of the mean action on Gymnasium's own env (its TimeLimit, shortened to max_steps)."""
+def tanh_log_det_jacobian(u: torch.Tensor) -> torch.Tensor:
+    """log |d tanh(u) / du|, computed stably as Brax's TanhBijector does."""
+    return 2.0 * (math.log(2.0) - u - F.softplus(-2.0 * u))
+
+
+def log_prob(loc: torch.Tensor, scale: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """Log-probability of the action tanh(u), from the pre-tanh sample u (summed over action dimensions)."""
+    normal = -0.5 * ((u - loc) / scale) ** 2 - HALF_LOG_2PI - torch.log(scale)
+    return (normal - tanh_log_det_jacobian(u)).sum(-1)
+
+
+def entropy(loc: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Brax's entropy estimate of the tanh-Gaussian: the Gaussian's entropy plus the log-det-Jacobian
+    at one (reparametrized) sample."""
+    u = loc + scale * torch.randn_like(loc)
+    return (0.5 + HALF_LOG_2PI + torch.log(scale) + tanh_log_det_jacobian(u)).sum(-1)
+
+
+@torch.no_grad()
+def compute_gae(rewards, values, bootstrap, termination, truncation, gamma: float, lam: float):
+    """Brax's compute_gae (ppo/losses.py) on (unrolls, time) tensors: the value targets vs and
+    Brax's advantages r_t + gamma * vs_{t+1} - V(s_t). A truncated step (time limit) gets neither
+    advantage nor TD error, and no later error flows past it: the env reset there, so its
+    next observation is the next episode's first one, whose value must not be bootstrapped."""
+    keep = 1.0 - truncation
+    not_terminal = 1.0 - termination
+    next_values = torch.cat([values[:, 1:], bootstrap[:, None]], dim=1)
+    deltas = (rewards + gamma * not_terminal * next_values - values) * keep
+    decay = gamma * lam * not_terminal * keep
+    acc, vs_minus_v = torch.zeros_like(bootstrap), []
+    for t in reversed(range(rewards.shape[1])):
+        acc = deltas[:, t] + decay[:, t] * acc
+        vs_minus_v.append(acc)
+    vs = torch.stack(vs_minus_v[::-1], dim=1) + values
+    next_vs = torch.cat([vs[:, 1:], bootstrap[:, None]], dim=1)
+    advantages = (rewards + gamma * not_terminal * next_vs - values) * keep
+    return vs, advantages
+
+
+def ppo_loss(agent: Agent, normalizer: RunningStatistics, mb: dict, args) -> tuple[torch.Tensor, dict]:
+    """Brax's compute_ppo_loss on a minibatch of whole unrolls (leading axes: unrolls, time)."""
+    obs = normalizer.normalize(mb["obs"])  # (B, T + 1, obs): the last is the unroll's final next-observation
+    loc, scale = agent.distribution(obs[:, :-1])
+    values = agent.value(obs)
+    baseline, bootstrap = values[:, :-1], values[:, -1]
+    vs, advantages = compute_gae(mb["reward"] * args.reward_scaling, baseline.detach(), bootstrap.detach(),
+                                 mb["termination"], mb["truncation"], args.gamma, args.gae_lambda)
+    advantages = (advantages - advantages.mean()) / (advantages.std(unbiased=False) + 1e-8)
+    ratio = torch.exp(log_prob(loc, scale, mb["raw_action"]) - mb["log_prob"])
+    clipped = torch.clamp(ratio, 1.0 - args.clip_coef, 1.0 + args.clip_coef)
+    policy_loss = -torch.minimum(ratio * advantages, clipped * advantages).mean()
+    v_loss = ((vs - baseline) ** 2).mean() * 0.5 * args.vf_coef
+    entropy_loss = -args.ent_coef * entropy(loc, scale).mean()
+    total = policy_loss + v_loss + entropy_loss
+    return total, {"policy_loss": policy_loss, "v_loss": v_loss, "entropy_loss": entropy_loss}
+
+
+def by_unroll(x: torch.Tensor) -> torch.Tensor:
+    """(unroll, time, env, ...) -> (unroll * env, time, ...): one row per unroll of one env, as in Brax."""
+    return x.transpose(1, 2).flatten(0, 1)
+
+
+def evaluate(agent: Agent, normalizer: RunningStatistics, env_id: str, episodes: int, max_steps: int, seed: int,
+             center: torch.Tensor, half: torch.Tensor) -> list[float]:
+    """Returns of the deterministic policy (tanh of the loc, as Brax evaluates) on Gymnasium's own env
+    (its TimeLimit, shortened to max_steps)."""
     env = gymnasium.make(env_id, max_episode_steps=max_steps)
     returns = []
     for episode in range(episodes):
@@ -128,12 +220,14 @@ def evaluate(agent: Agent, env_id: str, episodes: int, max_steps: int, seed: int
         total, done = 0.0, False
         while not done:
             with torch.no_grad():
-                x = agent.obs_rms.normalize(torch.as_tensor(obs, dtype=torch.float32, device=low.device)[None])
-                action = torch.clamp(agent.actor_mean(x)[0], low, high).cpu().numpy()
+                x = normalizer.normalize(torch.as_tensor(obs, dtype=torch.float32, device=center.device)[None])
+                loc, _ = agent.distribution(x)
+                action = (center + half * torch.tanh(loc[0])).cpu().numpy()
             obs, reward, terminated, truncated, _ = env.step(action.astype(np.float64))
             total += float(reward)
             done = terminated or truncated
         returns.append(total)
+    env.close()
     return returns
 
 
@@ -147,111 +241,102 @@ def main(argv=None) -> dict:
                                          **env_kwargs), device=device)
     obs_size = envs.single_observation_space.shape[0]
     action_size = envs.single_action_space.shape[0]
+    # tanh gives actions in [-1, 1]; the env's Box may be wider (InvertedPendulum: [-3, 3]).
     low = torch.as_tensor(envs.single_action_space.low, device=device)
     high = torch.as_tensor(envs.single_action_space.high, device=device)
-    agent = Agent(obs_size, action_size, args.hidden, device).to(device)
-    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-5)
-    reward_rms = RunningMeanStd((), device)  # of the discounted return: rewards are divided by its std
+    center, half = (high + low) / 2, (high - low) / 2
+    agent = Agent(obs_size, action_size, args.hidden).to(device)
+    normalizer = RunningStatistics(obs_size, device)
+    # Brax: optax.adam(learning_rate), one optimizer over both networks, eps 1e-8, constant rate.
+    optimizer = torch.optim.Adam(agent.parameters(), lr=args.learning_rate, eps=1e-8, fused=device.type == "cuda")
 
-    n, t = args.num_envs, args.num_steps
-    batch_size = n * t
-    minibatch_size = batch_size // args.num_minibatches
-    num_iterations = max(1, args.total_timesteps // batch_size)
-    obs_buf = torch.zeros((t, n, obs_size), device=device)
-    actions_buf = torch.zeros((t, n, action_size), device=device)
-    logprobs_buf, rewards_buf, dones_buf, values_buf = (torch.zeros((t, n), device=device) for _ in range(4))
+    n, t = args.num_envs, args.unroll_length
+    unrolls = args.batch_size * args.num_minibatches // n  # per env and iteration
+    steps_per_iteration = unrolls * t * n
+    num_iterations = max(1, math.ceil(args.total_timesteps / steps_per_iteration))
+    # One iteration's data, (unroll, time, env, ...); obs has t + 1 steps: the last is the unroll's
+    # final next-observation, whose value bootstraps the unroll (it is also the next unroll's first).
+    obs_buf = torch.zeros((unrolls, t + 1, n, obs_size), device=device)
+    raw_action_buf = torch.zeros((unrolls, t, n, action_size), device=device)
+    log_prob_buf, reward_buf, termination_buf, truncation_buf = (
+        torch.zeros((unrolls, t, n), device=device) for _ in range(4))
 
     next_obs, _ = envs.reset(seed=args.seed)
-    next_done = torch.zeros(n, device=device)
-    discounted = torch.zeros(n, device=device)
-    episode_return, episode_length = torch.zeros(n, device=device), torch.zeros(n, device=device)
-    finished_returns: list[float] = []
+    episode_return = torch.zeros(n, device=device)
+    ended_returns, ended_count = torch.zeros((), device=device), torch.zeros((), device=device)
     global_step, last_print = 0, time.time()
+    losses: dict = {}
     for iteration in range(1, num_iterations + 1):
-        minutes = (time.time() - start) / 60
-        if minutes > args.max_minutes:
+        if (time.time() - start) / 60 > args.max_minutes:
             print(f"stopping: --max-minutes {args.max_minutes} reached")
             break
-        # Annealed to 0 at the end of training, whether the step budget or the clock ends it.
-        progress = max((iteration - 1.0) / num_iterations, minutes / args.max_minutes)
-        optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - progress)
-        for step in range(t):
-            obs_buf[step], dones_buf[step] = next_obs, next_done
-            with torch.no_grad():
-                action, logprob, _, value = agent.act(next_obs)
-            actions_buf[step], logprobs_buf[step], values_buf[step] = action, logprob, value
-            next_obs, reward, terminated, truncated, info = envs.step(torch.clamp(action, low, high))
-            reward, terminated, truncated = reward.float(), terminated.float(), truncated.float()
-            episode_return += reward
-            episode_length += 1
-            ended = torch.maximum(terminated, truncated)
-            if step % 8 == 0:  # a host sync: only now and then
-                done_ids = ended.nonzero().squeeze(-1)
-                finished_returns += episode_return[done_ids].tolist()
-            episode_return *= 1 - ended
-            episode_length *= 1 - ended
-            discounted = discounted * args.gamma + reward  # the return so far, discounted backwards
-            reward_rms.update(discounted)
-            discounted = discounted * (1 - ended)
-            scaled = reward / torch.sqrt(reward_rms.var + 1e-8)
-            # A truncated episode did not end in the task: its last observation's value is bootstrapped.
-            with torch.no_grad():
-                final_value = agent.value(info["final_obs"].float())
-            scaled = scaled + args.gamma * final_value * truncated * (1 - terminated)
-            rewards_buf[step] = scaled
-            next_done = ended
-            global_step += n
+        # ---- collect: every env unrolled `unrolls` times for t steps with the stochastic policy ----
+        with torch.no_grad():
+            for u in range(unrolls):
+                obs_buf[u, 0] = next_obs
+                for step in range(t):
+                    loc, scale = agent.distribution(normalizer.normalize(next_obs))
+                    raw_action = loc + scale * torch.randn_like(loc)  # the Gaussian sample; the env gets its tanh
+                    raw_action_buf[u, step] = raw_action
+                    log_prob_buf[u, step] = log_prob(loc, scale, raw_action)
+                    next_obs, reward, terminated, truncated, _ = envs.step(center + half * torch.tanh(raw_action))
+                    # Truncation (the time limit) is handled as Brax does, by masking the truncated step in
+                    # the GAE (compute_gae) rather than bootstrapping from info["final_obs"]: it is the
+                    # recipe that trains this task, it keeps the loss to one value pass over the unroll,
+                    # and it costs one step in 1,000 on Hopper. A step that both falls and hits the limit
+                    # counts as a fall.
+                    terminated, truncated = terminated.float(), truncated.float()
+                    obs_buf[u, step + 1] = next_obs
+                    reward_buf[u, step] = reward.float()
+                    termination_buf[u, step] = terminated
+                    truncation_buf[u, step] = truncated * (1.0 - terminated)
+                    # Episode returns for the progress line, summed on the device: no host sync here.
+                    episode_return += reward.float()
+                    ended = torch.maximum(terminated, truncated)
+                    ended_returns += (episode_return * ended).sum()
+                    ended_count += ended.sum()
+                    episode_return *= 1.0 - ended
+                    global_step += n
 
-        with torch.no_grad():  # GAE
-            next_value = agent.value(next_obs)
-            advantages = torch.zeros_like(rewards_buf)
-            last = torch.zeros(n, device=device)
-            for step in reversed(range(t)):
-                nonterminal = 1.0 - (next_done if step == t - 1 else dones_buf[step + 1])
-                following = next_value if step == t - 1 else values_buf[step + 1]
-                delta = rewards_buf[step] + args.gamma * following * nonterminal - values_buf[step]
-                last = delta + args.gamma * args.gae_lambda * nonterminal * last
-                advantages[step] = last
-            returns = advantages + values_buf
+            # Brax updates the normalizer with the batch's observations before the SGD passes on it.
+            normalizer.update(obs_buf[:, :t].reshape(-1, obs_size))
+            data = {"obs": by_unroll(obs_buf), "raw_action": by_unroll(raw_action_buf),
+                    "log_prob": by_unroll(log_prob_buf), "reward": by_unroll(reward_buf),
+                    "termination": by_unroll(termination_buf), "truncation": by_unroll(truncation_buf)}
 
-        b_obs, b_actions = obs_buf.reshape(-1, obs_size), actions_buf.reshape(-1, action_size)
-        b_logprobs, b_advantages = logprobs_buf.reshape(-1), advantages.reshape(-1)
-        b_returns, b_values = returns.reshape(-1), values_buf.reshape(-1)
+        # ---- learn: update-epochs passes, each over the unrolls in num-minibatches shuffled minibatches ----
+        num_unrolls = unrolls * n
         for _ in range(args.update_epochs):
-            order = torch.randperm(batch_size, device=device)
-            for begin in range(0, batch_size, minibatch_size):
-                idx = order[begin:begin + minibatch_size]
-                _, newlogprob, entropy, newvalue = agent.act(b_obs[idx], b_actions[idx])
-                ratio = (newlogprob - b_logprobs[idx]).exp()
-                adv = b_advantages[idx]
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                pg_loss = torch.max(-adv * ratio, -adv * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)).mean()
-                v_clipped = b_values[idx] + torch.clamp(newvalue - b_values[idx], -args.clip_coef, args.clip_coef)
-                v_loss = 0.5 * torch.max((newvalue - b_returns[idx]) ** 2, (v_clipped - b_returns[idx]) ** 2).mean()
-                loss = pg_loss - args.ent_coef * entropy.mean() + args.vf_coef * v_loss
-                optimizer.zero_grad()
+            order = torch.randperm(num_unrolls, device=device)
+            for begin in range(0, num_unrolls, args.batch_size):
+                idx = order[begin:begin + args.batch_size]
+                loss, losses = ppo_loss(agent, normalizer, {k: v[idx] for k, v in data.items()}, args)
+                optimizer.zero_grad(set_to_none=True)
                 loss.backward()
-                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+                if args.max_grad_norm is not None:
+                    nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
                 optimizer.step()
-
-        # After the update, so that a rollout and the update on it see the same normalization.
-        agent.obs_rms.update(b_obs)
 
         if time.time() - last_print > 10 or iteration == num_iterations:
             last_print = time.time()
-            recent = finished_returns[-200:]
-            mean = f"{np.mean(recent):.0f}" if recent else "-"
-            print(f"iter {iteration}/{num_iterations} steps {global_step:,} "
-                  f"({global_step / (time.time() - start):,.0f}/s) mean episode return (last 200) {mean}", flush=True)
+            count = int(ended_count.item())  # the host syncs: once a progress line
+            mean = f"{ended_returns.item() / count:.0f} ({count} episodes)" if count else "- (none ended)"
+            ended_returns.zero_()
+            ended_count.zero_()
+            parts = " ".join(f"{k} {v.item():.3g}" for k, v in losses.items())
+            rate = global_step / (time.time() - start)
+            print(f"iter {iteration}/{num_iterations} steps {global_step:,} ({rate:,.0f}/s) "
+                  f"mean return of the episodes ended since the last line {mean}; {parts}", flush=True)
 
     train_s = time.time() - start
-    scores = evaluate(agent, args.eval_env_id, args.eval_episodes, args.eval_max_steps, args.seed, low, high)
+    scores = evaluate(agent, normalizer, args.eval_env_id, args.eval_episodes, args.eval_max_steps, args.seed,
+                      center, half)
     result = {"env_steps": global_step, "train_s": train_s, "wall_s": time.time() - start, "eval_env": args.eval_env_id,
               "eval_mean_return": float(np.mean(scores)), "eval_returns": scores}
     print(f"trained {global_step:,} env steps in {train_s / 60:.1f} min (compile included; "
           f"{result['wall_s'] / 60:.1f} min with the evaluation); "
-          f"{args.eval_env_id} (Gymnasium's own env), mean action: mean return {result['eval_mean_return']:.0f} "
-          f"over {len(scores)} episodes")
+          f"{args.eval_env_id} (Gymnasium's own env), deterministic policy: mean return "
+          f"{result['eval_mean_return']:.0f} over {len(scores)} episodes")
     return result
 
 

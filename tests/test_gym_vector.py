@@ -288,9 +288,9 @@ def test_torch_example_trains_and_plays_gymnasiums_hopper():
         import ppo_torch_hopper
     finally:
         sys.path.remove(str(ROOT / "examples"))
-    result = ppo_torch_hopper.main(["--num-envs", "8", "--num-steps", "8", "--total-timesteps", "128",
-                                    "--num-minibatches", "2", "--eval-episodes", "1", "--eval-max-steps", "20",
-                                    "--device", "cpu"])
+    result = ppo_torch_hopper.main(["--num-envs", "8", "--unroll-length", "8", "--batch-size", "4",
+                                    "--num-minibatches", "2", "--update-epochs", "2", "--total-timesteps", "128",
+                                    "--eval-episodes", "1", "--eval-max-steps", "20", "--device", "cpu"])
     assert result["env_steps"] == 128 and result["eval_env"] == "Hopper-v5"
     assert np.isfinite(result["eval_mean_return"]) and len(result["eval_returns"]) == 1
 
