@@ -333,13 +333,14 @@ class BackgroundSaves:
         self.written_s = 0.0
 
     def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int) -> None:
-        """Write `host_state` (numpy arrays that nothing else changes) in the background."""
+        """Write `host_state` (numpy arrays that nothing else changes, or a function that makes
+        them on the writing thread) in the background."""
         self.wait()
 
         def write():
             try:
                 start = time.perf_counter()
-                save_state(out_dir, env, host_state, chunks_done)
+                save_state(out_dir, env, host_state() if callable(host_state) else host_state, chunks_done)
                 self.written_s = time.perf_counter() - start
             except BaseException as err:  # raised again by the next save or wait, on the run's thread
                 self._error = err

@@ -320,6 +320,7 @@ def train_run(
         bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
                                   prefill + chunks_done * config.eval_every, env_name, enabled=progress and writer)
         last = clock.last = chunks_done
+        clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(ts)))  # the first save's cost, before it is measured
         solved_early = False
         overflow_told = False
         try:
@@ -380,7 +381,7 @@ def train_run(
         # over it, and a failed chunk may have consumed its donated train state).
         if out is not None and clock.last != last:
             save_start = time.perf_counter()
-            save(saves, out, env_name, placement, ts, last)  # written during the final evaluation
+            save(saves, out, env_name, placement, ts, last, final=True)  # copied and written during the final evaluation
             clock.saved(last, save_start, saves.written_s)
             result.save_s += time.perf_counter() - save_start
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
@@ -471,14 +472,19 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int) -> None:
+         chunks_done: int, final: bool = False) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
     The files are written on another thread while the run goes on (the next chunks, or the final
     evaluation): what waits is the copy to the host and the previous save's write, if still under
     way. Each write is atomic, so a kill loses at most the chunks since the last save on disk (one
     checkpoint interval, plus the write under way). A CPU's host arrays can share memory with the
-    device buffers that the next chunk reuses: those are copied."""
+    device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
+    used by nothing after it (the final evaluation reads them, nothing donates them): on one
+    process its copy to the host is made on the writing thread too."""
+    if final and jax.process_count() == 1:
+        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done)
+        return
     host = placement.to_host(ts)
     if sharding.is_writer():
         if placement.devices[0].platform == "cpu":

@@ -33,6 +33,11 @@ CHECKPOINT_SECONDS = 5.0
 # takes at most 1 / (1 + SAVE_COST_FACTOR) of the wall time (~5%) however large the state, while runs
 # whose saves are shorter than CHECKPOINT_SECONDS / SAVE_COST_FACTOR keep the CHECKPOINT_SECONDS rhythm.
 SAVE_COST_FACTOR = 20.0
+# Before the first save is measured, its cost is estimated from the train state's size at this
+# rate (the copy to the host, the checksums and the write together; a lower bound of what was
+# measured for large states on GPU hosts and the 2-core CPU, docs/reliability.md): a run whose
+# state takes long to save does not spend its first seconds saving it.
+SAVE_BYTES_PER_S = 0.5e9
 
 
 # A run whose steps overflow MuJoCo Warp's buffers more often than this stops: its agents would
@@ -90,6 +95,11 @@ class SaveClock:
     def due(self, done: int) -> bool:
         wait_s = max(self.seconds, SAVE_COST_FACTOR * self.save_s) if self.seconds > 0 else 0.0
         return done - self.last >= self.every and time.perf_counter() - self.at >= wait_s
+
+    def expect(self, state_bytes: int) -> None:
+        """Space the first save out as if a save of `state_bytes` had been measured
+        (SAVE_BYTES_PER_S), until one is."""
+        self.save_s = max(self.save_s, state_bytes / SAVE_BYTES_PER_S)
 
     def saved(self, done: int, started: float, written_s: float = 0.0) -> None:
         """Record a save of `done` units that began at `started` (time.perf_counter()). A save
