@@ -89,6 +89,12 @@ def wait_for(condition, out, process, timeout=120.0):
         time.sleep(0.01)
 
 
+def _chunks_logged(out) -> int:
+    """Lines in the run's metrics.jsonl so far: the chunks it has trained (0 before the first)."""
+    path = out / checkpoint.METRICS_FILE
+    return len(path.read_text().splitlines()) if path.is_file() else 0
+
+
 KILL_MOMENTS = {
     "before the first checkpoint": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
     "during a save": lambda out: any(out.glob("*.ckpt.tmp")),
@@ -109,7 +115,7 @@ def test_kill_9_then_resume_ends_as_the_uninterrupted_run(tmp_path, reference, m
         process.wait()
     assert not (out / "eval.json").exists()  # the kill really cut the run short
     if (out / checkpoint.STATE_FILE).exists():  # the previous good checkpoint survived the kill...
-        logged = len((out / checkpoint.METRICS_FILE).read_text().splitlines())
+        logged = _chunks_logged(out)
         # ...at most one interval (a chunk) behind the save under way, whose write overlaps the next chunk
         assert logged - 2 <= final_state(out)[1] < CONFIG.num_chunks
     assert cli_main(["train", "--out", str(out), "--resume"]) == 0  # env, seeds, config come from --out
@@ -329,12 +335,10 @@ def _progress(out) -> int:
 
 SIGNAL_MOMENTS = {  # the run's phases, told from its directory (renames slowed by SLOW_SAVES)
     "during compile": lambda out: (out / checkpoint.CONFIG_FILE).is_file(),
-    "during training": lambda out: (out / checkpoint.METRICS_FILE).is_file()
-    and len((out / checkpoint.METRICS_FILE).read_text().splitlines()) >= 2,
+    "during training": lambda out: _chunks_logged(out) >= 2,
     "during a save": lambda out: any(out.glob("*.ckpt.tmp")),
     # the last chunk logged: its save is written in the background while the final evaluation runs
-    "during the final evaluation": lambda out: (out / checkpoint.METRICS_FILE).is_file()
-    and len((out / checkpoint.METRICS_FILE).read_text().splitlines()) == CONFIG.num_chunks,
+    "during the final evaluation": lambda out: _chunks_logged(out) == CONFIG.num_chunks,
 }
 
 
