@@ -320,6 +320,13 @@ def train_run(
         bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
                                   prefill + chunks_done * config.eval_every, env_name, enabled=progress and writer)
         last = clock.last = chunks_done
+
+        def checkpoint_now(state: Any, done: int, final: bool = False) -> None:  # timed on the save clock
+            save_start = time.perf_counter()
+            save(saves, out, env_name, placement, state, done, final=final)
+            clock.saved(done, save_start, saves.written_s)
+            result.save_s += time.perf_counter() - save_start
+
         clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(ts)))  # the first save's cost, before it is measured
         solved_early = False
         overflow_told = False
@@ -368,10 +375,7 @@ def train_run(
                     solved_early = True
                     break
                 if placement.same_on_every_process(out is not None and clock.due(last)):  # process 0's clock
-                    save_start = time.perf_counter()
-                    save(saves, out, env_name, placement, ts, last)  # written while the next chunks train
-                    clock.saved(last, save_start, saves.written_s)
-                    result.save_s += time.perf_counter() - save_start
+                    checkpoint_now(ts, last)  # written while the next chunks train
         except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
             result.interrupted = True
         finally:
@@ -380,10 +384,7 @@ def train_run(
         # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
         # over it, and a failed chunk may have consumed its donated train state).
         if out is not None and clock.last != last:
-            save_start = time.perf_counter()
-            save(saves, out, env_name, placement, ts, last, final=True)  # copied and written during the final evaluation
-            clock.saved(last, save_start, saves.written_s)
-            result.save_s += time.perf_counter() - save_start
+            checkpoint_now(ts, last, final=True)  # copied and written during the final evaluation
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
         result.judges, result.judge_s = judge_clock.judges, judge_clock.judge_s  # the clock keeps the count
         # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
