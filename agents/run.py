@@ -286,7 +286,8 @@ def train_run(
         train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
         judge_fn = seed_batched(judge, per_device, seed_axis)
         kind = type(learner).__name__  # names its programs in the export cache
-        if placement.mesh is None:
+        train_program = judge_program = None  # a finished run (resumed to evaluate) trains no chunk
+        if chunks_done < config.num_chunks and placement.mesh is None:
             judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
                       + ("" if record_episode else ", no episode recorded"))
             trained = f"{kind}.train_steps over seeds by {seed_axis}"
@@ -294,12 +295,13 @@ def train_run(
                                                         env_options, donate=True).compile, "train")
             judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
                                          env_name, env_options, donate=True).compile()
-        else:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+        elif chunks_done < config.num_chunks:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
             options = training_compiler_options(env=learner.env)
             train_program = in_background(
                 partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile, options), "train")
             judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
-        train_program = train_program.result()
+        if train_program is not None:
+            train_program = train_program.result()
 
         if inputs is not None:
             init_args, eval_keys = inputs.result()
@@ -323,23 +325,40 @@ def train_run(
 
         def checkpoint_now(state: Any, done: int, final: bool = False) -> None:  # timed on the save clock
             save_start = time.perf_counter()
-            save(saves, out, env_name, placement, state, done, final=final)
+            save(saves, out, env_name, placement, state, done, final=final, finished=done == config.num_chunks)
             clock.saved(done, save_start, saves.written_s)
             result.save_s += time.perf_counter() - save_start
 
         clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(ts)))  # the first save's cost, before it is measured
         solved_early = False
         overflow_told = False
+        # The next chunk is dispatched before this one's host work (its metrics to JSON, the bar), so
+        # the device trains on while the host works, where nothing of that work can change what the
+        # next chunk does: no `on_chunk` (it is handed the train state, which the next chunk
+        # consumes), no stop when solved, no save due, no signal, and signals caught (where they
+        # are not, a KeyboardInterrupt could come with a chunk in flight and its state unlogged).
+        look_ahead = on_chunk is None and not stop_when_solved and stop.catching
+        stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
+
+        def save_due(done: int) -> bool:  # a periodic save; a run's last chunk is the final save's (after the loop)
+            return placement.same_on_every_process(out is not None and done < config.num_chunks
+                                                   and clock.due(done))  # process 0's clock
+
+        ahead = None  # (the next chunk's outputs, when the device began it), dispatched early
         try:
             for index in range(chunks_done, config.num_chunks):
-                if stop_after_chunks is not None and index >= stop_after_chunks:
-                    break
-                # a signal during compile, a chunk or a save
-                if placement.same_on_every_process(stop.requested is not None):
-                    result.interrupted = True
-                    break
-                tick = time.perf_counter()
-                ts, metrics, eval_key = train_program(ts)
+                if ahead is not None:
+                    (ts, metrics, eval_key), tick = ahead
+                    ahead = None
+                else:
+                    if stop_after_chunks is not None and index >= stop_after_chunks:
+                        break
+                    # a signal during compile, a chunk or a save
+                    if placement.same_on_every_process(stop.requested is not None):
+                        result.interrupted = True
+                        break
+                    tick = time.perf_counter()
+                    ts, metrics, eval_key = train_program(ts)
                 eval_episode = None
                 judging = placement.same_on_every_process(judge_clock.due(index, tick - start))  # process 0's clock
                 if judging:
@@ -350,7 +369,13 @@ def train_run(
                     metrics = {**judged, **metrics}
                     if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
                         eval_episode = placement.to_host(eval_episode)
+                last = index + 1
+                if (look_ahead and last < stop_at and not save_due(last)
+                        and not placement.same_on_every_process(stop.requested is not None)):
+                    ahead = train_program(ts)
                 record = _host(placement.to_host(metrics))
+                if ahead is not None:  # this chunk is done: the device is on the next one from here
+                    ahead = (ahead, time.perf_counter())
                 if judging:
                     judge_clock.judged(time.perf_counter() - judge_tick)
                     result.train_s += judge_tick - tick
@@ -361,7 +386,6 @@ def train_run(
                 record["steps_per_s"] = config.eval_every * agents / elapsed
                 overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
                 result.history.append(record)
-                last = index + 1
                 now = time.perf_counter() - start
                 for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
                     if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
@@ -374,7 +398,7 @@ def train_run(
                 if stop_when_solved and judging and None not in result.solve_wall_s:
                     solved_early = True
                     break
-                if placement.same_on_every_process(out is not None and clock.due(last)):  # process 0's clock
+                if ahead is None and save_due(last):  # (a chunk dispatched ahead: none was due)
                     checkpoint_now(ts, last)  # written while the next chunks train
         except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
             result.interrupted = True
@@ -473,7 +497,7 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int, final: bool = False) -> None:
+         chunks_done: int, final: bool = False, finished: bool = False) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
     The files are written on another thread while the run goes on (the next chunks, or the final
@@ -482,15 +506,18 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     checkpoint interval, plus the write under way). A CPU's host arrays can share memory with the
     device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
     used by nothing after it (the final evaluation reads them, nothing donates them): on one
-    process its copy to the host is made on the writing thread too."""
+    process its copy to the host is made on the writing thread too. A `finished` run's replay
+    buffers are neither copied nor written (`checkpoint.without_replay`)."""
+    if finished:
+        ts = checkpoint.without_replay(ts)
     if final and jax.process_count() == 1:
-        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done)
+        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished)
         return
     host = placement.to_host(ts)
     if sharding.is_writer():
         if placement.devices[0].platform == "cpu":
             host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
-        saves.save(out, env_name, host, chunks_done)
+        saves.save(out, env_name, host, chunks_done, finished)
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:

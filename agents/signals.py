@@ -90,6 +90,11 @@ class _Catching:
         self._previous.clear()
 
     @property
+    def catching(self) -> bool:
+        """Whether the signals come here (in the main thread), not as a KeyboardInterrupt."""
+        return bool(self._previous)
+
+    @property
     def name(self) -> str | None:
         """The first signal's name ("SIGINT", "SIGTERM"), None before any."""
         return None if self.requested is None else signal.Signals(self.requested).name

@@ -10,7 +10,7 @@ import pytest
 from jax.flatten_util import ravel_pytree
 
 import envs
-from agents import DQN, DQNConfig, device_options, load_policy, train, train_run
+from agents import DQN, DQNConfig, checkpoint, device_options, load_policy, train, train_run
 from agents.cli import main as cli_main
 from agents.dqn import greedy, unpack
 from agents.run import run_keys
@@ -117,6 +117,39 @@ def test_resume_reproduces_the_uninterrupted_run(tmp_path, name, replay):
     assert summary["env"] == name and summary["seeds"] == 2 and len(summary["mean_return"]) == 2
     lines = (tmp_path / "whole" / "metrics.jsonl").read_text().splitlines()
     assert len(lines) == config.num_chunks and "eval_return" in json.loads(lines[0])
+
+
+def test_a_finished_runs_checkpoint_leaves_the_replay_out_and_resumes_to_its_evaluation(tmp_path):
+    """The final save of a finished run skips the replay buffers (nothing reads them after the last
+    chunk: most of a large run's bytes); a stopped run's checkpoint keeps them; --resume of the
+    finished run compiles no training chunk and evaluates as the run did."""
+    whole = train_run("cartpole", SMALL, seeds=2, out_dir=tmp_path / "whole", progress=False)
+    part = train_run("cartpole", SMALL, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2)
+    (finished_meta, finished), (stopped_meta, stopped) = (
+        checkpoint.read_leaves(out / checkpoint.STATE_FILE, "train_state") for out in (tmp_path / "whole", tmp_path / "part"))
+    buffer_leaves = len(jax.tree.leaves(part.train_state.buffer))
+    assert finished_meta["replay_left_out"] and not stopped_meta["replay_left_out"]
+    assert len(finished) == len(stopped) - buffer_leaves
+    expected = jax.tree.leaves(checkpoint.without_replay(whole.train_state))
+    for a, b in zip(finished, expected, strict=True):
+        np.testing.assert_array_equal(a, np.asarray(b))
+    again = train_run("cartpole", SMALL, seeds=2, out_dir=tmp_path / "whole", progress=False, resume=True)
+    assert again.train_state.buffer is None and again.history == [] and again.mean_return == whole.mean_return
+
+
+def test_dispatching_the_next_chunk_ahead_changes_nothing():
+    """Without `on_chunk` the next chunk starts before the host reads this one's metrics; with it,
+    after: the same train state and metrics either way."""
+    ahead = train_run("cartpole", SMALL, seeds=2, progress=False, judge_every=1)
+    seen = []
+    in_turn = train_run("cartpole", SMALL, seeds=2, progress=False, judge_every=1,
+                        on_chunk=lambda index, ts, record: seen.append(index))
+    assert seen == list(range(SMALL.num_chunks))
+    for a, b in zip(jax.tree.leaves(ahead.train_state), jax.tree.leaves(in_turn.train_state), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    drop = {"steps_per_s"}
+    assert [{k: v for k, v in r.items() if k not in drop} for r in ahead.history] == \
+        [{k: v for k, v in r.items() if k not in drop} for r in in_turn.history]
 
 
 def test_load_policy_acts_greedily_on_one_or_many_observations(tmp_path):

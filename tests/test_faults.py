@@ -290,7 +290,7 @@ def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int],
 
     clock, saves = _FakeTime(), []
 
-    def slow_save(background_saves, out, env_name, placement, ts, chunks_done, final=False):
+    def slow_save(background_saves, out, env_name, placement, ts, chunks_done, final=False, finished=False):
         clock.now += save_s
         saves.append(chunks_done)
 
