@@ -228,8 +228,12 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
 
     evals = [json.loads((child.directory / "eval.json").read_text()) for child in children]
     mean_return = [value for e in evals for value in e["mean_return"]]
+    tie_break = [value for e in evals for value in e.get("tie_break_return") or [None] * len(e["mean_return"])]
     env_name, _, agent, params = load_agent(out)
-    best_seed = break_ties(agent, env_name, run.env_options, params, mean_return, run.seed)
+    # The processes' own tie-breaks measured their tied seeds as this would: only seeds tied over the
+    # whole run but not within their process are measured here.
+    best_seed, tie_break_now = break_ties(agent, env_name, run.env_options, params, mean_return, run.seed,
+                                         measured={i: v for i, v in enumerate(tie_break) if v is not None})
     slowest = max(evals, key=lambda e: e["wall_s"])  # where the run's time went: its slowest process
     parts = slowest["wall_parts_s"]
     result = RunResult(params=params, train_state=None, mean_return=mean_return,
@@ -244,7 +248,7 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
                "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,
                "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges, "chunks": result.chunks_done,
-               "processes": len(children)}
+               "tie_break_return": [tie_break_now.get(i) for i in range(len(mean_return))], "processes": len(children)}
     checkpoint.atomic_write(out / "eval.json", json.dumps(summary, indent=2).encode())
     return result
 

@@ -309,12 +309,15 @@ def train_run(
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
         final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
-        if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
-            params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
-                                        ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
-                                                      (params_shape, eval_keys), learner, agents, env_name, env_options),
-                                              "evaluation")
+        if stop_after_chunks is None or stop_after_chunks >= config.num_chunks:
+            params_shape = placement.abstract(ts.best_params)  # not the arrays: the first chunk consumes them
+            if placement.mesh is None:
+                final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+                                                          (params_shape, eval_keys), learner, agents, env_name,
+                                                          env_options), "evaluation")
+            elif jax.process_count() == 1:
+                sharded = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
+                final_evaluation = in_background(lambda: sharded.lower(params_shape, eval_keys).compile(), "evaluation")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
@@ -434,7 +437,8 @@ def train_run(
             evaluate = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
-        result.best_seed = break_ties(learner, env_name, env_options, result.params, result.mean_return, seed)
+        result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
+                                                 seed, first)
         result.eval_s = time.perf_counter() - eval_start
         result.save_s += _waited(saves)
         result.finish(start)
@@ -444,7 +448,8 @@ def train_run(
                                     "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                                     "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
                                     "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges,
-                                    "chunks": result.chunks_done})
+                                    "chunks": result.chunks_done,
+                                    "tie_break_return": [tie_break.get(first + i) for i in range(agents)]})
         return result
 
 
@@ -475,25 +480,37 @@ TIE_BREAK_EPISODES = 4  # ...and this many times as many as an evaluation's
 
 
 def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any, returns: list[float],
-               seed: int) -> int:
-    """The best seed by the final evaluation; seeds that tie there (many CartPole seeds hold every
-    episode to its time limit) are told apart by a longer evaluation: more episodes, each
-    TIE_BREAK_LENGTH time limits long where the task takes `episode_length`, so a policy that only
-    holds out to the limit loses to one that keeps balancing. Ties after that go to the first."""
+               seed: int, first: int = 0, measured: dict[int, float] | None = None) -> tuple[int, dict[int, float]]:
+    """The best seed by the final evaluation (an index into `returns`); seeds that tie there (many
+    CartPole seeds hold every episode to its time limit) are told apart by a longer evaluation:
+    more episodes, each TIE_BREAK_LENGTH time limits long where the task takes `episode_length`,
+    so a policy that only holds out to the limit loses to one that keeps balancing. Ties after
+    that go to the first. Also returns the tied seeds' longer returns, by run seed index.
+
+    `returns` (and `params`' rows) are the run's seeds `first`, `first + 1`, ...: a seed's longer
+    evaluation draws its keys from its index in the run, so a process of a run measures its
+    seeds as one process of the whole run would, and the merge (`agents.processes`) passes
+    those (`measured`) instead of measuring them again."""
     returns = np.asarray(returns)
     tied = np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
     if len(tied) == 1:
-        return int(tied[0])
-    options = dict(env_options or {})
-    length = getattr(agent.env, "episode_length", None)
-    if length is not None and "episode_length" in envs.options(env_name):
-        options["episode_length"] = TIE_BREAK_LENGTH * length
-    longer = registry.make(agent.config, envs.make(env_name, **options))
-    episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
-    candidates = jax.tree.map(lambda x: jnp.asarray(x)[tied], jax.device_get(params))
-    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 2), len(tied))
-    longer_returns = jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))(candidates, keys)
-    return int(tied[int(np.argmax(np.asarray(longer_returns)))])
+        return int(tied[0]), {}
+    longer_returns = {index: value for index, value in (measured or {}).items() if index - first in tied}
+    missing = [int(i) for i in tied if first + i not in longer_returns]
+    if missing:
+        options = dict(env_options or {})
+        length = getattr(agent.env, "episode_length", None)
+        if length is not None and "episode_length" in envs.options(env_name):
+            options["episode_length"] = TIE_BREAK_LENGTH * length
+        longer = registry.make(agent.config, envs.make(env_name, **options))
+        episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
+        candidates = jax.tree.map(lambda x: jnp.asarray(x)[np.asarray(missing)], jax.device_get(params))
+        tie_key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
+        keys = jax.vmap(lambda i: jax.random.fold_in(tie_key, i))(first + jnp.asarray(missing))
+        measured_now = jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))(candidates, keys)
+        longer_returns.update({first + i: float(v) for i, v in zip(missing, np.asarray(measured_now))})
+    best = max(tied, key=lambda i: (longer_returns[first + i], -i))
+    return int(best), {first + int(i): longer_returns[first + int(i)] for i in tied}
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -219,11 +220,16 @@ def test_ties_between_seeds_are_broken_by_a_longer_evaluation():
     config = DQNConfig(hidden=(8,), eval_episodes=2)
     dqn = DQN(config, envs.make("cartpole", episode_length=20))
     params = jax.vmap(dqn.init)(seed_keys(0, 3)).params
-    assert break_ties(dqn, "cartpole", {"episode_length": 20}, params, [1.0, 5.0, 3.0], 0) == 1
+    assert break_ties(dqn, "cartpole", {"episode_length": 20}, params, [1.0, 5.0, 3.0], 0) == (1, {})
     longer = jax.vmap(lambda p, k: DQN(config, envs.make("cartpole", episode_length=80)).evaluate(p, k, 8).mean())
-    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(0), 2), 2)
-    expected = int(np.argmax(np.asarray(longer(jax.tree.map(lambda x: x[:2], params), keys))))
-    assert break_ties(dqn, "cartpole", {"episode_length": 20}, params, [20.0, 20.0, 3.0], 0) == expected
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(0), 2), i))(jnp.arange(2))
+    expected = np.asarray(longer(jax.tree.map(lambda x: x[:2], params), keys))
+    best, measured = break_ties(dqn, "cartpole", {"episode_length": 20}, params, [20.0, 20.0, 3.0], 0)
+    assert best == int(np.argmax(expected)) and measured == pytest.approx({0: expected[0], 1: expected[1]})
+    # seeds 5 and 6 of a run (a process's slice): keyed by their index in the run, not in the slice
+    _, sliced = break_ties(dqn, "cartpole", {"episode_length": 20}, params, [20.0, 20.0, 3.0], 0, first=5)
+    keys = jax.vmap(lambda i: jax.random.fold_in(jax.random.fold_in(jax.random.PRNGKey(0), 2), i))(jnp.arange(5, 7))
+    assert sliced == pytest.approx(dict(zip((5, 6), np.asarray(longer(jax.tree.map(lambda x: x[:2], params), keys)))))
 
 
 # ---- slow: the README's PPO job, judged on Gymnasium ----------------------------------------

@@ -214,5 +214,29 @@ def test_tied_seeds_are_told_apart_over_every_seed_as_in_one_process(runs, tmp_p
     saved = checkpoint.load_config(run)
     merged = processes.merge(run, saved, processes.children_of(run, []), time.perf_counter())
     env_name, _, agent, params = load_agent(one)
-    assert merged.best_seed == break_ties(agent, env_name, saved.env_options, params, [10.0, 10.0], saved.seed)
-    assert json.loads((run / "eval.json").read_text())["best_seed"] == merged.best_seed
+    best, measured = break_ties(agent, env_name, saved.env_options, params, [10.0, 10.0], saved.seed)
+    assert merged.best_seed == best
+    merged_eval = json.loads((run / "eval.json").read_text())
+    assert merged_eval["best_seed"] == merged.best_seed and merged_eval["tie_break_return"] == pytest.approx([measured[0], measured[1]])
+
+
+def test_the_merge_takes_the_tie_break_its_processes_measured(runs, tmp_path):
+    """Seeds tied within their process were measured there (keyed by their index in the run, as one
+    process does): the merge takes those returns rather than measuring again. Shown by returns
+    the opposite of the real ones, which only a merge that reads them follows."""
+    from agents.run import break_ties
+
+    one, two = runs
+    run = tmp_path / "run"
+    shutil.copytree(two, run)
+    saved = checkpoint.load_config(run)
+    env_name, _, agent, params = load_agent(one)
+    real_best, measured = break_ties(agent, env_name, saved.env_options, params, [10.0, 10.0], saved.seed)
+    made_up = {0: measured[1], 1: measured[0]} if measured[0] != measured[1] else {0: 1.0, 1: 2.0}
+    for k, child in enumerate(sorted((run / processes.PROCESSES_DIR).iterdir())):
+        record = json.loads((child / "eval.json").read_text())
+        (child / "eval.json").write_text(json.dumps({**record, "mean_return": [10.0], "tie_break_return": [made_up[k]]}))
+    merged = processes.merge(run, saved, processes.children_of(run, []), time.perf_counter())
+    assert merged.best_seed == max((0, 1), key=lambda i: (made_up[i], -i))
+    if measured[0] != measured[1]:
+        assert merged.best_seed != real_best
