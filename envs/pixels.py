@@ -8,6 +8,10 @@ the images of one camera, rendered inside the jitted step:
   newest (the newest frame is `obs[..., -channels:]`); a reset fills it with the first frame.
 - `info["state_obs"]`: the task's own observation vector (for an asymmetric actor-critic); after an
   auto-reset, `info["final_state_obs"]` holds the finished episode's, as `info["final_obs"]` its frames.
+- `action_repeat=k`: each env step applies the action for k steps of the task and sums their
+  rewards (as the pixel benchmarks of dm_control's suite do), so the frames are k task steps
+  apart; a step that ends the episode ends the repeat. The time limit counts env steps: the
+  same seconds of a task take `episode_length / k` of them.
 - Depth is planar, as MuJoCo Warp's: the distance along the camera's optical axis (0 where no geom
   is hit). `Pixels.render` returns the float images a frame is made from.
 
@@ -45,7 +49,8 @@ if TYPE_CHECKING:
 
 OBSERVATIONS = ("state", "pixels")
 # The options `envs.make` takes for pixels, with their defaults (the registry adds them to every MJX task).
-PIXEL_OPTIONS = {"observation": "state", "camera": None, "width": 64, "height": 64, "depth": False, "frame_stack": 1}
+PIXEL_OPTIONS = {"observation": "state", "camera": None, "width": 64, "height": 64, "depth": False, "frame_stack": 1,
+                 "action_repeat": 1}
 MAX_SIZE = 4096  # pixels per side
 DEFAULT_CAMERA = "pixels_default"
 GEOM_GROUPS = (0, 1, 2)  # the geom groups drawn (MuJoCo Warp's default `enabled_geom_groups`)
@@ -61,10 +66,10 @@ def check_pixel_options(options: dict[str, Any], env_name: str) -> dict[str, Any
     if observation == "state":
         changed = {k: v for k, v in options.items() if k != "observation" and v != PIXEL_OPTIONS[k]}
         if changed:
-            raise ValueError(f"{where}: {changed} set(s) a camera image, but observation='state'; "
+            raise ValueError(f"{where}: {changed} set(s) camera observations, but observation='state'; "
                              "add observation='pixels' (--env-opt observation=pixels)")
         return options
-    for name in ("width", "height", "frame_stack"):
+    for name in ("width", "height", "frame_stack", "action_repeat"):
         value = options[name]
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"{where}: {name}={value!r}; it must be a positive integer")
@@ -328,8 +333,9 @@ class Pixels(Wrapper):
     costly_reset = True  # a reset renders: `BatchedAutoReset` resets only the envs that ended
 
     def __init__(self, env, camera: str | int | None = None, width: int = 64, height: int = 64,
-                 depth: bool = False, frame_stack: int = 1):
+                 depth: bool = False, frame_stack: int = 1, action_repeat: int = 1):
         super().__init__(env)
+        self.action_repeat = action_repeat
         task = env.unwrapped
         self.cam = camera_id(task.mj_model, camera, task.name)
         self.width, self.height, self.depth, self.frame_stack = width, height, depth, frame_stack
@@ -365,9 +371,21 @@ class Pixels(Wrapper):
         return state.replace(obs=frames, info={**state.info, "state_obs": state.obs})
 
     def step(self, state: State, action: jax.Array) -> State:
-        stepped = self.env.step(state.replace(obs=state.info["state_obs"]), action)
+        stepped = self.repeated_step(state.replace(obs=state.info["state_obs"]), action)
         # A step that was not physics (NaN, Warp's overflow) ends the episode with the last frame again.
         valid = (stepped.info["nan"] == 0) & (stepped.info["overflow"] == 0)
         frame = jnp.where(valid, self.frame(stepped.pipeline_state), state.obs[..., -self.channels:])
         frames = jnp.concatenate([state.obs[..., self.channels:], frame], -1)
         return stepped.replace(obs=frames, info={**stepped.info, "state_obs": stepped.obs})
+
+    def repeated_step(self, state: State, action: jax.Array) -> State:
+        """`action_repeat` steps of the task with `action`, their rewards summed; once a step ends
+        the episode, the state stays that step's (the rest of the repeat is not taken)."""
+        stepped = self.env.step(state, action)
+
+        def again(_, previous: State) -> State:
+            following = self.env.step(previous, action)
+            following = following.replace(reward=previous.reward + following.reward)
+            return jax.tree.map(lambda kept, new: jnp.where(previous.done > 0, kept, new), previous, following)
+
+        return jax.lax.fori_loop(1, self.action_repeat, again, stepped) if self.action_repeat > 1 else stepped

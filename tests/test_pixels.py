@@ -172,6 +172,8 @@ def test_depth_equals_c_mujoco_mj_ray(task_name, impl):
     ({"observation": "pixels", "height": 5000}, ["height=5000", "at most 4096"]),
     ({"observation": "pixels", "depth": "yes"}, ["depth='yes'", "true or false"]),
     ({"width": 32}, ["'width': 32", "observation='state'", "observation=pixels"]),
+    ({"observation": "pixels", "action_repeat": 0}, ["action_repeat=0", "positive integer"]),
+    ({"action_repeat": 2}, ["'action_repeat': 2", "observation='state'"]),
     ({"observation": "pixels", "camera": "side"}, ["camera='side'", "'fixed'"]),
     ({"observation": "pixels", "camera": 3}, ["camera=3", "1 camera(s)"]),
 ])
@@ -180,6 +182,36 @@ def test_bad_options_say_which_and_how_to_fix(overrides, words):
         envs.make(TASK, **overrides)
     for word in words:
         assert word in str(err.value)
+
+
+def test_action_repeat_steps_the_task_k_times_and_sums_their_rewards():
+    """An env step of `action_repeat=k` is k steps of the task with the same action: the state and
+    the frame after the k-th, the k rewards summed; the step that ends the episode (the pole
+    falls) ends the repeat there."""
+    def make(k):
+        return envs.make("inverted-pendulum", observation="pixels", width=4, height=3, action_repeat=k)
+
+    once = make(1)
+    action = jnp.full(once.action_size, 1.0)  # pushed one way, the pole falls within a few steps
+    state = jax.jit(once.reset)(jax.random.PRNGKey(0))
+    trajectory = []
+    for _ in range(60):
+        state = jax.jit(once.step)(state, action)
+        trajectory.append(state)
+        if state.done:
+            break
+    assert trajectory[-1].done
+    k = next(k for k in (2, 3, 4, 5) if len(trajectory) % k)  # so that it ends inside a repeat
+    repeating = make(k)
+    repeated = jax.jit(repeating.reset)(jax.random.PRNGKey(0))
+    for j in range(-(-len(trajectory) // k)):
+        repeated = jax.jit(repeating.step)(repeated, action)
+        window = trajectory[k * j:k * j + k]
+        np.testing.assert_allclose(repeated.info["state_obs"], window[-1].info["state_obs"], rtol=1e-6, atol=1e-6)
+        np.testing.assert_array_equal(repeated.obs, window[-1].obs)
+        np.testing.assert_allclose(repeated.reward, sum(float(s.reward) for s in window), rtol=1e-6)
+        assert bool(repeated.done) == bool(window[-1].done)
+    assert repeated.done
 
 
 def test_analytic_task_has_no_pixels():
