@@ -309,15 +309,12 @@ def train_run(
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
         final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
-        if stop_after_chunks is None or stop_after_chunks >= config.num_chunks:
-            params_shape = placement.abstract(ts.best_params)  # not the arrays: the first chunk consumes them
-            if placement.mesh is None:
-                final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
-                                                          (params_shape, eval_keys), learner, agents, env_name,
-                                                          env_options), "evaluation")
-            elif jax.process_count() == 1:
-                sharded = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
-                final_evaluation = in_background(lambda: sharded.lower(params_shape, eval_keys).compile(), "evaluation")
+        if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
+            params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
+                                        ts.best_params)  # not the arrays: the first chunk consumes them
+            final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+                                                      (params_shape, eval_keys), learner, agents, env_name, env_options),
+                                              "evaluation")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
@@ -523,11 +520,12 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     checkpoint interval, plus the write under way). A CPU's host arrays can share memory with the
     device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
     used by nothing after it (the final evaluation reads them, nothing donates them): on one
-    process its copy to the host is made on the writing thread too. A `finished` run's replay
+    device its copy to the host is made on the writing thread too (arrays split over devices are
+    copied here: never fetched by two threads at once). A `finished` run's replay
     buffers are neither copied nor written (`checkpoint.without_replay`)."""
     if finished:
         ts = checkpoint.without_replay(ts)
-    if final and jax.process_count() == 1:
+    if final and placement.mesh is None and jax.process_count() == 1:
         saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished)
         return
     host = placement.to_host(ts)
