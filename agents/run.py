@@ -376,14 +376,13 @@ def train_run(
                 record = _host(placement.to_host(metrics))
                 if ahead is not None:  # this chunk is done: the device is on the next one from here
                     ahead = (ahead, time.perf_counter())
+                training_s = (judge_tick if judging else time.perf_counter()) - tick
                 if judging:
                     judge_clock.judged(time.perf_counter() - judge_tick)
-                    result.train_s += judge_tick - tick
-                else:
-                    result.train_s += time.perf_counter() - tick
-                elapsed = time.perf_counter() - tick
+                result.train_s += training_s
                 record["chunk"] = index
-                record["steps_per_s"] = config.eval_every * agents / elapsed
+                # training alone, the judge left out, as Brax's `training/sps` counts
+                record["steps_per_s"] = config.eval_every * agents / training_s
                 overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
                 result.history.append(record)
                 now = time.perf_counter() - start
