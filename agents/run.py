@@ -344,7 +344,11 @@ def train_run(
             return placement.same_on_every_process(out is not None and done < config.num_chunks
                                                    and clock.due(done))  # process 0's clock
 
-        ahead = None  # (the next chunk's outputs, when the device began it), dispatched early
+        def dispatched(ts):  # the next chunk's outputs and when it began (a dispatch can return only once done)
+            began = time.perf_counter()
+            return train_program(ts), began
+
+        ahead = None  # the next chunk, `dispatched` early
         try:
             for index in range(chunks_done, config.num_chunks):
                 if ahead is not None:
@@ -361,24 +365,27 @@ def train_run(
                     ts, metrics, eval_key = train_program(ts)
                 eval_episode = None
                 judging = placement.same_on_every_process(judge_clock.due(index, tick - start))  # process 0's clock
+                # The whole chunk done, its train state too, so that its seconds are its own whatever
+                # the dispatch (with MuJoCo Warp's FFI the figures came out near zero without).
+                jax.block_until_ready((ts, metrics))
+                trained_at = time.perf_counter()
                 if judging:
-                    jax.block_until_ready(metrics)  # the chunk's training done: the judge is timed alone
-                    judge_tick = time.perf_counter()
                     ts, judged = judge_program(ts, eval_key)
                     eval_episode = judged.pop("eval_episode")
                     metrics = {**judged, **metrics}
                     if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
                         eval_episode = placement.to_host(eval_episode)
                 last = index + 1
-                if (look_ahead and last < stop_at and not save_due(last)
-                        and not placement.same_on_every_process(stop.requested is not None)):
-                    ahead = train_program(ts)
+                look = (look_ahead and last < stop_at and not save_due(last)
+                        and not placement.same_on_every_process(stop.requested is not None))
+                if look and not judging:  # the device trains on while the host copies and logs this chunk
+                    ahead = dispatched(ts)
                 record = _host(placement.to_host(metrics))
-                if ahead is not None:  # this chunk is done: the device is on the next one from here
-                    ahead = (ahead, time.perf_counter())
-                training_s = (judge_tick if judging else time.perf_counter()) - tick
                 if judging:
-                    judge_clock.judged(time.perf_counter() - judge_tick)
+                    judge_clock.judged(time.perf_counter() - trained_at)
+                    if look:  # after the judge's results reached the host, whose seconds are the judge's
+                        ahead = dispatched(ts)
+                training_s = trained_at - tick
                 result.train_s += training_s
                 record["chunk"] = index
                 # training alone, the judge left out, as Brax's `training/sps` counts

@@ -164,7 +164,11 @@ def lower_env_program(program: str, fn: Callable, args: tuple, env, env_name: st
 def program_key_parts(program: str, env, env_name: str, env_options: dict | None,
                       extra: dict | None = None) -> dict | None:
     """`compile_env_program`'s key, less the arguments' shapes and `environment_fingerprint`
-    (`cache_file` adds those); None when the env cannot be fingerprinted."""
+    (`cache_file` adds those); None when the env cannot be fingerprinted, or runs MuJoCo Warp:
+    `jax.export` refuses Warp's FFI calls (custom calls without compatibility guarantees), after
+    a whole trace, with the program's text in the error."""
+    if getattr(env.unwrapped, "impl", None) == "warp":
+        return None
     fingerprint = env_fingerprint(env)
     if fingerprint is None:
         return None

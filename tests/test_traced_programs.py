@@ -217,3 +217,12 @@ def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypa
             assert capsys.readouterr().out == first
     finally:
         traced_programs.disable()
+
+
+def test_a_warp_env_is_not_traced_for_the_cache():
+    """`jax.export` refuses MuJoCo Warp's FFI calls, after a whole trace: a Warp env's programs
+    skip the export cache (plain `jax.jit`) rather than trace twice and warn with the program."""
+    env = envs.make("cartpole-mjx")
+    assert traced_programs.program_key_parts("P", env, "cartpole-mjx", {}) is not None
+    env.unwrapped.impl = "warp"  # what MjxEnv sets for impl="warp" (Warp itself needs a GPU)
+    assert traced_programs.program_key_parts("P", env, "cartpole-mjx", {"impl": "warp"}) is None
