@@ -10,8 +10,8 @@ the images of one camera, rendered inside the jitted step:
   auto-reset, `info["final_state_obs"]` holds the finished episode's, as `info["final_obs"]` its frames.
 - `action_repeat=k`: each env step applies the action for k steps of the task and sums their
   rewards (as the pixel benchmarks of dm_control's suite do), so the frames are k task steps
-  apart; a step that ends the episode ends the repeat. The time limit counts env steps: the
-  same seconds of a task take `episode_length / k` of them.
+  apart; a step that ends the episode ends the repeat. The time limit counts env steps, and
+  defaults to the task's over k (the same seconds); a given `episode_length` counts env steps.
 - Depth is planar, as MuJoCo Warp's: the distance along the camera's optical axis (0 where no geom
   is hit). `Pixels.render` returns the float images a frame is made from.
 

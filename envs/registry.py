@@ -73,7 +73,7 @@ def make(name: str, **overrides: Any) -> Env:
     unknown = sorted(set(overrides) - set(valid))
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for env {name!r}; valid options: {sorted(valid)}")
-    episode_length = COUNT.check("episode_length", overrides.pop("episode_length", valid["episode_length"]))
+    given_length = overrides.pop("episode_length", None)
     mjx_options = {k: overrides.pop(k, default) for k, default in MJX_OPTIONS.items() if k in valid}
     kwargs: dict[str, Any] = {}
     for param in inspect.signature(factory).parameters.values():
@@ -90,6 +90,11 @@ def make(name: str, **overrides: Any) -> Env:
         check_opt(mjx_options["opt"], f"env {name!r}")
         check_buffer_sizes(mjx_options, f"env {name!r}")
         check_pixel_options({k: mjx_options[k] for k in PIXEL_OPTIONS}, name)
+    # A task's episode lasts its own seconds: an env step of `action_repeat=k` is k task steps, so
+    # the default limit is the task's over k (a given `episode_length` counts env steps).
+    repeat = mjx_options.get("action_repeat", 1) if mjx_options else 1
+    episode_length = COUNT.check("episode_length",
+                                 max(1, valid["episode_length"] // repeat) if given_length is None else given_length)
     env = factory(**kwargs)
     if mjx_options:
         env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],

@@ -74,13 +74,13 @@ def test_config_checks_name_the_fields():
 
 
 def test_pixels_take_the_pixel_recipe_and_ppo():
-    """Without --preset, camera images take the task's "pixels" recipe (Playground's vision PPO);
+    """Without --preset, camera images take the task's "pixels" recipe (the base one at 256 envs);
     DQN and SAC, which have no image networks, are refused with the fix."""
     for task in (TASK, "cartpole-swingup-mjx"):
         assert brax_defaults.default_preset(task, "ppo", "pixels") == "pixels"
         assert brax_defaults.default_preset(task, "ppo") == "default"
     config = _agent_config(TASK, "ppo", None, [], None, None, observation="pixels")
-    assert (config.num_envs, config.batch_size, config.cnn_kernel_size) == (1024, 256, (8, 4, 3))
+    assert (config.num_envs, config.batch_size, config.cnn_kernel_size) == (256, 256, (8, 4, 3))
     assert _agent_config(TASK, "ppo", None, [], None, None) == PPOConfig()  # state: the base recipe
     assert _choose_agent(TASK, None, PIXELS) == "ppo"
     with pytest.raises(UsageError, match="--agent sac has no network for camera images"):
@@ -88,9 +88,10 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
 
 
 def test_pixel_runs_stack_frames_as_playground():
-    """A pixel run of the cart-pole sees the last 3 frames by default, as Playground's vision
-    CartpoleBalance: one frame has no velocities, and with it the recipe never balanced (H200,
-    5.6M steps). --env-opt frame_stack=N still wins; state runs get no pixel options."""
+    """A pixel run of the cart-pole sees the last 3 frames, 4 task steps apart, by default: one
+    frame has no velocities, and frames one 10 ms step apart barely differ (no run balanced from
+    them). The episode keeps its 10 s; --env-opt frame_stack=N still wins; state runs get no
+    pixel options."""
     import argparse
 
     from agents.cli import _train_env_options
@@ -100,8 +101,9 @@ def test_pixel_runs_stack_frames_as_playground():
                                                      randomize_per=None))
 
     given = options("observation=pixels", f"width={SIZE}", f"height={SIZE}")
-    assert given == dict(PIXELS, frame_stack=3)
-    assert image_shape(envs.make(TASK, **given)) == (SIZE, SIZE, 9)
+    assert given == dict(PIXELS, frame_stack=3, action_repeat=4)
+    env = envs.make(TASK, **given)
+    assert image_shape(env) == (SIZE, SIZE, 9) and env.episode_length == 1000 // 4
     assert options("observation=pixels", "frame_stack=1")["frame_stack"] == 1
     assert options() == {} and options("episode_length=200") == {"episode_length": 200}
     for task in brax_defaults.PIXEL_ENV_OPTIONS:

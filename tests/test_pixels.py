@@ -184,6 +184,17 @@ def test_bad_options_say_which_and_how_to_fix(overrides, words):
         assert word in str(err.value)
 
 
+def test_action_repeat_keeps_the_tasks_seconds_unless_episode_length_is_given():
+    """With `action_repeat=k` an episode defaults to the task's own length over k env steps (the
+    same seconds of the task); a given `episode_length` counts env steps."""
+    def length(**options):
+        return envs.make("cartpole-balance-mjx", observation="pixels", width=4, height=3, **options).episode_length
+
+    assert length() == 1000 and length(action_repeat=4) == 250 and length(action_repeat=3) == 333
+    assert length(action_repeat=2, episode_length=100) == 100
+    assert envs.make("cartpole-balance-mjx").episode_length == 1000
+
+
 def test_action_repeat_steps_the_task_k_times_and_sums_their_rewards():
     """An env step of `action_repeat=k` is k steps of the task with the same action: the state
     after the k-th (whose frame `Pixels.step` then renders, as without a repeat), the k rewards
