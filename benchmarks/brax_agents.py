@@ -3,8 +3,10 @@
 ours with several seeds in one program (their total env-steps/s over one seed's).
 
 Each side trains `--steps` env steps per seed in two chunks (Brax: two epochs after its first
-evaluation); the figure is the last chunk's (epoch's) env-steps/s, compile and the first chunk
-left out. Ours and Brax's alternate in one process, on one device.
+evaluation); the figure is the last chunk's (epoch's) env-steps/s of training alone: compile,
+the first chunk and the evaluations left out (ours: `steps_per_s` of metrics.jsonl; Brax's:
+`training/sps`). Each side's whole wall time is recorded too. Ours and Brax's alternate in one
+process, on one device.
 
     python -m benchmarks.brax_agents --env hopper --agent ppo --impl warp --steps 4000000 --seeds 1,8 \\
         [--repeats 1] [--json FILE] [--profile DIR]
