@@ -66,6 +66,17 @@ def require_warp() -> None:
     if missing:
         raise WarpUnavailable("impl='warp' steps MJX with MuJoCo Warp, which needs an NVIDIA GPU and warp-lang: "
                               + "; ".join(missing) + ". Use impl='jax' (the default, any device) here.")
+    quiet_warp()
+
+
+def quiet_warp() -> None:
+    """Warp's log at warnings and errors, where it is at Warp's default (info): that prints a line
+    for every kernel module it loads or compiles, dozens before a run's first step. A log level
+    set by the user is kept."""
+    import warp
+
+    if getattr(warp.config, "log_level", None) == getattr(warp, "LOG_INFO", 20):
+        warp.config.log_level = warp.LOG_WARNING
 
 
 def _jax_has_cuda() -> bool:

@@ -142,3 +142,21 @@ def test_impl_warp_without_a_gpu_is_a_clear_error_not_a_traceback(agent, tmp_pat
     err = capsys.readouterr().err
     assert "mjxsuite: --impl warp: impl='warp' steps MJX with MuJoCo Warp" in err and "Traceback" not in err
     assert not (tmp_path / "run").exists()
+
+
+def test_warp_logs_warnings_only_unless_the_user_set_its_level(monkeypatch):
+    """At Warp's default log level (info) it prints a line for every kernel module it loads:
+    `quiet_warp` (run by every impl="warp" env) raises it to warnings, and keeps a level the
+    user chose. Checked on a stand-in module: warp-lang is optional."""
+    import sys
+    import types
+
+    from envs import mjx_warp
+
+    warp = types.SimpleNamespace(LOG_DEBUG=10, LOG_INFO=20, LOG_WARNING=30, config=types.SimpleNamespace(log_level=20))
+    monkeypatch.setitem(sys.modules, "warp", warp)
+    mjx_warp.quiet_warp()
+    assert warp.config.log_level == warp.LOG_WARNING
+    warp.config.log_level = warp.LOG_DEBUG
+    mjx_warp.quiet_warp()
+    assert warp.config.log_level == warp.LOG_DEBUG
