@@ -7,6 +7,7 @@ run directory back."""
 
 from __future__ import annotations
 
+import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -236,6 +237,9 @@ def train_run(
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
         in_background = _right_here if runs_warp(learner.env) else _in_background
+        if progress and writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
+            builds = " (MuJoCo Warp also builds its kernels once per machine)" if runs_warp(learner.env) else ""
+            print(f"{env_name}: compiling{builds}...", file=sys.stderr, flush=True)
 
         def run_inputs():  # the init program's arguments and the final evaluation's keys
             keys, eval_keys = run_keys(seed, seeds)
