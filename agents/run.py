@@ -369,8 +369,8 @@ def train_run(
                     ts, metrics, eval_key = train_program(ts)
                 eval_episode = None
                 judging = placement.same_on_every_process(judge_clock.due(index, tick - start))  # process 0's clock
-                # The whole chunk done, its train state too, so that its seconds are its own whatever
-                # the dispatch (with MuJoCo Warp's FFI the figures came out near zero without).
+                # The whole chunk done, its train state too, so that its seconds are its own however
+                # its dispatch returned (one through MuJoCo Warp's FFI can return once it is done).
                 jax.block_until_ready((ts, metrics))
                 trained_at = time.perf_counter()
                 if judging:
