@@ -313,12 +313,21 @@ def train_run(
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
         final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
+        every_seed = None  # the tie-break over every seed, compiling likewise (one GPU)
         if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
             params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
                                         ts.best_params)  # not the arrays: the first chunk consumes them
             final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
                                                       (params_shape, eval_keys), learner, agents, env_name, env_options),
                                               "evaluation")
+            # On a GPU thousands of seeds can tie (CartPole's held to the time limit): the tie-break's
+            # program for every seed compiles beside training, as the final evaluation's does, and
+            # serves where at least half of them tie. On a CPU, measuring every seed costs more than
+            # compiling for the tied ones.
+            if agents > 1 and placement.devices[0].platform == "gpu" and not runs_warp(learner.env):
+                tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
+                every_seed = in_background(lambda: tie_break_program(learner, env_name, env_options).lower(
+                    params_shape, tie_keys).compile(), "tie-break")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
@@ -445,7 +454,7 @@ def train_run(
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
-                                                 seed, first)
+                                                 seed, first, every_seed=None if every_seed is None else every_seed.result())
         result.eval_s = time.perf_counter() - eval_start
         result.save_s += _waited(saves)
         result.finish(start)
@@ -486,8 +495,27 @@ TIE_BREAK_LENGTH = 4  # a tie-break's episodes are this many time limits long...
 TIE_BREAK_EPISODES = 4  # ...and this many times as many as an evaluation's
 
 
+def tie_break_program(agent: Any, env_name: str, env_options: dict | None) -> Callable:
+    """The tie-break's longer evaluation over a batch of agents, jitted: `(params, keys) -> mean
+    return per agent` (`break_ties`)."""
+    options = dict(env_options or {})
+    length = getattr(agent.env, "episode_length", None)
+    if length is not None and "episode_length" in envs.options(env_name):
+        options["episode_length"] = TIE_BREAK_LENGTH * length
+    longer = registry.make(agent.config, envs.make(env_name, **options))
+    episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
+    return jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))
+
+
+def tie_break_keys(seed: int, indices: Any) -> jax.Array:
+    """The tie-break's key of each seed, by its index in the run."""
+    tie_key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
+    return jax.vmap(lambda i: jax.random.fold_in(tie_key, i))(jnp.asarray(indices))
+
+
 def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any, returns: list[float],
-               seed: int, first: int = 0, measured: dict[int, float] | None = None) -> tuple[int, dict[int, float]]:
+               seed: int, first: int = 0, measured: dict[int, float] | None = None,
+               every_seed: Callable | None = None) -> tuple[int, dict[int, float]]:
     """The best seed by the final evaluation (an index into `returns`); seeds that tie there (many
     CartPole seeds hold every episode to its time limit) are told apart by a longer evaluation:
     more episodes, each TIE_BREAK_LENGTH time limits long where the task takes `episode_length`,
@@ -497,24 +525,22 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
     `returns` (and `params`' rows) are the run's seeds `first`, `first + 1`, ...: a seed's longer
     evaluation draws its keys from its index in the run, so a process of a run measures its
     seeds as one process of the whole run would, and the merge (`agents.processes`) passes
-    those (`measured`) instead of measuring them again."""
+    those (`measured`) instead of measuring them again. `every_seed`, `tie_break_program`
+    compiled ahead for all of `params`' rows, measures them all where at least half of them are
+    to be measured (else the tied seeds' program is compiled here)."""
     returns = np.asarray(returns)
     tied = np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
     if len(tied) == 1:
         return int(tied[0]), {}
     longer_returns = {index: value for index, value in (measured or {}).items() if index - first in tied}
     missing = [int(i) for i in tied if first + i not in longer_returns]
-    if missing:
-        options = dict(env_options or {})
-        length = getattr(agent.env, "episode_length", None)
-        if length is not None and "episode_length" in envs.options(env_name):
-            options["episode_length"] = TIE_BREAK_LENGTH * length
-        longer = registry.make(agent.config, envs.make(env_name, **options))
-        episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
+    if missing and every_seed is not None and 2 * len(missing) >= len(returns):
+        measured_now = np.asarray(every_seed(params, tie_break_keys(seed, first + jnp.arange(len(returns)))))[missing]
+    elif missing:
         candidates = jax.tree.map(lambda x: jnp.asarray(x)[np.asarray(missing)], jax.device_get(params))
-        tie_key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
-        keys = jax.vmap(lambda i: jax.random.fold_in(tie_key, i))(first + jnp.asarray(missing))
-        measured_now = jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))(candidates, keys)
+        measured_now = tie_break_program(agent, env_name, env_options)(candidates,
+                                                                      tie_break_keys(seed, first + jnp.asarray(missing)))
+    if missing:
         longer_returns.update({first + i: float(v) for i, v in zip(missing, np.asarray(measured_now))})
     best = max(tied, key=lambda i: (longer_returns[first + i], -i))
     return int(best), {first + int(i): longer_returns[first + int(i)] for i in tied}

@@ -232,6 +232,23 @@ def test_ties_between_seeds_are_broken_by_a_longer_evaluation():
     assert sliced == pytest.approx(dict(zip((5, 6), np.asarray(longer(jax.tree.map(lambda x: x[:2], params), keys)))))
 
 
+def test_the_tie_break_compiled_for_every_seed_measures_as_the_tied_seeds_program():
+    """Where at least half the seeds tie, a run on one GPU measures them with the tie-break's
+    program for every seed (compiled beside training): the same returns as the tied seeds'
+    own program, rows by their index in the run."""
+    from agents import DQN, DQNConfig
+    from agents.run import tie_break_program
+
+    dqn = DQN(DQNConfig(hidden=(8,), eval_episodes=2), envs.make("cartpole", episode_length=20))
+    params = jax.vmap(dqn.init)(seed_keys(0, 4)).params
+    every_seed = tie_break_program(dqn, "cartpole", {"episode_length": 20})
+    for returns in ([20.0, 3.0, 20.0, 20.0], [20.0, 3.0, 3.0, 20.0]):  # three of four tie; two of four
+        expected = break_ties(dqn, "cartpole", {"episode_length": 20}, params, returns, 0, first=8)
+        got = break_ties(dqn, "cartpole", {"episode_length": 20}, params, returns, 0, first=8, every_seed=every_seed)
+        assert got[0] == expected[0] and got[1] == pytest.approx(expected[1], abs=1e-6)
+        assert sorted(got[1]) == [8 + i for i, r in enumerate(returns) if r == 20.0]
+
+
 # ---- slow: the README's PPO job, judged on Gymnasium ----------------------------------------
 def _cli(*argv: str) -> list[str]:
     return [sys.executable, "-m", "agents.cli", *argv]
