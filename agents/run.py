@@ -25,6 +25,7 @@ from agents.device_options import default_seed_axis, init_compiler_options, trai
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from envs.mjx_warp import runs_warp
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
@@ -134,11 +135,6 @@ def _right_here(work: Callable[[], Any], name: str) -> Future:
     return done
 
 
-def runs_warp(env: Any) -> bool:
-    """Whether `env`'s physics runs on MuJoCo Warp (impl="warp")."""
-    return getattr(getattr(env, "unwrapped", env), "impl", None) == "warp"
-
-
 def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                    env_options: dict | None, donate: bool = False) -> Callable:
     """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) compiled for `args` with the
@@ -236,9 +232,10 @@ def train_run(
                              wall_s=time.perf_counter() - start, started=False)
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
-        in_background = _right_here if runs_warp(learner.env) else _in_background
+        on_warp = runs_warp(learner.env)
+        in_background = _right_here if on_warp else _in_background
         if progress and writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
-            builds = " (MuJoCo Warp also builds its kernels once per machine)" if runs_warp(learner.env) else ""
+            builds = " (MuJoCo Warp also builds its kernels once per machine)" if on_warp else ""
             print(f"{env_name}: compiling{builds}...", file=sys.stderr, flush=True)
 
         def run_inputs():  # the init program's arguments and the final evaluation's keys
@@ -324,7 +321,7 @@ def train_run(
             # program for every seed compiles beside training, as the final evaluation's does, and
             # serves where at least half of them tie. On a CPU, measuring every seed costs more than
             # compiling for the tied ones.
-            if agents > 1 and placement.devices[0].platform == "gpu" and not runs_warp(learner.env):
+            if agents > 1 and placement.devices[0].platform == "gpu" and not on_warp:
                 tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
                 every_seed = in_background(lambda: tie_break_program(learner, env_name, env_options).lower(
                     params_shape, tie_keys).compile(), "tie-break")
@@ -534,13 +531,13 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
         return int(tied[0]), {}
     longer_returns = {index: value for index, value in (measured or {}).items() if index - first in tied}
     missing = [int(i) for i in tied if first + i not in longer_returns]
-    if missing and every_seed is not None and 2 * len(missing) >= len(returns):
-        measured_now = np.asarray(every_seed(params, tie_break_keys(seed, first + jnp.arange(len(returns)))))[missing]
-    elif missing:
-        candidates = jax.tree.map(lambda x: jnp.asarray(x)[np.asarray(missing)], jax.device_get(params))
-        measured_now = tie_break_program(agent, env_name, env_options)(candidates,
-                                                                      tie_break_keys(seed, first + jnp.asarray(missing)))
     if missing:
+        if every_seed is not None and 2 * len(missing) >= len(returns):
+            measured_now = np.asarray(every_seed(params, tie_break_keys(seed, first + jnp.arange(len(returns)))))[missing]
+        else:
+            candidates = jax.tree.map(lambda x: jnp.asarray(x)[np.asarray(missing)], jax.device_get(params))
+            measured_now = tie_break_program(agent, env_name, env_options)(
+                candidates, tie_break_keys(seed, first + jnp.asarray(missing)))
         longer_returns.update({first + i: float(v) for i, v in zip(missing, np.asarray(measured_now))})
     best = max(tied, key=lambda i: (longer_returns[first + i], -i))
     return int(best), {first + int(i): longer_returns[first + int(i)] for i in tied}

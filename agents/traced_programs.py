@@ -44,6 +44,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from envs.mjx_warp import runs_warp
+
 SUBDIR = "mjxsuite-export"  # inside JAX's cache directory, whose eviction only looks at its own files
 _FORMAT = 1  # bump when the file layout below changes
 _VERSIONED = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "numpy")
@@ -167,7 +169,7 @@ def program_key_parts(program: str, env, env_name: str, env_options: dict | None
     (`cache_file` adds those); None when the env cannot be fingerprinted, or runs MuJoCo Warp:
     `jax.export` refuses Warp's FFI calls (custom calls without compatibility guarantees), after
     a whole trace, with the program's text in the error."""
-    if getattr(env.unwrapped, "impl", None) == "warp":
+    if runs_warp(env):
         return None
     fingerprint = env_fingerprint(env)
     if fingerprint is None:

@@ -47,6 +47,11 @@ def import_mjx():
     return mjx
 
 
+def runs_warp(env: Any) -> bool:
+    """Whether `env`'s physics runs on MuJoCo Warp (impl="warp")."""
+    return getattr(getattr(env, "unwrapped", env), "impl", None) == "warp"
+
+
 class WarpUnavailable(RuntimeError):
     """impl='warp' was asked for on a machine that cannot run MuJoCo Warp (`require_warp`)."""
 
