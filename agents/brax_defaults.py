@@ -36,11 +36,10 @@ _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10
                        num_minibatches=32, num_updates_per_batch=16, discounting=0.995, learning_rate=1e-3,
                        entropy_cost=1e-2, num_envs=2048, batch_size=1024)
 # The cart-pole's recipe from camera images, for one GPU: the base recipe (the config's defaults)
-# with 256 envs and batches of 256, measured on an H200 (docs/agents.md, "PPO from pixels";
-# docs/bench-gpu.json, "pixels-training"): from 64x64 pixels with `PIXEL_ENV_OPTIONS` balance
-# scored 993 after 0.6M env steps and the swing-up 870 after 4.7M. MuJoCo Playground's vision
-# recipe (1,024 envs, reward scaling 0.1, discount 0.97) stayed at the zero-force level here,
-# with one frame and with three.
+# with 256 envs and batches of 256, the one that learned balance and swing-up from 64x64 pixels
+# with `PIXEL_ENV_OPTIONS` (docs/agents.md, "PPO from pixels"; docs/bench-gpu.json records
+# "pixels-training"). MuJoCo Playground's vision recipe (1,024 envs, reward scaling 0.1, discount
+# 0.97) stayed at the zero-force level, with one frame and with three.
 _PIXEL_PPO = dict(num_envs=256, batch_size=256)
 # The env options a run on camera images takes by default, per task (`pixel_env_options`). Three
 # frames, as Playground's vision CartpoleBalance stacks: one frame shows where the pole and cart
