@@ -244,15 +244,11 @@ def train_run(
                 return (keys[first:stop_seed],), eval_keys[first:stop_seed]
             return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
 
-        inputs = None  # on one device the inputs are made on another thread while the programs compile
-        if placement.mesh is None:
-            # The programs compile from the inputs' shapes. Making them runs the keys' program, and on
-            # a GPU the first allocation, where XLA reserves most of the device's memory: spent while
-            # XLA compiles (docs/bench-gpu.json, "dqn-run-inputs").
-            inputs = in_background(run_inputs, "inputs")
-            init_args, eval_keys = jax.eval_shape(run_inputs)
-        else:
-            init_args, eval_keys = placement.put(run_inputs())
+        # The inputs are made on another thread while the programs compile from their shapes. Making
+        # them runs the keys' program, and on a GPU the first allocation, where XLA reserves most of the
+        # device's memory (docs/bench-gpu.json, "dqn-run-inputs"); on several devices, their placement too.
+        inputs = in_background(lambda: placement.put(run_inputs()), "inputs")
+        init_args, eval_keys = placement.abstract(jax.eval_shape(run_inputs))
         chunks_done = 0
         compile_start = time.perf_counter()
         init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
@@ -261,12 +257,10 @@ def train_run(
             ts = placement.put(ts)  # saved from any number of devices, split over this run's
             compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
         else:  # a run killed before its first checkpoint resumes from the start, as it began
-            if placement.mesh is None:
-                traced = init.trace(*init_args)
-                init_program = in_background(traced.lower().compile, "init")
-                ts = traced.out_info  # the train state's shapes (weak types kept): all the chunk's compile needs
-            else:
-                ts = init(*init_args)
+            traced = init.trace(*init_args)
+            init_program = in_background(traced.lower().compile, "init")
+            # the train state's shapes (weak types kept) and placement: all the chunk's compile needs
+            ts = placement.abstract(traced.out_info)
             if out is not None and writer:
                 checkpoint.start_run(out, run)
         if out is not None and writer:
@@ -304,26 +298,30 @@ def train_run(
         if train_program is not None:
             train_program = train_program.result()
 
-        if inputs is not None:
-            init_args, eval_keys = inputs.result()
+        init_args, eval_keys = inputs.result()
         if init_program is not None:
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
         final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
-        every_seed = None  # the tie-break over every seed, compiling likewise (one GPU)
-        if placement.mesh is None and (stop_after_chunks is None or stop_after_chunks >= config.num_chunks):
-            params_shape = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type),
-                                        ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
-                                                      (params_shape, eval_keys), learner, agents, env_name, env_options),
-                                              "evaluation")
+        every_seed = None  # the tie-break over every seed, compiling likewise (GPUs)
+        # (one process: in a multi-host run the final evaluation's arrays are gathered and placed anew)
+        if (stop_after_chunks is None or stop_after_chunks >= config.num_chunks) and jax.process_count() == 1:
+            params_shape = placement.abstract(ts.best_params)  # not the arrays: the first chunk consumes them
+            if placement.mesh is None:
+                final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
+                                                          (params_shape, eval_keys), learner, agents, env_name,
+                                                          env_options), "evaluation")
+            else:
+                sharded_evaluation = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
+                final_evaluation = in_background(lambda: sharded_evaluation.lower(params_shape, eval_keys).compile(),
+                                                 "evaluation")
             # On a GPU thousands of seeds can tie (CartPole's held to the time limit): the tie-break's
             # program for every seed compiles beside training, as the final evaluation's does, and
             # serves where at least half of them tie. On a CPU, measuring every seed costs more than
             # compiling for the tied ones.
             if agents > 1 and placement.devices[0].platform == "gpu" and not on_warp:
-                tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
-                every_seed = in_background(lambda: tie_break_program(learner, env_name, env_options).lower(
+                tie_keys = placement.abstract(jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents))))
+                every_seed = in_background(lambda: tie_break_program(learner, env_name, env_options, placement).lower(
                     params_shape, tie_keys).compile(), "tie-break")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
@@ -450,8 +448,10 @@ def train_run(
             evaluate = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
+        if every_seed is not None:  # its keys placed as the agents are
+            every_seed = partial(lambda program, params, keys: program(params, placement.put(keys)), every_seed.result())
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
-                                                 seed, first, every_seed=None if every_seed is None else every_seed.result())
+                                                 seed, first, every_seed=every_seed)
         result.eval_s = time.perf_counter() - eval_start
         result.save_s += _waited(saves)
         result.finish(start)
@@ -492,16 +492,18 @@ TIE_BREAK_LENGTH = 4  # a tie-break's episodes are this many time limits long...
 TIE_BREAK_EPISODES = 4  # ...and this many times as many as an evaluation's
 
 
-def tie_break_program(agent: Any, env_name: str, env_options: dict | None) -> Callable:
+def tie_break_program(agent: Any, env_name: str, env_options: dict | None,
+                      placement: sharding.Placement | None = None) -> Callable:
     """The tie-break's longer evaluation over a batch of agents, jitted: `(params, keys) -> mean
-    return per agent` (`break_ties`)."""
+    return per agent` (`break_ties`); with `placement`, the agents spread over its devices."""
     options = dict(env_options or {})
     length = getattr(agent.env, "episode_length", None)
     if length is not None and "episode_length" in envs.options(env_name):
         options["episode_length"] = TIE_BREAK_LENGTH * length
     longer = registry.make(agent.config, envs.make(env_name, **options))
     episodes = TIE_BREAK_EPISODES * agent.config.eval_episodes
-    return jax.jit(jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean()))
+    measure = jax.vmap(lambda p, k: longer.evaluate(p, k, episodes).mean())
+    return jax.jit(measure if placement is None else placement.spread(measure))
 
 
 def tie_break_keys(seed: int, indices: Any) -> jax.Array:

@@ -129,6 +129,13 @@ class Placement:
         # replicated, so there is nothing for JAX's replication check to prove.
         return jax.shard_map(fn, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
 
+    def abstract(self, tree: Any) -> Any:
+        """`tree`'s shapes and dtypes (weak types kept), split over the mesh as `put` splits
+        arrays: what a program is compiled for before its arrays exist."""
+        sharding = None if self.mesh is None else NamedSharding(self.mesh, PartitionSpec(AXIS))
+        return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type,
+                                                           sharding=sharding), tree)
+
     def put(self, tree: Any) -> Any:
         """Host arrays with a leading agent axis, split over the mesh (each process places only
         its own devices' slices)."""

@@ -87,6 +87,25 @@ SINGLE_HOST = textwrap.dedent("""
     found["sweep_member_params"] = equal(jax.tree.map(lambda x: x[2:4], sweep_params), member_params)
     found["sweep_json"] = json.loads((out / "sweep/sweep.json").read_text())
 
+    # The tie-break's program for every seed, compiled for the agents spread over the 4 devices
+    # (as a GPU run compiles it beside training), measures as the tied seeds' own on one device.
+    import envs
+    from agents import DQN
+    from agents.run import break_ties, seed_keys, tie_break_keys, tie_break_program
+    from agents.sharding import Placement
+    dqn, options = DQN(DQNConfig(hidden=(8,), eval_episodes=2), envs.make("cartpole", episode_length=20)), {"episode_length": 20}
+    placement = Placement(jax.local_devices())
+    params = jax.device_get(jax.vmap(dqn.init)(seed_keys(0, 4)).params)
+    keys = jax.eval_shape(lambda: tie_break_keys(0, np.arange(4)))
+    program = tie_break_program(dqn, "cartpole", options, placement).lower(
+        placement.abstract(params), placement.abstract(keys)).compile()
+    returns = [20.0, 3.0, 20.0, 20.0]
+    spread = break_ties(dqn, "cartpole", options, placement.put(params), returns, 0, first=8,
+                        every_seed=lambda p, k: program(p, placement.put(k)))
+    alone = break_ties(dqn, "cartpole", options, params, returns, 0, first=8)
+    found["spread_tie_break"] = [spread[0] == alone[0], sorted(spread[1]) == sorted(alone[1]),
+                                 max(abs(spread[1][i] - alone[1][i]) for i in alone[1])]
+
     # The seeds must split evenly over the devices asked for.
     try:
         train_run("cartpole", config, seeds=6, devices=4, progress=False)
@@ -131,6 +150,12 @@ def test_a_sweep_member_equals_a_separate_train_of_its_config_and_seed(single_ho
     assert summary["swept"] == ["learning_rate", "polyak_tau"] and summary["devices"] == 4
     assert [(c["learning_rate"], c["polyak_tau"]) for c in summary["configs"]] == [(1e-3, 0.02), (2e-3, 0.02)]
     assert all(len(c["mean_return"]) == len(c["solve_step"]) == 2 for c in summary["configs"])
+
+
+@pytest.mark.slow
+def test_the_tie_break_for_every_seed_spread_over_devices_measures_as_the_tied_seeds_program(single_host):
+    best_same, rows_same, largest_difference = single_host[1]["spread_tie_break"]
+    assert best_same and rows_same and largest_difference < 1e-5
 
 
 @pytest.mark.slow
