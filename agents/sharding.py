@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable
 
 import jax
@@ -142,12 +143,22 @@ class Placement:
         if self.mesh is None:
             return tree
         sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
+        leaves, treedef = jax.tree.flatten(tree)
+        leaves = [np.asarray(x) for x in leaves]
+        slices = [sharding.addressable_devices_indices_map(x.shape) for x in leaves]
+        local = list(slices[0]) if leaves else []
 
-        def place(x):
-            x = np.asarray(x)
-            return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+        def place_on(device):  # every leaf's slice for one device
+            return [jax.device_put(x[where[device]], device) for x, where in zip(leaves, slices)]
 
-        return jax.tree.map(place, tree)
+        # One thread per device: a process's first placement on a GPU is where XLA reserves most of
+        # its memory, and the devices' reservations run at once this way, one after another otherwise
+        # (docs/bench-gpu.json, "first-placement").
+        with ThreadPoolExecutor(max_workers=max(1, len(local)), thread_name_prefix="mjxsuite-put") as pool:
+            on_device = list(pool.map(place_on, local))
+        return jax.tree.unflatten(treedef, [
+            jax.make_array_from_single_device_arrays(x.shape, sharding, [placed[i] for placed in on_device])
+            for i, x in enumerate(leaves)])
 
     def to_host(self, tree: Any) -> Any:
         """Numpy arrays of every agent, on every process (a collective in a multi-host run:
