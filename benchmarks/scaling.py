@@ -14,7 +14,9 @@ each device count's figure over one device's.
 
 `--whole-process` times what a user waits for instead: the whole `mjxsuite train` process
 (start-up, compile, training, the judge, the saves, the final evaluation) with `--out`, its
-defaults and a fresh compilation cache, once per device count, the run given by `--train`:
+defaults and a fresh compilation cache (`--warm-cache`: the one an untimed first process of the
+same command filled, as a user's second run finds it), once per device count, the run given by
+`--train`:
 
     python -m benchmarks.scaling --whole-process --devices 1,2,4 --train "--env cartpole --seeds 8192"
     python -m benchmarks.scaling --whole-process --devices 1,2 --train "--env hopper --agent ppo --impl warp --seeds 8"
@@ -67,28 +69,42 @@ def throughput(env: str, config: DQNConfig, seeds: int, devices: int, chunks: in
             "agent_steps_per_s": float(np.median([h["steps_per_s"] for h in result.history[1:]]))}
 
 
-def whole_process(train_args: str, devices: int, timeout: float) -> dict:
-    """`mjxsuite train TRAIN_ARGS --devices K --out D` as one fresh process, timed from start to exit."""
+def whole_process(train_args: str, devices: int, timeout: float, warm_cache: bool = False) -> dict:
+    """`mjxsuite train TRAIN_ARGS --devices K --out D` as one fresh process, timed from start to exit,
+    with a fresh compilation cache, or (`warm_cache`) the one an untimed identical process filled: a
+    user's second run of the same command. A run trained in processes (one per GPU) also records each
+    process's own breakdown and when the parent started them."""
     with tempfile.TemporaryDirectory(prefix="scaling-") as tmp:
         command = ["train", *shlex.split(train_args), "--devices", str(devices), "--out", f"{tmp}/run", "--overwrite"]
-        done, wall = _run([sys.executable, "-c", _OUR_PROGRAM, *command], timeout,
-                          _environment(cache=Path(tmp) / "jax-cache"))
+        program = [sys.executable, "-c", _OUR_PROGRAM, *command]
+        environ = _environment(cache=Path(tmp) / "jax-cache")
+        if warm_cache:
+            _run(program, timeout, environ)
+        done, wall = _run(program, timeout, environ)
         summary = json.loads((Path(tmp) / "run" / "eval.json").read_text())
-    return {"lib": "mjxsuite", "kind": "whole-process-scaling", "command": "mjxsuite " + " ".join(command[:-3]),
-            "devices": devices, "process_s": wall, "parts_s": wall_parts(done.stdout.strip().splitlines()[-1]),
-            "agents": len(summary["mean_return"]), "median_return": float(np.median(summary["mean_return"]))}
+        record = {"lib": "mjxsuite", "kind": "whole-process-scaling", "command": "mjxsuite " + " ".join(command[:-3]),
+                  "devices": devices, "compile_cache": "warm" if warm_cache else "fresh", "process_s": wall,
+                  "parts_s": wall_parts(done.stdout.strip().splitlines()[-1]),
+                  "agents": len(summary["mean_return"]), "median_return": float(np.median(summary["mean_return"]))}
+        if summary.get("processes"):
+            children = sorted((Path(tmp) / "run" / "processes").glob("*/eval.json"), key=lambda f: int(f.parent.name))
+            record["processes_parts_s"] = [{"wall": json.loads(f.read_text())["wall_s"],
+                                            **json.loads(f.read_text())["wall_parts_s"]} for f in children]
+    return record
 
 
-def whole_process_scaling(train_args: str, counts: list[int], timeout: float) -> list[dict]:
+def whole_process_scaling(train_args: str, counts: list[int], timeout: float, warm_cache: bool = False) -> list[dict]:
     records = []
     for devices in counts:
-        record = whole_process(train_args, devices, timeout)
+        record = whole_process(train_args, devices, timeout, warm_cache)
         one = records[0] if records else record
         record["ratio_to_one_device"] = one["process_s"] / record["process_s"]
         record["linear_share"] = record["ratio_to_one_device"] / devices
         records.append(record)
         print(f"{devices} device(s): {record['process_s']:7.1f} s whole process, {record['ratio_to_one_device']:.2f}x "
               f"one device ({record['linear_share']:.2f} of linear); {record['parts_s']}", flush=True)
+        for k, parts in enumerate(record.get("processes_parts_s", [])):
+            print(f"    process {k}: {parts}", flush=True)
     return records
 
 
@@ -105,12 +121,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="time whole `mjxsuite train --train ... --devices K --out D` processes instead")
     parser.add_argument("--train", default="--env cartpole --seeds 8192", help="the run of --whole-process")
     parser.add_argument("--timeout", type=float, default=1800.0, help="seconds allowed to each --whole-process run")
+    parser.add_argument("--warm-cache", action="store_true",
+                        help="--whole-process: time each count's second process, whose compilation cache the first "
+                             "(untimed) filled: a user's second run of the same command")
     args, extra = parser.parse_known_args(argv)
     if args.whole_process:
         counts = [int(k) for k in args.devices.split(",")] if args.devices else [1, jax.local_device_count()]
         if counts[0] != 1:
             raise SystemExit(f"--devices must start with 1 (the baseline of the ratio), got {args.devices}")
-        records = whole_process_scaling(args.train, counts, args.timeout)
+        records = whole_process_scaling(args.train, counts, args.timeout, args.warm_cache)
         if args.json:
             Path(args.json).write_text(json.dumps(records, indent=2))
         return 0

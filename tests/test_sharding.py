@@ -268,6 +268,22 @@ def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_pat
 
 
 @pytest.mark.slow
+def test_the_whole_process_benchmark_records_a_warm_caches_run_in_processes_with_each_process_breakdown():
+    """`--whole-process --warm-cache` times the second of two identical processes, whose first filled the
+    compilation cache, and a run in processes records each process's own breakdown."""
+    from benchmarks.scaling import whole_process
+
+    tiny = ("--env cartpole --seeds 2 --processes 2 --steps 400 --eval_every 200 --learning_starts 64 --batch_size 32 "
+            "--buffer_size 256 --eval_episodes 2 --hidden 16")
+    fresh, warm = (whole_process(tiny, 1, 600.0, warm_cache=warm) for warm in (False, True))
+    assert (fresh["compile_cache"], warm["compile_cache"]) == ("fresh", "warm")
+    assert warm["agents"] == 2 and len(warm["processes_parts_s"]) == 2
+    assert all(parts["wall"] > parts["compile"] > 0 for parts in warm["processes_parts_s"])
+    # the warm processes load what the first compiled instead of compiling it
+    assert max(p["compile"] for p in warm["processes_parts_s"]) < min(p["compile"] for p in fresh["processes_parts_s"])
+
+
+@pytest.mark.slow
 def test_the_two_gpu_mjx_reproducer_runs_its_cases_on_two_cpu_devices():
     """benchmarks.two_gpu_mjx's bare case (what goes upstream) compiles and runs where XLA does not crash."""
     from benchmarks import two_gpu_mjx
