@@ -299,6 +299,13 @@ def train_run(
             train_program = train_program.result()
 
         init_args, eval_keys = inputs.result()
+
+        def compile_evaluation(params: Any) -> Callable:  # the final evaluation, for `params`' shapes
+            if placement.mesh is None:
+                return compile_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (params, eval_keys), learner,
+                                      agents, env_name, env_options)
+            return jax.jit(placement.spread(jax.vmap(learner.evaluate))).lower(params, eval_keys).compile()
+
         if init_program is not None:
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
@@ -307,22 +314,15 @@ def train_run(
         # (one process: in a multi-host run the final evaluation's arrays are gathered and placed anew)
         if (stop_after_chunks is None or stop_after_chunks >= config.num_chunks) and jax.process_count() == 1:
             params_shape = placement.abstract(ts.best_params)  # not the arrays: the first chunk consumes them
-            if placement.mesh is None:
-                final_evaluation = in_background(partial(compile_cached, f"{kind}.evaluate", jax.vmap(learner.evaluate),
-                                                          (params_shape, eval_keys), learner, agents, env_name,
-                                                          env_options), "evaluation")
-            else:
-                sharded_evaluation = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
-                final_evaluation = in_background(lambda: sharded_evaluation.lower(params_shape, eval_keys).compile(),
-                                                 "evaluation")
+            final_evaluation = in_background(partial(compile_evaluation, params_shape), "evaluation")
             # On a GPU thousands of seeds can tie (CartPole's held to the time limit): the tie-break's
             # program for every seed compiles beside training, as the final evaluation's does, and
             # serves where at least half of them tie. On a CPU, measuring every seed costs more than
             # compiling for the tied ones.
             if agents > 1 and placement.devices[0].platform == "gpu" and not on_warp:
-                tie_keys = placement.abstract(jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents))))
-                every_seed = in_background(lambda: tie_break_program(learner, env_name, env_options, placement).lower(
-                    params_shape, tie_keys).compile(), "tie-break")
+                tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
+                every_seed = in_background(partial(every_seed_tie_break, learner, env_name, env_options, placement,
+                                                   params_shape, tie_keys), "tie-break")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
@@ -333,7 +333,8 @@ def train_run(
 
         def checkpoint_now(state: Any, done: int, final: bool = False) -> None:  # timed on the save clock
             save_start = time.perf_counter()
-            save(saves, out, env_name, placement, state, done, final=final, finished=done == config.num_chunks)
+            save(saves, out, env_name, placement, state, done, final=final, finished=done == config.num_chunks,
+                 copy_beside=not on_warp)
             clock.saved(done, save_start, saves.written_s)
             result.save_s += time.perf_counter() - save_start
 
@@ -439,19 +440,11 @@ def train_run(
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
         solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
         result.solve_step = [s if s >= 0 else None for s in solve]
-        if final_evaluation is not None:
-            evaluate = final_evaluation.result()
-        elif placement.mesh is None:
-            evaluate = compile_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (ts.best_params, eval_keys), learner, agents,
-                                      env_name, env_options)
-        else:
-            evaluate = jax.jit(placement.spread(jax.vmap(learner.evaluate)))
+        evaluate = final_evaluation.result() if final_evaluation is not None else compile_evaluation(ts.best_params)
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
-        if every_seed is not None:  # its keys placed as the agents are
-            every_seed = partial(lambda program, params, keys: program(params, placement.put(keys)), every_seed.result())
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
-                                                 seed, first, every_seed=every_seed)
+                                                 seed, first, every_seed=every_seed.result() if every_seed else None)
         result.eval_s = time.perf_counter() - eval_start
         result.save_s += _waited(saves)
         result.finish(start)
@@ -506,6 +499,16 @@ def tie_break_program(agent: Any, env_name: str, env_options: dict | None,
     return jax.jit(measure if placement is None else placement.spread(measure))
 
 
+def every_seed_tie_break(agent: Any, env_name: str, env_options: dict | None, placement: sharding.Placement,
+                         params: Any, keys: Any) -> Callable:
+    """`tie_break_program` for every row of `params`, spread by `placement`, compiled for `params`'
+    and `keys`' shapes (arrays, or their shapes before the arrays exist): `break_ties`' `every_seed`,
+    `(params, keys) -> mean return per agent`, which places the host's keys as the agents are."""
+    program = tie_break_program(agent, env_name, env_options, placement).lower(
+        placement.abstract(params), placement.abstract(keys)).compile()
+    return lambda params, keys: program(params, placement.put(keys))
+
+
 def tie_break_keys(seed: int, indices: Any) -> jax.Array:
     """The tie-break's key of each seed, by its index in the run."""
     tie_key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
@@ -546,7 +549,7 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int, final: bool = False, finished: bool = False) -> None:
+         chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
     The files are written on another thread while the run goes on (the next chunks, or the final
@@ -556,11 +559,14 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
     used by nothing after it (the final evaluation reads them, nothing donates them): on one
     device its copy to the host is made on the writing thread too (arrays split over devices are
-    copied here: never fetched by two threads at once). A `finished` run's replay
-    buffers are neither copied nor written (`checkpoint.without_replay`)."""
+    copied here: never fetched by two threads at once), unless `copy_beside` is False: an env on
+    MuJoCo Warp, whose kernels capture a CUDA graph when the final evaluation first runs them, and
+    a copy from another thread then breaks the capture (CUDA error 904, "capturing stream has
+    unjoined work") and never ends, so the process neither finishes nor exits. A `finished` run's
+    replay buffers are neither copied nor written (`checkpoint.without_replay`)."""
     if finished:
         ts = checkpoint.without_replay(ts)
-    if final and placement.mesh is None and jax.process_count() == 1:
+    if final and copy_beside and placement.mesh is None and jax.process_count() == 1:
         saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished)
         return
     host = placement.to_host(ts)

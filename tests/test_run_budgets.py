@@ -74,3 +74,23 @@ def test_deterministic_pins_the_judge_to_every_chunk(tmp_path):
                     "1000", "--deterministic", "--out", str(out)], check=True, capture_output=True, timeout=300)
     assert json.loads((out / "config.json").read_text())["judge_every"] == 1
     assert json.loads((out / "eval.json").read_text())["judged_chunks"] == 3
+
+
+@pytest.mark.parametrize("on_warp", [False, True])
+def test_the_final_saves_copy_to_the_host_is_made_beside_the_final_evaluation_except_on_warp(tmp_path, monkeypatch,
+                                                                                            on_warp):
+    """The final save's copy to the host is made on the writing thread during the final evaluation;
+    on MuJoCo Warp it is made before, on the run's thread: a copy from another thread while the
+    evaluation's Warp kernels capture a CUDA graph breaks the capture (CUDA error 904) and never
+    ends. Warp's check is faked here (the suite's CPU tests run without warp-lang)."""
+    from agents import checkpoint
+    from agents import run as run_module
+
+    handed = []  # per save: whether the writing thread makes the host copy (a function) or gets arrays
+    real_save = checkpoint.BackgroundSaves.save
+    monkeypatch.setattr(checkpoint.BackgroundSaves, "save", lambda self, out, env, state, *rest, **kw: (
+        handed.append(callable(state)), real_save(self, out, env, state, *rest, **kw))[1])
+    monkeypatch.setattr(run_module, "runs_warp", lambda env: on_warp)
+    train_run("cartpole", SMALL, out_dir=tmp_path / "run", progress=False)
+    assert handed[-1] is not on_warp
+    assert checkpoint.chunks_saved(tmp_path / "run") == SMALL.num_chunks

@@ -91,17 +91,15 @@ SINGLE_HOST = textwrap.dedent("""
     # (as a GPU run compiles it beside training), measures as the tied seeds' own on one device.
     import envs
     from agents import DQN
-    from agents.run import break_ties, seed_keys, tie_break_keys, tie_break_program
+    from agents.run import break_ties, every_seed_tie_break, seed_keys, tie_break_keys
     from agents.sharding import Placement
     dqn, options = DQN(DQNConfig(hidden=(8,), eval_episodes=2), envs.make("cartpole", episode_length=20)), {"episode_length": 20}
     placement = Placement(jax.local_devices())
     params = jax.device_get(jax.vmap(dqn.init)(seed_keys(0, 4)).params)
     keys = jax.eval_shape(lambda: tie_break_keys(0, np.arange(4)))
-    program = tie_break_program(dqn, "cartpole", options, placement).lower(
-        placement.abstract(params), placement.abstract(keys)).compile()
+    every_seed = every_seed_tie_break(dqn, "cartpole", options, placement, params, keys)
     returns = [20.0, 3.0, 20.0, 20.0]
-    spread = break_ties(dqn, "cartpole", options, placement.put(params), returns, 0, first=8,
-                        every_seed=lambda p, k: program(p, placement.put(k)))
+    spread = break_ties(dqn, "cartpole", options, placement.put(params), returns, 0, first=8, every_seed=every_seed)
     alone = break_ties(dqn, "cartpole", options, params, returns, 0, first=8)
     found["spread_tie_break"] = [spread[0] == alone[0], sorted(spread[1]) == sorted(alone[1]),
                                  max(abs(spread[1][i] - alone[1][i]) for i in alone[1])]
