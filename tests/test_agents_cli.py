@@ -141,8 +141,9 @@ def _leaves(out):
 
 
 @pytest.mark.parametrize("env_name, config", [
-    ("pendulum-mjx", TINY_PPO),
-    # slow: its replay's first fill compiles into every program (tests/test_sac.py resumes SAC exactly in the default run)
+    # slow, both: tests/test_ppo.py and tests/test_sac.py resume each exactly in the default run (and PPO's
+    # kill -9 and SIGTERM tests below); SAC's replay's first fill compiles into every program
+    pytest.param("pendulum-mjx", TINY_PPO, marks=pytest.mark.slow),
     pytest.param("pendulum-mjx", TINY_SAC, marks=pytest.mark.slow),
 ], ids=["ppo", "sac"])
 def test_resume_is_exact(tmp_path, env_name, config):

@@ -195,6 +195,7 @@ def test_unwritable_output_fails_before_training(tmp_path):
         train_run("cartpole", SMALL, out_dir="/proc/mjxsuite-test", progress=False)
 
 
+@pytest.mark.slow
 def test_every_option_trains_with_finite_losses():
     """Dueling head, prioritized replay, Huber loss, hard target copies, 4 envs, 2 updates every 2 steps."""
     config = DQNConfig(**{**SMALL.__dict__, "dueling": True, "replay": "prioritized", "loss": "huber",

@@ -206,6 +206,7 @@ class ExplodingCartPole(envs.CartPoleMjx):
         return data.replace(qvel=jnp.where(prev.qpos[0] > 0.02, jnp.nan, data.qvel))
 
 
+@pytest.mark.slow
 def test_nan_physics_ends_episodes_counted_and_nothing_nan_is_learned():
     dqn = DQN(CONFIG, envs.TimeLimit(ExplodingCartPole(), 500))
     ts = jax.jit(dqn.init)(jax.random.PRNGKey(0))

@@ -15,6 +15,7 @@ from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, asse
 TOLERANCE = {"obs": 2e-5, "reward": 2e-5}
 
 
+@pytest.mark.slow
 def test_inverted_pendulum_steps_match_gymnasium():
     # The pole falls within a few steps under random actions: short episodes, many of them.
     ours = transitions("inverted-pendulum", num_envs=64, num_steps=8, keep=320)

@@ -115,6 +115,7 @@ def test_analytic_tasks_have_no_opt():
         envs.make("cartpole", opt={"iterations": 4})
 
 
+@pytest.mark.slow
 def test_opt_on_the_command_line_is_saved_and_reused(tmp_path, capsys):
     out = tmp_path / "run"
     small = ["--steps", "200", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "2", "--hidden", "8"]

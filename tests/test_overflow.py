@@ -37,6 +37,7 @@ for name, task in (("test-overflowing-cartpole", OverflowingCartPole),
         envs.register(name, task, episode_length=500)
 
 
+@pytest.mark.slow
 def test_an_overflowing_step_ends_the_episode_like_nan_physics():
     env = OverflowingCartPole()
     state = env.reset(jax.random.PRNGKey(0))
@@ -56,6 +57,7 @@ def test_the_dqn_never_stores_an_overflowing_step():
     assert int(ts.buffer.size) == int(ts.env_steps) - overflowed  # every other step, none that overflowed
 
 
+@pytest.mark.slow
 def test_a_run_says_once_which_buffer_to_raise(capsys):
     train_run("test-overflowing-cartpole", CONFIG, progress=True)
     printed = capsys.readouterr()

@@ -110,6 +110,7 @@ def test_pixel_runs_stack_frames_as_playground():
         assert brax_defaults.default_preset(task, "ppo", "pixels") == "pixels"
 
 
+@pytest.mark.slow
 def test_pixel_training_keeps_uint8_frames():
     """PPO's whole training chunk on 8x8 frames, traced (not compiled: the ray-cast camera's step
     takes most of a minute to compile on a CPU; the slow test below runs it): the rollouts hold

@@ -115,6 +115,7 @@ def test_auto_reset_redraws_per_episode_or_keeps_per_env(per):
         assert np.all((after >= 0.05) & (after <= 0.5))
 
 
+@pytest.mark.slow
 def test_analytic_and_mjx_agree_with_the_same_pole_mass():
     starts = jax.random.uniform(jax.random.PRNGKey(1), (32, 4), minval=-0.2, maxval=0.2)
     actions = jax.random.randint(jax.random.PRNGKey(2), (32, 100), 0, 2)

@@ -35,6 +35,7 @@ def code_blocks(section: str) -> list[tuple[str, str]]:
     return re.findall(r"^```([^\n]*)\n(.*?)^```", section, flags=re.S | re.M)
 
 
+@pytest.mark.slow
 def test_the_writing_a_task_example_works_as_written(tmp_path):
     blocks = code_blocks(page_section(TASKS, "Writing a task"))
     files = {info.split("file=")[1]: body for info, body in blocks if "file=" in info}
