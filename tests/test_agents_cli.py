@@ -233,6 +233,7 @@ def test_ties_between_seeds_are_broken_by_a_longer_evaluation():
     assert sliced == pytest.approx(dict(zip((5, 6), np.asarray(longer(jax.tree.map(lambda x: x[:2], params), keys)))))
 
 
+@pytest.mark.slow
 def test_the_tie_break_compiled_for_every_seed_measures_as_the_tied_seeds_program():
     """Where at least half the seeds tie, a run on one GPU measures them with the tie-break's
     program for every seed (compiled beside training): the same returns as the tied seeds'

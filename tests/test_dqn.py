@@ -255,6 +255,7 @@ def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
     _assert_trees_equal(_train_chunks(accelerator), cpu)
 
 
+@pytest.mark.slow
 def test_the_accelerator_update_differs_from_the_cpu_one_by_rounding_only():
     """Why the accelerator program's parameters are not the CPU's bit for bit: its Adam runs
     per parameter leaf, so gradient clipping sums the squared norm leaf by leaf rather than

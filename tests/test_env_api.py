@@ -143,7 +143,7 @@ def test_batched_auto_reset_gives_the_same_states_as_vmapped_auto_reset():
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-@pytest.mark.parametrize("name", ["cartpole", "acrobot", "cartpole-mjx"])
+@pytest.mark.parametrize("name", ["cartpole", "acrobot", pytest.param("cartpole-mjx", marks=pytest.mark.slow)])
 def test_a_batch_of_one_steps_unbatched_to_the_same_states(name, monkeypatch):
     """Without reset-by-index (the GPU's choice) an analytic env's batch of one steps as
     scalars, MJX's stays batched (its unbatched step is slower); both give the same states,

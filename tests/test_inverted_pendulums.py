@@ -87,7 +87,8 @@ def test_inverted_double_pendulum_reset_distribution_matches_gymnasium():
     assert np.abs(qvel).max() > 0.25, "velocities are 0.1 * N(0, 1), not uniform"
 
 
-@pytest.mark.parametrize("name, gymnasium_id", [("inverted-pendulum", "InvertedPendulum-v5"),
+@pytest.mark.parametrize("name, gymnasium_id", [pytest.param("inverted-pendulum", "InvertedPendulum-v5",
+                                                             marks=pytest.mark.slow),
                                                 pytest.param("inverted-double-pendulum", "InvertedDoublePendulum-v5",
                                                              marks=pytest.mark.slow)])  # issue #29: ~23 s
 def test_to_gymnasium_passes_check_env(name, gymnasium_id):

@@ -51,6 +51,7 @@ def rollout(env, steps=40, num_envs=3):
     return jax.jit(run)(jax.random.split(jax.random.PRNGKey(0), num_envs))
 
 
+@pytest.mark.slow
 def test_no_opt_steps_exactly_as_plain_mjx():
     """Without `opt` (or with the MJCF's own values) the env's physics is bit for bit mjx.step on the
     task's MJCF model, as before `opt` existed."""

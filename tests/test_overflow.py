@@ -107,6 +107,7 @@ if "test-always-overflowing-pendulum" not in envs.names():
     envs.register("test-always-overflowing-pendulum", AlwaysOverflowingPendulum, episode_length=50)
 
 
+@pytest.mark.slow
 def test_a_ppo_run_that_overflows_on_most_steps_stops():
     """PPO's chunks count the overflowing steps as DQN's do, and the one lifecycle stops the run."""
     from agents.ppo import PPOConfig

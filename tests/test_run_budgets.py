@@ -64,6 +64,7 @@ def test_a_resumed_run_keeps_its_runs_cadence(tmp_path):
         train_run("cartpole", SMALL, out_dir=tmp_path, progress=False, resume=True, judge_every=1)
 
 
+@pytest.mark.slow
 def test_deterministic_pins_the_judge_to_every_chunk(tmp_path):
     """`--deterministic` without --judge-every judges every chunk: the default cadence reads the clock."""
     import subprocess
