@@ -44,6 +44,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from agents import checkpoint
 from agents.cli import config_from_args
 from agents.dqn import DQNConfig
 from agents.run import train_run
@@ -73,7 +74,7 @@ def whole_process(train_args: str, devices: int, timeout: float, warm_cache: boo
     """`mjxsuite train TRAIN_ARGS --devices K --out D` as one fresh process, timed from start to exit,
     with a fresh compilation cache, or (`warm_cache`) the one an untimed identical process filled: a
     user's second run of the same command. A run trained in processes (one per GPU) also records each
-    process's own breakdown and when the parent started them."""
+    process's own wall time and breakdown."""
     with tempfile.TemporaryDirectory(prefix="scaling-") as tmp:
         command = ["train", *shlex.split(train_args), "--devices", str(devices), "--out", f"{tmp}/run", "--overwrite"]
         program = [sys.executable, "-c", _OUR_PROGRAM, *command]
@@ -87,9 +88,9 @@ def whole_process(train_args: str, devices: int, timeout: float, warm_cache: boo
                   "parts_s": wall_parts(done.stdout.strip().splitlines()[-1]),
                   "agents": len(summary["mean_return"]), "median_return": float(np.median(summary["mean_return"]))}
         if summary.get("processes"):
-            children = sorted((Path(tmp) / "run" / "processes").glob("*/eval.json"), key=lambda f: int(f.parent.name))
-            record["processes_parts_s"] = [{"wall": json.loads(f.read_text())["wall_s"],
-                                            **json.loads(f.read_text())["wall_parts_s"]} for f in children]
+            children = [json.loads((directory / "eval.json").read_text())
+                        for directory, _ in checkpoint.process_dirs(Path(tmp) / "run")]
+            record["processes_parts_s"] = [{"wall": child["wall_s"], **child["wall_parts_s"]} for child in children]
     return record
 
 
