@@ -38,6 +38,9 @@ PROGRESS_SECONDS = 10.0  # between the parent's lines of progress
 # The environment's variable that asks for N processes where --processes is not given (e.g. in a
 # job script); `--processes` wins.
 PROCESSES_ENV = "MJXSUITE_PROCESSES"
+# `mjxsuite` as a program of this interpreter: its console script (pyproject.toml), run as the user
+# runs it, also where mjxsuite is a checkout that was never installed.
+MJXSUITE = [sys.executable, "-c", "from agents.console import run; run()"]
 
 
 class ProcessFailed(Exception):
@@ -140,8 +143,7 @@ def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) 
 def child_command(child: Child, options: list[str]) -> list[str]:
     """The child's `mjxsuite train`: --resume of its own directory (which start() wrote, or an
     earlier run left), on one device."""
-    script = "import sys; from agents.console import main; sys.exit(main())"
-    return [sys.executable, "-c", script, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
+    return [*MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
 
 
 def child_environment(child: Child) -> dict[str, str]:

@@ -40,6 +40,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from agents import processes
 from agents.dqn import DQNConfig
 from benchmarks.dqn_peer import MATCHED
 
@@ -64,9 +65,6 @@ outs = jax.block_until_ready(jax.jit(jax.vmap(make_train(config)))(rngs))
 done = time.perf_counter()
 print(json.dumps({"startup_s": tick - start, "make_train_s": done - tick, "device": jax.devices()[0].device_kind}))
 """
-
-# Ours: the `mjxsuite` console script itself (agents.console:main, with `bench` from its entry point).
-_OUR_PROGRAM = "import sys; from agents.console import main; sys.exit(main())"
 
 # The untimed warm-up: the libraries both sides load, and a first program on the device.
 _WARM_UP_PROGRAM = """
@@ -122,7 +120,7 @@ def wall_parts(last_line: str) -> dict[str, float]:
 def run_ours(args, work: Path) -> dict:
     out = work / "ours"
     command = our_command(args.seeds, args.steps, args.learning_starts, args.exploration_steps, out)
-    done, wall = _run([sys.executable, "-c", _OUR_PROGRAM, *command], args.timeout,
+    done, wall = _run([*processes.MJXSUITE, *command], args.timeout,
                       _environment(cache=Path(tempfile.mkdtemp(prefix="jax-cache-", dir=work))))
     summary = json.loads((out / "eval.json").read_text())
     parts = wall_parts(done.stdout.strip().splitlines()[-1])

@@ -44,11 +44,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from agents import checkpoint
+from agents import checkpoint, processes
 from agents.cli import config_from_args
 from agents.dqn import DQNConfig
 from agents.run import train_run
-from benchmarks.end_to_end import _OUR_PROGRAM, _environment, _run, wall_parts
+from benchmarks.end_to_end import _environment, _run, wall_parts
 
 
 def sweep_grid(configs: int) -> dict[str, list[float]]:
@@ -77,7 +77,7 @@ def whole_process(train_args: str, devices: int, timeout: float, warm_cache: boo
     process's own wall time and breakdown."""
     with tempfile.TemporaryDirectory(prefix="scaling-") as tmp:
         command = ["train", *shlex.split(train_args), "--devices", str(devices), "--out", f"{tmp}/run", "--overwrite"]
-        program = [sys.executable, "-c", _OUR_PROGRAM, *command]
+        program = [*processes.MJXSUITE, *command]
         environ = _environment(cache=Path(tmp) / "jax-cache")
         if warm_cache:
             _run(program, timeout, environ)

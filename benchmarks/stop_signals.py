@@ -20,9 +20,10 @@ import random
 import shlex
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
+
+from agents import processes
 
 
 def main(argv=None) -> None:
@@ -43,7 +44,7 @@ def main(argv=None) -> None:
     runs = []
     for i in range(args.runs):
         out, log = root / f"run{i}", root / f"run{i}.log"
-        command = [sys.executable, "-c", "import sys\nfrom agents.console import main\nsys.exit(main())\n", "train",
+        command = [*processes.MJXSUITE, "train",
                    "--env", args.env, *shlex.split(args.train_args), "--out", str(out), "--overwrite"]
         process = subprocess.Popen(command, env=env, stdout=open(log, "w"), stderr=subprocess.STDOUT)
         runs.append({"process": process, "at_s": round(draw.uniform(args.low, args.high), 1), "out": out, "log": log})

@@ -46,6 +46,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from agents import processes
+
 SECTIONS = ("env", "dqn", "first-second", "logging", "startup", "first-compile", "gym-mujoco", "gym-vector")
 DEFAULT_SECTIONS = ("env", "dqn", "first-second", "logging", "startup")  # gym-mujoco takes long, gym-vector needs torch: run them by name
 
@@ -198,7 +200,7 @@ def first_compile_section(runs: int = 3) -> list[dict]:
         environ.update(PYTHONPATH=str(clone), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
         for run in range(1, runs + 1):
             start = time.perf_counter()
-            done = subprocess.run([sys.executable, "-c", "import sys; from agents.console import main; sys.exit(main())",
+            done = subprocess.run([*processes.MJXSUITE,
                                    *MAKE_TRAIN], cwd=clone, env=environ, capture_output=True, text=True, check=False)
             wall = time.perf_counter() - start
             if done.returncode != 0:

@@ -20,7 +20,7 @@ import pytest
 from flax import serialization
 
 import envs
-from agents import DQN, DQNConfig, checkpoint, train_run
+from agents import DQN, DQNConfig, checkpoint, processes, train_run
 from agents.cli import main as cli_main
 from agents.run import seed_keys
 
@@ -490,8 +490,7 @@ def test_a_signal_while_the_command_starts_exits_cleanly(tmp_path, delay):
     """The `mjxsuite` console script catches signals from its first line: one during the imports
     (JAX, CUDA's plugin) neither raises inside them nor starts training (a KeyboardInterrupt inside
     CUDA's plugin start made JAX fall back to the CPU on a GPU machine)."""
-    code = "import sys\nfrom agents.console import main\nsys.exit(main())\n"
-    process = subprocess.Popen([sys.executable, "-c", code, "train", "--env", "cartpole", "--out", str(tmp_path / "run"),
+    process = subprocess.Popen([*processes.MJXSUITE, "train", "--env", "cartpole", "--out", str(tmp_path / "run"),
                                 *CONFIG_ARGS], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(delay)
     process.send_signal(signal.SIGINT)
@@ -501,3 +500,25 @@ def test_a_signal_while_the_command_starts_exits_cleanly(tmp_path, delay):
     if "stopping before the run starts" in err:  # caught by the console script: nothing compiled or trained
         assert process.returncode == 130 and not (tmp_path / "run" / checkpoint.STATE_FILE).exists()
         assert "stopped by SIGINT before the run started: nothing was written" in out
+
+
+def test_the_console_scripts_exit_finishes_every_write_before_it_skips_the_interpreters_teardown(tmp_path):
+    """`agents.console.exit_now` (the end of every `mjxsuite` command) ends the process only after
+    what the interpreter's own exit would finish: a thread that is not a daemon (the checkpoint
+    writer) still writing, the atexit handlers, and output still in stdout's buffer; with the status
+    the command returned."""
+    code = ("import atexit, pathlib, sys, threading, time\n"
+            "from agents.console import exit_now\n"
+            "out = pathlib.Path(sys.argv[1])\n"
+            "def write():\n"
+            "    time.sleep(0.5)\n"
+            "    (out / 'thread').write_text('written')\n"
+            "threading.Thread(target=write).start()\n"
+            "atexit.register(lambda: (out / 'atexit').write_text('ran'))\n"
+            "sys.stdout.write('buffered, no newline')\n"
+            "exit_now(3)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60,
+                          check=False)
+    assert done.returncode == 3, done.stderr
+    assert done.stdout == "buffered, no newline"
+    assert (tmp_path / "thread").read_text() == "written" and (tmp_path / "atexit").read_text() == "ran"

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -23,7 +22,7 @@ from agents.run import load_agent
 DQN_ARGS = ["--env", "cartpole", "--seeds", "2", "--steps", "600", "--learning_starts", "64", "--batch_size", "32",
             "--buffer_size", "256", "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16",
             "--judge-every", "1", "--checkpoint-seconds", "0"]
-CLI = [sys.executable, "-c", "import sys; from agents.console import main; sys.exit(main())"]
+CLI = processes.MJXSUITE
 
 
 def same_params(a, b) -> bool:
