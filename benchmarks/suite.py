@@ -148,8 +148,7 @@ def startup_section(env: str = "cartpole-mjx", steps: int = 2000, warm_runs: int
         cache = Path(tmp) / "jax-cache"
         for run in range(1, warm_runs + 2):
             out = Path(tmp) / f"run{run}"
-            command = [sys.executable, "-m", "agents.cli", "train", "--env", env, "--steps", str(steps),
-                       "--out", str(out)]
+            command = [*processes.MJXSUITE, "train", "--env", env, "--steps", str(steps), "--out", str(out)]
             environ = {**os.environ, "MJXSUITE_COMPILE_CACHE": str(cache)}
             environ.pop("JAX_COMPILATION_CACHE_DIR", None)
             start = time.perf_counter()
