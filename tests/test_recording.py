@@ -227,13 +227,9 @@ def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
 
 # ---- training and the command line ---------------------------------------------------
 def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
-    """Training as the `mjxsuite` script runs it, in a process of its own: what its fast exit
-    (`agents.console.exit_now`) leaves is whole."""
     out, train_file, rollout_file = tmp_path / "run", tmp_path / "train.rrd", tmp_path / "rollout.rrd"
-    done = subprocess.run([*processes.MJXSUITE, "train", "--env", "cartpole", "--out", str(out),
-                           "--rerun", str(train_file), "--rerun-every", "1", *TINY],
-                          capture_output=True, text=True, timeout=300, check=False)
-    assert done.returncode == 0, done.stdout + done.stderr
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), "--rerun-every", "1",
+                     *TINY]) == 0
     contents = Contents(train_file)
     for name in ("loss", "mean_q", "epsilon", "eval_return", "env_steps_per_s"):
         assert contents.rows[f"train/seed_0/{name}"] == 2  # one row per chunk
@@ -250,6 +246,21 @@ def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     assert {"env/0/reward", "env/1/reward", "world/env_0/pole"} <= contents.entities
     assert not any(e.startswith("world/env_1") for e in contents.entities)  # --scene-envs 1
     assert contents.rows["env/0/episode/return"] >= 1 and contents.rows["env/1/episode/return"] >= 1
+
+
+@pytest.mark.slow
+def test_the_console_scripts_fast_exit_leaves_a_whole_rerun_file(tmp_path):
+    """Training as the `mjxsuite` script runs it, in a process of its own: the file its fast exit
+    (`agents.console.exit_now`) leaves holds every chunk's rows and passes `rerun rrd verify`."""
+    out, train_file = tmp_path / "run", tmp_path / "train.rrd"
+    done = subprocess.run([*processes.MJXSUITE, "train", "--env", "cartpole", "--out", str(out),
+                           "--rerun", str(train_file), "--rerun-every", "1", *TINY],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    contents = Contents(train_file)
+    assert contents.rows["train/seed_0/loss"] == 2 and contents.rows["eval/seed_0/train_step"] == 2
+    assert json.loads((out / "eval.json").read_text())["mean_return"]
+    verify_with_rerun_cli(train_file)
 
 
 def test_training_logger_curves_per_seed_and_eval_episodes_every_n_chunks(tmp_path):
