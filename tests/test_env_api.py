@@ -46,7 +46,8 @@ def test_wrong_action_shape_or_dtype_fails_at_trace_time(name):
         jax.eval_shape(batched.step, batched.reset(jax.random.PRNGKey(0)), jnp.zeros((3,), jnp.int32))
 
 
-@pytest.mark.parametrize("name", NAMES)
+# cartpole-mjx in the slow tests: pendulum-mjx-discrete runs an MJX task's scan with auto-reset here
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n == "cartpole-mjx" else n for n in NAMES])
 def test_jit_vmap_scan_1024_envs_500_steps_with_auto_reset(name):
     num_envs, steps = 1024, 500
     env = envs.wrap_for_training(envs.make(name), num_envs)

@@ -254,7 +254,7 @@ def test_overrides_reach_the_task():
         envs.make("pendulum-mjx", max_sped=1.0)
 
 
-@pytest.mark.parametrize("name", ["pendulum-mjx", "pendulum-mjx-discrete"])
+@pytest.mark.parametrize("name", [pytest.param("pendulum-mjx", marks=pytest.mark.slow), "pendulum-mjx-discrete"])
 def test_jit_vmap_scan_64_envs_450_steps_with_auto_reset(name):
     num_envs, steps = 64, 450
     env = envs.wrap_for_training(envs.make(name), num_envs)

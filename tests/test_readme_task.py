@@ -70,11 +70,14 @@ def page_blocks(language: str) -> list[tuple[Path, str, str]]:
             if info.split(" ")[0] == language]
 
 
-RUN_BLOCKS = [(page, body) for page, info, body in page_blocks("python") if info.split()[1:2] == ["run"]]
+# ```python run``` blocks; ```python run slow``` ones run with the slow tests (`make test-slow`).
+RUN_BLOCKS = [pytest.param(page, body, id=f"{page.relative_to(ROOT)}:{i}",
+                           marks=[pytest.mark.slow] if info.split()[2:3] == ["slow"] else [])
+              for i, (page, info, body) in enumerate(block for block in page_blocks("python")
+                                                      if block[1].split()[1:2] == ["run"])]
 
 
-@pytest.mark.parametrize("page,body", RUN_BLOCKS, ids=[f"{p.relative_to(ROOT)}:{i}" for i, (p, _) in
-                                                    enumerate(RUN_BLOCKS)])
+@pytest.mark.parametrize("page,body", RUN_BLOCKS)
 def test_python_blocks_marked_run_run(tmp_path, page, body):
     (tmp_path / "example.py").write_text(body)
     done = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
