@@ -126,7 +126,7 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
 
     from agents import brax_defaults
 
-    env = envs.make(env_name, **env_opts)
+    env = envs.spec(env_name, **env_opts)  # not envs.make: an MJX task would load MJX and take a device
     discrete = env.num_actions is not None
     fits = ("dqn",) if discrete else ("ppo", "sac")
     agent = agent or ("dqn" if discrete else brax_defaults.default_agent(env_name))
@@ -134,7 +134,7 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
         kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
         raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
                          f"{' or '.join(fits)}" + ("" if discrete else " (or a discrete variant of the task with dqn)"))
-    if getattr(env, "observation_shape", None) is not None and agent != "ppo":
+    if env.pixels and agent != "ppo":
         raise UsageError(f"--agent {agent} has no network for camera images (--env-opt observation=pixels); "
                          "train them with --agent ppo, or drop observation=pixels")
     return agent
@@ -201,7 +201,7 @@ def cmd_train(args, extra: list[str]) -> int:
     gpus = processes.local_gpus()
     count = processes.count(args.env, args.seeds, args.devices, args.processes, gpus)
     if count > 1:
-        processes.keep_off_the_gpus(gpus)  # before _choose_agent makes the env (JAX's backend starts there)
+        processes.keep_off_the_gpus(gpus)  # before JAX's backend starts (at the end: the merge's tie-break)
     agent = _choose_agent(args.env, args.agent, options)
     config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay,
                            observation=options.get("observation", "state"))

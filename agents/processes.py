@@ -107,9 +107,10 @@ def count(env_name: str, seeds: int, devices: int | None, processes: int | None,
 
 
 def keep_off_the_gpus(gpus: list[str]) -> None:
-    """This (the parent) process's JAX on the first GPU only, taking memory as it needs it: it makes
-    the env once to check the command, and breaks ties between seeds at the end, beside the children
-    that train there. Must run before JAX starts its backend."""
+    """This (the parent) process's JAX on the first GPU only, taking memory as it needs it, where it
+    starts at all: the parent reads the task's spec without a device (`envs.spec`; a task with
+    `randomize` or camera images is made) and may break ties between seeds at the end, beside the
+    children that train there. Must run before JAX starts its backend."""
     if gpus:
         os.environ["CUDA_VISIBLE_DEVICES"] = gpus[0]
         os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"

@@ -11,7 +11,7 @@ import importlib.util
 
 from envs.core import Env, State, Wrapper
 from envs.randomize import Randomize, randomize
-from envs.registry import make, names, options, register
+from envs.registry import make, names, options, register, spec
 from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, VmapWrapper, wrap_for_training
 
 # The built-in tasks, one row each: the name `envs.make` takes, the task class as "module:Class", the
@@ -86,6 +86,6 @@ def to_gymnasium(name: str | Env, num_envs: int | None = None, **kwargs):
     return bridge(name, num_envs, **kwargs)
 
 
-__all__ = sorted(["Env", "State", "Wrapper", "Randomize", "randomize", "make", "names", "options", "register",
+__all__ = sorted(["Env", "State", "Wrapper", "Randomize", "randomize", "make", "names", "options", "register", "spec",
                   "AutoReset", "BatchedAutoReset", "EpisodeStats", "TimeLimit", "VmapWrapper", "wrap_for_training",
                   "to_gymnasium", *_LAZY])

@@ -13,8 +13,10 @@ promises (errors name the task).
 from __future__ import annotations
 
 import abc
+import contextvars
 import copy
 import os
+import sys
 from typing import Mapping, Sequence
 
 import jax
@@ -28,7 +30,21 @@ from envs.mjx_options import apply_opt, check_opt
 from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer_sizes, import_mjx,
                            put_model_and_data, require_warp)
 
-mjx = import_mjx()  # tasks import it from here: `from envs.mjx_env import mjx`
+
+
+class _MjxOnFirstUse:
+    """`mujoco.mjx`, imported where a task first uses it, not where its module is imported: reading a
+    task's options or action spec (`envs.registry.spec`) then loads no MJX, which loads MuJoCo Warp
+    (seconds of start-up for the parent of per-GPU processes, `agents.processes`)."""
+
+    def __getattr__(self, name: str):
+        return getattr(sys.modules.get("mujoco.mjx") or import_mjx(), name)
+
+
+mjx = _MjxOnFirstUse()  # tasks import it from here: `from envs.mjx_env import mjx`
+# True while `envs.registry.spec` builds a task to read what it is (its actions, its observation):
+# the task then skips `_put_on_device`, which loads MJX and MuJoCo Warp and starts JAX's backend.
+SPEC_ONLY = contextvars.ContextVar("mjxsuite_spec_only", default=False)
 
 ActionBins = Mapping[str, Sequence[float]]
 IMPLS = ("jax", "warp")  # MJX's implementations an MjxEnv can step with (`impl=` in envs.make)
@@ -88,7 +104,8 @@ class MjxEnv(Env):
         self.opt: dict = {}  # MjOption fields set over the MJCF's (see `configured`)
         self._buffer_sizes: dict = dict.fromkeys(BUFFER_OPTIONS)  # Warp buffer overrides (None: from the model)
         self.warp_buffers: WarpBuffers | None = None  # under impl="warp": the sizes in use
-        self._put_on_device("jax")
+        if not SPEC_ONLY.get():
+            self._put_on_device("jax")
 
         if action_bins is not None:
             self.action_bins = action_bins
@@ -228,7 +245,7 @@ class MjxEnv(Env):
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
         if self.action_bins is not None:
-            return self._bin_table[action]
+            return jnp.asarray(self._bin_table)[action]
         low, high = self.mjx_model.actuator_ctrlrange.T
         limited = jnp.asarray(self.mj_model.actuator_ctrllimited, bool)
         # centre + a * half-range: exact for symmetric ranges (no rounding of a + 1)
@@ -318,8 +335,9 @@ class MjxEnv(Env):
             if jnp.shape(value) != ():
                 raise ValueError(f"task {self.name}: {hook}() must return a scalar, got shape {jnp.shape(value)}")
 
-    def _check_bins(self, bins: ActionBins) -> jax.Array:
-        """The bins as a (num_actions, nu) table, after checking each against ctrlrange."""
+    def _check_bins(self, bins: ActionBins) -> np.ndarray:
+        """The bins as a (num_actions, nu) table, after checking each against ctrlrange (numpy: building
+        a task starts no JAX backend, `envs.registry.spec`)."""
         model = self.mj_model
         if not isinstance(bins, Mapping) or not bins:
             raise TypeError(f"task {self.name}: action_bins must be a non-empty mapping name -> ctrl vector")
@@ -340,7 +358,7 @@ class MjxEnv(Env):
                         f"outside its ctrlrange [{low}, {high}]"
                     )
             table.append(ctrl)
-        return jnp.asarray(np.stack(table), jnp.float32)
+        return np.stack(table).astype(np.float32)
 
 
 def uniform_bins(model: mujoco.MjModel, count: int, task: str = "task") -> dict[str, tuple[float]]:

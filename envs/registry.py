@@ -6,7 +6,7 @@ import dataclasses
 import importlib
 import inspect
 import sys
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 from envs.core import Env
 from envs.mjx_options import check_opt
@@ -68,6 +68,53 @@ def make(name: str, **overrides: Any) -> Env:
     `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`, and
     `observation="pixels"` with `camera`, `width`, `height`, `depth`, `frame_stack` (camera images as
     the observation, see `envs.pixels`)."""
+    factory, kwargs, mjx_options, episode_length = _checked(name, overrides)
+    env = factory(**kwargs)
+    if mjx_options:
+        env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],
+                             naconmax=mjx_options["naconmax"], njmax=mjx_options["njmax"])
+        pixels = mjx_options["observation"] == "pixels"
+        if pixels:
+            env = with_default_camera(env)
+        if mjx_options["randomize"]:
+            env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
+        if pixels:
+            env = Pixels(env, **{k: mjx_options[k] for k in PIXEL_OPTIONS if k != "observation"})
+    return TimeLimit(env, episode_length)
+
+
+class Spec(NamedTuple):
+    """What choosing an agent needs to know of an env before it is made (`spec`)."""
+
+    num_actions: int | None  # discrete actions: how many
+    action_size: int | None  # continuous actions: how many values
+    pixels: bool  # camera images as the observation (observation="pixels")
+
+
+def spec(name: str, **overrides: Any) -> Spec:
+    """What `make(name, **overrides)` would build, its overrides checked as `make` checks them. An
+    MJX task is built without its device state (`envs.mjx_env.SPEC_ONLY`): no MJX, no MuJoCo Warp,
+    no JAX backend, seconds that the parent of per-GPU processes (`agents.processes`) would spend
+    before it starts them. Any other env is made, and so is a task with `randomize` or camera
+    images: their wrappers check the ranges and the camera against the model on the device."""
+    factory, kwargs, mjx_options, _ = _checked(name, overrides)
+    if not mjx_options or mjx_options["randomize"] or mjx_options["observation"] == "pixels":
+        env = make(name, **overrides)
+        return Spec(env.num_actions, env.action_size, getattr(env, "observation_shape", None) is not None)
+    from envs.mjx_env import SPEC_ONLY
+
+    token = SPEC_ONLY.set(True)
+    try:
+        task = factory(**kwargs)
+    finally:
+        SPEC_ONLY.reset(token)
+    return Spec(task.num_actions, task.action_size, pixels=False)
+
+
+def _checked(name: str, overrides: dict[str, Any]) -> tuple[Callable[..., Env], dict, dict, int]:
+    """`make`'s overrides checked, before anything is built: the factory, its keyword arguments, the
+    MJX options (empty for a task that is not an MjxEnv) and the episode length."""
+    overrides = dict(overrides)
     factory, _ = _lookup(name)
     valid = options(name)
     unknown = sorted(set(overrides) - set(valid))
@@ -95,18 +142,7 @@ def make(name: str, **overrides: Any) -> Env:
     repeat = mjx_options.get("action_repeat", 1) if mjx_options else 1
     episode_length = COUNT.check("episode_length",
                                  max(1, valid["episode_length"] // repeat) if given_length is None else given_length)
-    env = factory(**kwargs)
-    if mjx_options:
-        env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],
-                             naconmax=mjx_options["naconmax"], njmax=mjx_options["njmax"])
-        pixels = mjx_options["observation"] == "pixels"
-        if pixels:
-            env = with_default_camera(env)
-        if mjx_options["randomize"]:
-            env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
-        if pixels:
-            env = Pixels(env, **{k: mjx_options[k] for k in PIXEL_OPTIONS if k != "observation"})
-    return TimeLimit(env, episode_length)
+    return factory, kwargs, mjx_options, episode_length
 
 
 def is_mjx_task(env: Env) -> bool:

@@ -26,6 +26,35 @@ def test_unknown_override_lists_valid_options():
         envs.make("cartpole", integrator="rk4")
 
 
+# (name, overrides) whose spec is checked against the env `make` builds: discrete by a class's bins, by a
+# partial's and by an `action_bins=n` override; continuous; analytic.
+SPEC_CASES = [("cartpole-mjx", {}), ("pendulum-mjx-discrete", {}), ("pendulum-mjx", {"action_bins": 5}),
+              ("hopper", {}), ("pendulum-mjx", {}), ("cartpole", {})]
+
+
+def test_spec_tells_what_make_builds_without_loading_mjx_or_a_device():
+    """`envs.spec`, which the CLI chooses the agent from, against the envs `make` builds. In a fresh
+    interpreter, the spec of every built-in task (MuJoCo Warp's too) loads neither
+    mujoco.mjx nor Warp and starts no JAX backend: the parent of per-GPU processes asks it first."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, envs\n"
+        "from jax._src import xla_bridge\n"
+        "specs = [envs.spec(name) for name in envs.names()]\n"
+        "assert envs.spec('hopper', impl='warp', nconmax=64).action_size == 3\n"
+        "print(sorted(m for m in sys.modules if m.startswith(('mujoco.mjx', 'warp'))), xla_bridge.backends_are_initialized())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "[] False", out.stdout + out.stderr
+    for name, overrides in SPEC_CASES:
+        env = envs.make(name, **overrides)
+        assert envs.spec(name, **overrides) == (env.num_actions, env.action_size, False), name
+    with pytest.raises(ValueError, match=r"unknown option.*'gravty'"):  # checked as make checks them
+        envs.spec("cartpole-mjx", gravty=9.0)
+
+
 def test_overrides_reach_the_physics():
     env = envs.make("cartpole", gravity=1.0, integrator="semi_implicit", episode_length=7)
     assert env.unwrapped.physics.gravity == 1.0

@@ -183,6 +183,27 @@ sys.exit(main())
     assert "backend started: False gpus: ['0', '1']" in done.stdout, done.stdout + done.stderr
 
 
+def test_the_parent_starts_its_processes_without_mjx_or_a_jax_backend(tmp_path):
+    """Everything the parent does before it starts the processes (the options, the agent, the config,
+    the directories) needs no MJX, which loads MuJoCo Warp, and no device: its processes start at once
+    (`envs.spec`). The processes are replaced by a check of what the parent has loaded."""
+    code = """
+import sys
+from jax._src import xla_bridge
+from agents import processes
+def train(out, run, total_chunks, options, gpus):
+    print("mjx:", "mujoco.mjx" in sys.modules, "backend:", xla_bridge.backends_are_initialized(), "agent:", run.agent)
+    sys.exit(0)
+processes.train = train
+from agents.console import main
+sys.exit(main())
+"""
+    done = subprocess.run([sys.executable, "-c", code, "train", "--env", "hopper", "--seeds", "2", "--processes", "2",
+                           "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
+    assert "mjx: False backend: False agent: ppo" in done.stdout, done.stdout + done.stderr
+    assert checkpoint.process_dirs(tmp_path / "run") is not None
+
+
 def test_what_runs_in_one_process_is_refused_before_anything_starts(tmp_path, capsys):
     from agents.cli import UsageError
 
