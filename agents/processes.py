@@ -226,20 +226,25 @@ def failure(children: list[Child], statuses: dict[int, int]) -> ProcessFailed:
 def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time: float):
     """The finished run's eval.json in `out` from its processes' ones: every seed in seed order,
     the best seed by the rule of a one-process run (`agents.run.break_ties`, over every seed), and
-    the same keys; the `RunResult` the command reports."""
-    from agents.run import RunResult, break_ties, load_agent
+    the same keys; the `RunResult` the command reports (without parameters: every seed's are in
+    the processes' directories, where `load_policy` reads them)."""
+    from agents.run import RunResult, break_ties, load_agent, unmeasured_ties
 
     evals = [json.loads((child.directory / "eval.json").read_text()) for child in children]
     mean_return = [value for e in evals for value in e["mean_return"]]
     tie_break = [value for e in evals for value in e.get("tie_break_return") or [None] * len(e["mean_return"])]
-    env_name, _, agent, params = load_agent(out)
+    measured = {i: v for i, v in enumerate(tie_break) if v is not None}
     # The processes' own tie-breaks measured their tied seeds as this would: only seeds tied over the
-    # whole run but not within their process are measured here.
-    best_seed, tie_break_now = break_ties(agent, env_name, run.env_options, params, mean_return, run.seed,
-                                         measured={i: v for i, v in enumerate(tie_break) if v is not None})
+    # whole run but not within their process are measured here, the only reason to make the env
+    # and load every seed's parameters (MJX, MuJoCo Warp, a device: seconds after the processes end).
+    agent = params = None
+    if unmeasured_ties(mean_return, measured):
+        _, _, agent, params = load_agent(out)
+    best_seed, tie_break_now = break_ties(agent, run.env, run.env_options, params, mean_return, run.seed,
+                                         measured=measured)
     slowest = max(evals, key=lambda e: e["wall_s"])  # where the run's time went: its slowest process
     parts = slowest["wall_parts_s"]
-    result = RunResult(params=params, train_state=None, mean_return=mean_return,
+    result = RunResult(params=None, train_state=None, mean_return=mean_return,
                        solve_step=[s for e in evals for s in e["solve_step"]],
                        solve_wall_s=[s for e in evals for s in e["solve_wall_s"]],
                        compile_s=max(e["compile_s"] for e in evals), setup_s=parts["setup"], train_s=parts["train"],

@@ -515,6 +515,19 @@ def tie_break_keys(seed: int, indices: Any) -> jax.Array:
     return jax.vmap(lambda i: jax.random.fold_in(tie_key, i))(jnp.asarray(indices))
 
 
+def tied_seeds(returns: list[float]) -> np.ndarray:
+    """The indices of the seeds that tie for the best final evaluation (`break_ties`)."""
+    returns = np.asarray(returns)
+    return np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
+
+
+def unmeasured_ties(returns: list[float], measured: dict[int, float] | None, first: int = 0) -> list[int]:
+    """The tied seeds (indices into `returns`) whose longer evaluation `break_ties` has yet to run:
+    none where one seed is best or `measured` holds every tied one's (by run seed index)."""
+    tied = tied_seeds(returns)
+    return [] if len(tied) == 1 else [int(i) for i in tied if first + i not in (measured or {})]
+
+
 def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any, returns: list[float],
                seed: int, first: int = 0, measured: dict[int, float] | None = None,
                every_seed: Callable | None = None) -> tuple[int, dict[int, float]]:
@@ -530,12 +543,11 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
     those (`measured`) instead of measuring them again. `every_seed`, `tie_break_program`
     compiled ahead for all of `params`' rows, measures them all where at least half of them are
     to be measured (else the tied seeds' program is compiled here)."""
-    returns = np.asarray(returns)
-    tied = np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
+    tied = tied_seeds(returns)
     if len(tied) == 1:
         return int(tied[0]), {}
     longer_returns = {index: value for index, value in (measured or {}).items() if index - first in tied}
-    missing = [int(i) for i in tied if first + i not in longer_returns]
+    missing = unmeasured_ties(returns, measured, first)
     if missing:
         if every_seed is not None and 2 * len(missing) >= len(returns):
             measured_now = np.asarray(every_seed(params, tie_break_keys(seed, first + jnp.arange(len(returns)))))[missing]

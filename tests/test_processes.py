@@ -240,10 +240,12 @@ def test_tied_seeds_are_told_apart_over_every_seed_as_in_one_process(runs, tmp_p
     assert merged_eval["best_seed"] == merged.best_seed and merged_eval["tie_break_return"] == pytest.approx([measured[0], measured[1]])
 
 
-def test_the_merge_takes_the_tie_break_its_processes_measured(runs, tmp_path):
+def test_the_merge_takes_the_tie_break_its_processes_measured(runs, tmp_path, monkeypatch):
     """Seeds tied within their process were measured there (keyed by their index in the run, as one
-    process does): the merge takes those returns rather than measuring again. Shown by returns
-    the opposite of the real ones, which only a merge that reads them follows."""
+    process does): the merge takes those returns rather than measuring again, and makes no env and
+    loads no parameters (for an MJX task: MJX, MuJoCo Warp and a device after the processes end).
+    Shown by returns the opposite of the real ones, which only a merge that reads them follows."""
+    from agents import run as run_module
     from agents.run import break_ties
 
     one, two = runs
@@ -256,6 +258,7 @@ def test_the_merge_takes_the_tie_break_its_processes_measured(runs, tmp_path):
     for k, child in enumerate(sorted((run / processes.PROCESSES_DIR).iterdir())):
         record = json.loads((child / "eval.json").read_text())
         (child / "eval.json").write_text(json.dumps({**record, "mean_return": [10.0], "tie_break_return": [made_up[k]]}))
+    monkeypatch.setattr(run_module, "load_agent", lambda *_: pytest.fail("the merge made the env"))
     merged = processes.merge(run, saved, processes.children_of(run, []), time.perf_counter())
     assert merged.best_seed == max((0, 1), key=lambda i: (made_up[i], -i))
     if measured[0] != measured[1]:
