@@ -162,35 +162,21 @@ def test_ppo_in_two_processes_equals_one_process(tmp_path):
     assert returns[0] == returns[1]
 
 
-def test_the_parent_keeps_jax_off_the_gpus_until_it_has_chosen_processes(tmp_path):
+def test_the_parent_keeps_jax_off_the_gpus_and_starts_its_processes_without_mjx(tmp_path):
     """On a host with several GPUs the command decides on processes before JAX's backend starts
     (a started backend takes memory on every GPU the children train on), then keeps its own JAX on
-    the first GPU without reserving memory. Two GPUs are pretended; the check stops the command."""
+    the first GPU without reserving memory. Everything it does before it starts the processes (the
+    options, the agent, the config, the directories) needs no MJX, which loads MuJoCo Warp, and no
+    device (`envs.spec`), so they start at once. Two GPUs are pretended; the processes are replaced
+    by a check of what the parent has loaded."""
     code = """
-import os, sys
+import sys
 from jax._src import xla_bridge
 from agents import processes
 processes.local_gpus = lambda: ["0", "1"]
 def check(gpus):
     print("backend started:", xla_bridge.backends_are_initialized(), "gpus:", gpus)
-    sys.exit(0)
 processes.keep_off_the_gpus = check
-from agents.console import main
-sys.exit(main())
-"""
-    done = subprocess.run([sys.executable, "-c", code, "train", "--env", "cartpole-mjx", "--seeds", "4", "--out",
-                           str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
-    assert "backend started: False gpus: ['0', '1']" in done.stdout, done.stdout + done.stderr
-
-
-def test_the_parent_starts_its_processes_without_mjx_or_a_jax_backend(tmp_path):
-    """Everything the parent does before it starts the processes (the options, the agent, the config,
-    the directories) needs no MJX, which loads MuJoCo Warp, and no device: its processes start at once
-    (`envs.spec`). The processes are replaced by a check of what the parent has loaded."""
-    code = """
-import sys
-from jax._src import xla_bridge
-from agents import processes
 def train(out, run, total_chunks, options, gpus):
     print("mjx:", "mujoco.mjx" in sys.modules, "backend:", xla_bridge.backends_are_initialized(), "agent:", run.agent)
     sys.exit(0)
@@ -198,8 +184,9 @@ processes.train = train
 from agents.console import main
 sys.exit(main())
 """
-    done = subprocess.run([sys.executable, "-c", code, "train", "--env", "hopper", "--seeds", "2", "--processes", "2",
-                           "--out", str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
+    done = subprocess.run([sys.executable, "-c", code, "train", "--env", "hopper", "--seeds", "2", "--out",
+                           str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
+    assert "backend started: False gpus: ['0', '1']" in done.stdout, done.stdout + done.stderr
     assert "mjx: False backend: False agent: ppo" in done.stdout, done.stdout + done.stderr
     assert checkpoint.process_dirs(tmp_path / "run") is not None
 
