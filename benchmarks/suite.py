@@ -199,8 +199,8 @@ def first_compile_section(runs: int = 3) -> list[dict]:
         environ.update(PYTHONPATH=str(clone), XDG_CACHE_HOME=str(Path(tmp) / "cache"))
         for run in range(1, runs + 1):
             start = time.perf_counter()
-            done = subprocess.run([*processes.MJXSUITE,
-                                   *MAKE_TRAIN], cwd=clone, env=environ, capture_output=True, text=True, check=False)
+            done = subprocess.run([*processes.MJXSUITE, *MAKE_TRAIN], cwd=clone, env=environ, capture_output=True,
+                                  text=True, check=False)
             wall = time.perf_counter() - start
             if done.returncode != 0:
                 raise RuntimeError(f"first-compile run {run} failed ({done.returncode}): {done.stderr[-2000:]}")
