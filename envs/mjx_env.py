@@ -31,7 +31,6 @@ from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer
                            put_model_and_data, require_warp)
 
 
-
 class _MjxOnFirstUse:
     """`mujoco.mjx`, imported where a task first uses it, not where its module is imported: reading a
     task's options or action spec (`envs.registry.spec`) then loads no MJX, which loads MuJoCo Warp
