@@ -103,7 +103,10 @@ KILL_MOMENTS = {
 }
 
 
-@pytest.mark.parametrize("moment", KILL_MOMENTS)
+# "between saves" runs in the slow run (the default run stays under 6 minutes on 2 cores): the signal
+# tests resume from a checkpoint taken between chunks there too.
+@pytest.mark.parametrize("moment", [pytest.param(moment, marks=pytest.mark.slow if moment == "between saves" else ())
+                                    for moment in KILL_MOMENTS])
 def test_kill_9_then_resume_ends_as_the_uninterrupted_run(tmp_path, reference, moment):
     out = tmp_path / "run"
     process = start_training(out)

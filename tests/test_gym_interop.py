@@ -393,6 +393,7 @@ def test_import_envs_does_not_need_gymnasium():
     assert result.stdout.split() == ["ok", "True"]
 
 
+@pytest.mark.slow  # ~8 s in a fresh process: the default run stays under 6 minutes on 2 cores
 def test_rgb_array_rendering_headless():
     """check_env with its render checks, in a fresh process with MUJOCO_GL=egl."""
     result = run_python("""

@@ -187,6 +187,7 @@ def test_the_compile_cache_switch_turns_the_export_cache_on_and_off(monkeypatch,
         traced_programs.disable()
 
 
+@pytest.mark.slow  # ~8 s: test_a_second_run_loads_the_traced_chunk_with_identical_results keeps the cache in the default run
 def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypatch, capsys):
     """A second `mjxsuite eval` / `rollout` (greedy or random policy) traces no env step and prints the same."""
     from agents import cli
