@@ -41,6 +41,7 @@ def test_spec_tells_what_make_builds():
     with pytest.raises(ValueError, match=r"unknown option.*'gravty'"):  # checked as make checks them
         envs.spec("cartpole-mjx", gravty=9.0)
 
+
 def test_overrides_reach_the_physics():
     env = envs.make("cartpole", gravity=1.0, integrator="semi_implicit", episode_length=7)
     assert env.unwrapped.physics.gravity == 1.0
