@@ -8,6 +8,7 @@ run directory back."""
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -111,28 +112,30 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
-def _in_background(work: Callable[[], Any], name: str) -> Future:
-    """`work()` on another thread. XLA compiles, and a program runs, without holding Python's
-    lock, so the run's inputs are made (on a GPU with the process's first allocation) while the
-    programs compile, a fresh run's init program compiles while this thread traces and lowers
-    the training chunk and while XLA compiles the chunk, and the final evaluation's program
-    compiles while the agents train: each of those is seconds of a short run's start. The programs and options are those that
-    compiling them here would give: the same results, bit for bit."""
+def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:
+    """`work()` on another thread, once `after` is set if given. XLA compiles, and a program runs,
+    without holding Python's lock, so the run's inputs are made (on a GPU with the process's first
+    allocation) while the programs compile, a fresh run's init program compiles while this thread
+    traces and lowers the training chunk and while XLA compiles the chunk, and the final
+    evaluation's program compiles while the agents train: each of those is seconds of a short
+    run's start. The programs and options are those that compiling them here would give: the
+    same results, bit for bit.
+
+    Runs of MuJoCo Warp envs compile beside nothing that runs: a Warp kernel launched while another
+    thread's XLA autotuner captured a CUDA graph failed (CUDA error 906, the legacy stream made to
+    depend on a capturing stream), which stopped PPO from pixels in its first chunk while its final
+    evaluation's convolutions compiled beside it. Their compiles wait (`after`) until every program
+    is traced, since tracing loads Warp's modules onto the GPU, and the run waits for them all."""
+    def waited():
+        if after is not None:
+            after.wait()
+        return work()
+
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"mjxsuite-{name}")
     try:
-        return pool.submit(work)
+        return pool.submit(waited)
     finally:
         pool.shutdown(wait=False)  # its one thread ends with its one task
-
-
-def _right_here(work: Callable[[], Any], name: str) -> Future:
-    """`work()` on this thread, as a finished `Future`: `_in_background`'s stand-in for envs that run
-    MuJoCo Warp. A Warp kernel launched while another thread's XLA autotuner captures a CUDA graph
-    fails (CUDA error 906, the legacy stream made to depend on a capturing stream), which stopped PPO
-    from pixels in its first chunk while its final evaluation's convolutions compiled beside it."""
-    done: Future = Future()
-    done.set_result(work())
-    return done
 
 
 def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
@@ -233,7 +236,6 @@ def train_run(
         learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
         init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
         on_warp = runs_warp(learner.env)
-        in_background = _right_here if on_warp else _in_background
         if progress and writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
             builds = " (MuJoCo Warp also builds its kernels once per machine)" if on_warp else ""
             print(f"{env_name}: compiling{builds}...", file=sys.stderr, flush=True)
@@ -247,82 +249,101 @@ def train_run(
         # The inputs are made on another thread while the programs compile from their shapes. Making
         # them runs the keys' program, and on a GPU the first allocation, where XLA reserves most of the
         # device's memory (docs/bench-gpu.json, "dqn-run-inputs"); on several devices, their placement too.
-        inputs = in_background(lambda: placement.put(run_inputs()), "inputs")
-        init_args, eval_keys = placement.abstract(jax.eval_shape(run_inputs))
-        chunks_done = 0
-        compile_start = time.perf_counter()
-        init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
-        if resume and checkpoint.has_state(out):
-            ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
-            ts = placement.put(ts)  # saved from any number of devices, split over this run's
-            compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
-        else:  # a run killed before its first checkpoint resumes from the start, as it began
-            traced = init.trace(*init_args)
-            init_program = in_background(traced.lower().compile, "init")
-            # the train state's shapes (weak types kept) and placement: all the chunk's compile needs
-            ts = placement.abstract(traced.out_info)
+        # On MuJoCo Warp nothing may run beside a compile, and tracing loads Warp's modules onto the GPU:
+        # there the inputs and every compile wait until every program is traced (`traced_all`), then
+        # run together, and the init program runs once all are done.
+        traced_all = threading.Event()
+        after_traces = traced_all if on_warp else None
+        try:
+            inputs = _in_background(lambda: placement.put(run_inputs()), "inputs", after=after_traces)
+            init_args, eval_keys = placement.abstract(jax.eval_shape(run_inputs))
+            chunks_done = 0
+            compile_start = time.perf_counter()
+            init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
+            if resume and checkpoint.has_state(out):
+                ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
+                ts = placement.put(ts)  # saved from any number of devices, split over this run's
+                compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
+            else:  # a run killed before its first checkpoint resumes from the start, as it began
+                traced = init.trace(*init_args)
+                init_program = _in_background(traced.lower().compile, "init", after=after_traces)
+                # the train state's shapes (weak types kept) and placement: all the chunk's compile needs
+                ts = placement.abstract(traced.out_info)
+                if out is not None and writer:
+                    checkpoint.start_run(out, run)
             if out is not None and writer:
-                checkpoint.start_run(out, run)
-        if out is not None and writer:
-            checkpoint.keep_metrics(out, chunks_done)
+                checkpoint.keep_metrics(out, chunks_done)
 
-        seed_axis = seed_axis or default_seed_axis()
-        # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (less to
-        # compile; the same train state and metrics).
-        record_episode = on_chunk is not None
-        per_device = agents // placement.count
-        judge = partial(learner.evaluate_and_keep_best, record=record_episode)
-        # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
-        # device: each holds a copy of the env's step, and together were one program that XLA compiled
-        # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
-        # are traced first and compile on another thread while this one traces the judge (traced on
-        # two threads at once, both compiles waited for both traces; docs/results.md). Several
-        # devices: two sharded programs are faster than one (docs/bench-gpu.json, "dqn-sharded-programs").
-        train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
-        judge_fn = seed_batched(judge, per_device, seed_axis)
-        kind = type(learner).__name__  # names its programs in the export cache
-        train_program = judge_program = None  # a finished run (resumed to evaluate) trains no chunk
-        if chunks_done < config.num_chunks and placement.mesh is None:
-            judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
-                      + ("" if record_episode else ", no episode recorded"))
-            trained = f"{kind}.train_steps over seeds by {seed_axis}"
-            train_program = in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
-                                                        env_options, donate=True).compile, "train")
-            judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
-                                         env_name, env_options, donate=True).compile()
-        elif chunks_done < config.num_chunks:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-            options = training_compiler_options(env=learner.env)
-            train_program = in_background(
-                partial(jax.jit(placement.spread(train_fn), donate_argnums=0).lower(ts).compile, options), "train")
-            judge_program = jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key).compile(options)
+            seed_axis = seed_axis or default_seed_axis()
+            # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (less to
+            # compile; the same train state and metrics).
+            record_episode = on_chunk is not None
+            per_device = agents // placement.count
+            judge = partial(learner.evaluate_and_keep_best, record=record_episode)
+            # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
+            # device: each holds a copy of the env's step, and together were one program that XLA compiled
+            # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
+            # are traced first and compile on another thread while this one traces the judge (traced on
+            # two threads at once, both compiles waited for both traces; docs/results.md). Several
+            # devices: two sharded programs are faster than one (docs/bench-gpu.json, "dqn-sharded-programs").
+            train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
+            judge_fn = seed_batched(judge, per_device, seed_axis)
+            kind = type(learner).__name__  # names its programs in the export cache
+            train_program = judge_program = None  # a finished run (resumed to evaluate) trains no chunk
+            if chunks_done < config.num_chunks and placement.mesh is None:
+                judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
+                          + ("" if record_episode else ", no episode recorded"))
+                trained = f"{kind}.train_steps over seeds by {seed_axis}"
+                train_program = _in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
+                                                            env_options, donate=True).compile, "train",
+                                               after=after_traces)
+                judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
+                                             env_name, env_options, donate=True)
+            elif chunks_done < config.num_chunks:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+                options = training_compiler_options(env=learner.env)
+                train_program = _in_background(partial(jax.jit(placement.spread(train_fn), donate_argnums=0)
+                                                       .lower(ts).compile, options), "train", after=after_traces)
+                judge_program = traced_programs.LoweredProgram(
+                    jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
+
+            def lower_evaluation(params: Any, keys: Any) -> Any:  # the final evaluation, for these shapes
+                if placement.mesh is None:
+                    return lower_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (params, keys), learner,
+                                        agents, env_name, env_options)
+                return jax.jit(placement.spread(jax.vmap(learner.evaluate))).lower(params, keys)
+
+            # The final evaluation's program compiles beside training (from the shapes: the first chunk
+            # consumes the arrays), on MuJoCo Warp beside the other programs. In a multi-host run its
+            # arrays are gathered and placed anew: it compiles at the end.
+            evaluates = (stop_after_chunks is None or stop_after_chunks >= config.num_chunks) and jax.process_count() == 1
+            params_shape = placement.abstract(ts.best_params)
+            final_evaluation = None
+            if evaluates and on_warp:
+                final_evaluation = _in_background(lower_evaluation(params_shape, eval_keys).compile, "evaluation",
+                                                  after=after_traces)
+        finally:
+            traced_all.set()
+        if judge_program is not None:
+            judge_program = judge_program.compile()
         if train_program is not None:
             train_program = train_program.result()
-
         init_args, eval_keys = inputs.result()
-
-        def compile_evaluation(params: Any) -> Callable:  # the final evaluation, for `params`' shapes
-            if placement.mesh is None:
-                return compile_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (params, eval_keys), learner,
-                                      agents, env_name, env_options)
-            return jax.jit(placement.spread(jax.vmap(learner.evaluate))).lower(params, eval_keys).compile()
-
+        if on_warp and final_evaluation is not None:
+            final_evaluation.result()  # before Warp's kernels run
         if init_program is not None:
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
-        final_evaluation = None  # compiling on another thread while the agents train, for a run that will end
-        every_seed = None  # the tie-break over every seed, compiling likewise (GPUs)
-        # (one process: in a multi-host run the final evaluation's arrays are gathered and placed anew)
-        if (stop_after_chunks is None or stop_after_chunks >= config.num_chunks) and jax.process_count() == 1:
-            params_shape = placement.abstract(ts.best_params)  # not the arrays: the first chunk consumes them
-            final_evaluation = in_background(partial(compile_evaluation, params_shape), "evaluation")
+        every_seed = None  # the tie-break over every seed, compiling beside training (GPUs)
+        if evaluates and not on_warp:
+            final_evaluation = _in_background(lambda: lower_evaluation(params_shape, eval_keys).compile(), "evaluation")
             # On a GPU thousands of seeds can tie (CartPole's held to the time limit): the tie-break's
             # program for every seed compiles beside training, as the final evaluation's does, and
             # serves where at least half of them tie. On a CPU, measuring every seed costs more than
             # compiling for the tied ones.
-            if agents > 1 and placement.devices[0].platform == "gpu" and not on_warp:
+            if agents > 1 and placement.devices[0].platform == "gpu":
                 tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
-                every_seed = in_background(partial(every_seed_tie_break, learner, env_name, env_options, placement,
-                                                   params_shape, tie_keys), "tie-break")
+                every_seed = _in_background(partial(every_seed_tie_break, learner, env_name, env_options, placement,
+                                                    params_shape, tie_keys), "tie-break")
 
         result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
                            devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
@@ -440,7 +461,8 @@ def train_run(
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
         solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
         result.solve_step = [s if s >= 0 else None for s in solve]
-        evaluate = final_evaluation.result() if final_evaluation is not None else compile_evaluation(ts.best_params)
+        evaluate = (final_evaluation.result() if final_evaluation is not None
+                    else lower_evaluation(ts.best_params, eval_keys).compile())
         returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,

@@ -87,11 +87,21 @@ def whole_process(train_args: str, devices: int, timeout: float, warm_cache: boo
                   "devices": devices, "compile_cache": "warm" if warm_cache else "fresh", "process_s": wall,
                   "parts_s": wall_parts(done.stdout.strip().splitlines()[-1]),
                   "agents": len(summary["mean_return"]), "median_return": float(np.median(summary["mean_return"]))}
+        run_dirs = [Path(tmp) / "run"]
         if summary.get("processes"):
-            children = [json.loads((directory / "eval.json").read_text())
-                        for directory, _ in checkpoint.process_dirs(Path(tmp) / "run")]
+            run_dirs = [directory for directory, _ in checkpoint.process_dirs(Path(tmp) / "run")]
+            children = [json.loads((directory / "eval.json").read_text()) for directory in run_dirs]
             record["processes_parts_s"] = [{"wall": child["wall_s"], **child["wall_parts_s"]} for child in children]
+        record["most_overflowed_steps"] = most_overflowed_steps(run_dirs)
     return record
+
+
+def most_overflowed_steps(run_dirs: list[Path]) -> dict[str, int]:
+    """The most env steps of one agent's chunk that overflowed MuJoCo Warp's contact or constraint
+    buffers, over the runs' chunks (their metrics.jsonl): 0 and 0 for a run whose figures are physics."""
+    records = [json.loads(line) for run_dir in run_dirs for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return {buffer: max([int(np.max(r.get(f"overflow_{buffer}", 0))) for r in records], default=0)
+            for buffer in ("contacts", "constraints")}
 
 
 def whole_process_scaling(train_args: str, counts: list[int], timeout: float, warm_cache: bool = False) -> list[dict]:

@@ -313,16 +313,3 @@ def test_programs_that_render_with_warp_keep_xlas_default_cuda_graphs():
     assert training_compiler_options("gpu", env=RendersWithWarp()) == {}
     assert "xla_gpu_enable_command_buffer" in training_compiler_options("gpu", env=envs.make(ROLLOUT_TASK))
     assert not envs.make(ROLLOUT_TASK, observation="pixels", width=2, height=2).warp_renders
-
-
-def test_runs_on_warp_compile_nothing_beside_a_running_program():
-    """A Warp kernel cannot launch while another thread's XLA autotuner captures a CUDA graph: runs
-    of MuJoCo Warp envs do their compiles and inputs on the calling thread."""
-    from agents import run
-
-    class OnWarp:
-        impl = "warp"
-
-    assert run.runs_warp(OnWarp()) and not run.runs_warp(envs.make(ROLLOUT_TASK))
-    done = run._right_here(lambda: 41 + 1, "test")
-    assert done.done() and done.result() == 42

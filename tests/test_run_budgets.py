@@ -3,6 +3,8 @@ greedy judge, by the clock by default or every N chunks when pinned, and that a 
 its run's cadence."""
 
 import json
+import threading
+import time
 
 import jax
 import numpy as np
@@ -95,3 +97,52 @@ def test_the_final_saves_copy_to_the_host_is_made_beside_the_final_evaluation_ex
     train_run("cartpole", SMALL, out_dir=tmp_path / "run", progress=False)
     assert handed[-1] is not on_warp
     assert checkpoint.chunks_saved(tmp_path / "run") == SMALL.num_chunks
+
+
+@pytest.mark.parametrize("on_warp", [False, True])
+def test_warp_runs_compile_every_program_before_any_runs_and_others_compile_the_evaluation_beside_training(
+        monkeypatch, on_warp):
+    """A Warp kernel cannot launch while another thread's XLA autotuner captures a CUDA graph, and
+    tracing loads Warp's modules onto the GPU: on MuJoCo Warp every program is traced, then all
+    compile at once, and the first program runs once they are done; elsewhere the final
+    evaluation's program compiles beside training. The programs are the same either way: so are
+    the results. Warp's check is faked here (the suite's CPU tests run without warp-lang)."""
+    from agents import run as run_module
+
+    assert run_module.runs_warp(type("OnWarp", (), {"impl": "warp"})())
+    traced, compiles, runs = [], [], []  # (when), (thread, began, ended), (when)
+    real_lower, real_compile, real_call = jax.stages.Traced.lower, jax.stages.Lowered.compile, jax.stages.Compiled.__call__
+
+    def lower(self, *args, **kwargs):
+        lowered = real_lower(self, *args, **kwargs)
+        traced.append(time.perf_counter())
+        return lowered
+
+    def compile_(self, *args, **kwargs):
+        began = time.perf_counter()
+        compiled = real_compile(self, *args, **kwargs)
+        compiles.append((threading.current_thread().name, began, time.perf_counter()))
+        return compiled
+
+    def call(self, *args, **kwargs):
+        runs.append(time.perf_counter())
+        return real_call(self, *args, **kwargs)
+
+    monkeypatch.setattr(jax.stages.Traced, "lower", lower)
+    monkeypatch.setattr(jax.stages.Lowered, "compile", compile_)
+    monkeypatch.setattr(jax.stages.Compiled, "__call__", call)
+    monkeypatch.setattr(run_module, "runs_warp", lambda env: on_warp)
+    result = train_run("cartpole", SMALL, progress=False)
+    first_run = min(runs)
+    beside = {name.split("_")[0]: (began, ended) for name, began, ended in compiles if name.startswith("mjxsuite-")}
+    assert set(beside) == {"mjxsuite-init", "mjxsuite-train", "mjxsuite-evaluation"}
+    if on_warp:
+        last_trace = max(t for t in traced if t < first_run)
+        assert all(last_trace <= began and ended <= first_run for began, ended in beside.values())
+    else:
+        assert beside["mjxsuite-init"][0] < beside["mjxsuite-train"][0] < first_run < beside["mjxsuite-evaluation"][0]
+
+    monkeypatch.undo()
+    plain = train_run("cartpole", SMALL, progress=False)
+    assert result.mean_return == plain.mean_return
+    jax.tree.map(np.testing.assert_array_equal, result.params, plain.params)

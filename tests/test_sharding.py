@@ -279,6 +279,20 @@ def test_the_whole_process_benchmark_records_a_warm_caches_run_in_processes_with
     assert all(parts["wall"] > parts["compile"] > 0 for parts in warm["processes_parts_s"])
     # the warm processes load what the first compiled instead of compiling it
     assert max(p["compile"] for p in warm["processes_parts_s"]) < min(p["compile"] for p in fresh["processes_parts_s"])
+    assert warm["most_overflowed_steps"] == {"contacts": 0, "constraints": 0}
+
+
+def test_the_whole_process_benchmark_records_the_most_overflowed_steps_of_any_process(tmp_path):
+    """A figure of a MuJoCo Warp run carries how many steps overflowed Warp's buffers, read from
+    every process's metrics (chunks the judge skipped record none)."""
+    from benchmarks.scaling import most_overflowed_steps
+
+    lines = {"p0": [{"chunk": 0, "overflow_contacts": [0, 3], "overflow_constraints": [1, 0]}, {"chunk": 1}],
+             "p1": [{"chunk": 0, "overflow_contacts": [2, 0], "overflow_constraints": [0, 7]}]}
+    for name, records in lines.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    assert most_overflowed_steps([tmp_path / "p0", tmp_path / "p1"]) == {"contacts": 3, "constraints": 7}
 
 
 @pytest.mark.slow
