@@ -1,7 +1,8 @@
 """cartpole-swingup-mjx: dm_control's cart-pole swing-up on MJX.
 
 One jitted rollout (16 envs x 1000 steps, compiled once for the module) feeds
-most checks; C MuJoCo's `mj_step` on the same XML in float64 is the reference
+most checks, from starts taken from one jitted batch of resets (also the reset
+distribution's sample); C MuJoCo's `mj_step` on the same XML in float64 is the reference
 for the physics, and rewards are checked against values worked out by hand
 from dm_control's definition.
 """
@@ -22,9 +23,9 @@ N_ENVS, N_STEPS = 16, 1000
 UPRIGHT_ROW = N_ENVS - 1  # the row that starts exactly upright, centred and still
 
 
-def rollout(env, qpos, qvel, actions):
-    """Every step's obs, reward, done, truncation, qpos and qvel of one env from (qpos, qvel)."""
-    state = env.reset(jax.random.PRNGKey(0))
+def rollout(env, state, qpos, qvel, actions):
+    """Every step's obs, reward, done, truncation, qpos and qvel of one env from (qpos, qvel),
+    set into a reset `state` (a reset made outside: not one more reset compiled into the rollout)."""
     data = state.pipeline_state.replace(qpos=qpos, qvel=qvel)
     state = state.replace(pipeline_state=data, obs=env.unwrapped.observation(data))
 
@@ -42,12 +43,23 @@ def env():
 
 
 @pytest.fixture(scope="module")
-def starts_and_actions(env):
+def resets(env):
+    """4000 reset states, one jitted program: the reset distribution's sample, and the
+    rollout's starts (its first N_ENVS)."""
+    return jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4000))
+
+
+@pytest.fixture(scope="module")
+def starts(resets):
+    return jax.tree.map(lambda x: x[:N_ENVS], resets)
+
+
+@pytest.fixture(scope="module")
+def starts_and_actions(starts):
     """Reset states, then actions: random in [-1, 1] (rows 0-7), a bang-bang push at
     about the pole's natural period that swings it right round (rows 8-14), and
     zero force from the exact upright, centred, still state (last row)."""
-    key_reset, key_actions, key_phase = jax.random.split(jax.random.PRNGKey(7), 3)
-    starts = jax.jit(jax.vmap(env.reset))(jax.random.split(key_reset, N_ENVS))
+    _, key_actions, key_phase = jax.random.split(jax.random.PRNGKey(7), 3)  # the actions as drawn before
     qpos = np.array(starts.pipeline_state.qpos)
     qvel = np.array(starts.pipeline_state.qvel)
     actions = np.array(jax.random.uniform(key_actions, (N_ENVS, N_STEPS, 1), minval=-1.0, maxval=1.0))
@@ -59,10 +71,10 @@ def starts_and_actions(env):
 
 
 @pytest.fixture(scope="module")
-def trajectories(env, starts_and_actions):
-    run = jax.jit(jax.vmap(lambda q, v, a: rollout(env, q, v, a)))
+def trajectories(env, starts, starts_and_actions):
+    run = jax.jit(jax.vmap(lambda s, q, v, a: rollout(env, s, q, v, a)))
     names = ("obs", "reward", "done", "truncation", "qpos", "qvel")
-    return dict(zip(names, map(np.asarray, run(*map(jnp.asarray, starts_and_actions)))))
+    return dict(zip(names, map(np.asarray, run(starts, *map(jnp.asarray, starts_and_actions)))))
 
 
 def test_registered_as_continuous_1000_step_task(env):
@@ -71,8 +83,8 @@ def test_registered_as_continuous_1000_step_task(env):
     assert env.unwrapped.dt == pytest.approx(0.01)
 
 
-def test_starts_hanging_down(env):
-    starts = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 4000))
+def test_starts_hanging_down(resets):
+    starts = resets  # 4000 of them
     qpos, qvel = np.asarray(starts.pipeline_state.qpos), np.asarray(starts.pipeline_state.qvel)
     # dm_control: slider ~ 0.01 N(0,1), hinge ~ pi + 0.01 N(0,1), velocities ~ 0.01 N(0,1).
     offsets = np.concatenate([qpos - [0.0, math.pi], qvel], axis=1)
