@@ -68,7 +68,11 @@ def make(name: str, **overrides: Any) -> Env:
     `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`, and
     `observation="pixels"` with `camera`, `width`, `height`, `depth`, `frame_stack` (camera images as
     the observation, see `envs.pixels`)."""
-    factory, kwargs, mjx_options, episode_length = _checked(name, overrides)
+    return _built(*_checked(name, overrides))
+
+
+def _built(factory: Callable[..., Env], kwargs: dict, mjx_options: dict, episode_length: int) -> Env:
+    """The env that `_checked`'s pieces describe: the task, configured and wrapped (`make`)."""
     env = factory(**kwargs)
     if mjx_options:
         env = env.configured(impl=mjx_options["impl"], opt=mjx_options["opt"], nconmax=mjx_options["nconmax"],
@@ -97,9 +101,9 @@ def spec(name: str, **overrides: Any) -> Spec:
     no JAX backend, seconds that the parent of per-GPU processes (`agents.processes`) would spend
     before it starts them. Any other env is made, and so is a task with `randomize` or camera
     images: their wrappers check the ranges and the camera against the model on the device."""
-    factory, kwargs, mjx_options, _ = _checked(name, overrides)
+    checked = factory, kwargs, mjx_options, _ = _checked(name, overrides)
     if not mjx_options or mjx_options["randomize"] or mjx_options["observation"] == "pixels":
-        env = make(name, **overrides)
+        env = _built(*checked)
         return Spec(env.num_actions, env.action_size, getattr(env, "observation_shape", None) is not None)
     from envs.mjx_env import SPEC_ONLY
 
