@@ -328,8 +328,8 @@ def train_run(
         if train_program is not None:
             train_program = train_program.result()
         init_args, eval_keys = inputs.result()
-        if on_warp and final_evaluation is not None:
-            final_evaluation.result()  # before Warp's kernels run
+        if final_evaluation is not None:  # MuJoCo Warp's, compiled before its kernels run
+            final_evaluation.result()
         if init_program is not None:
             ts = init_program.result()(*init_args)
         compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
