@@ -467,7 +467,7 @@ def cmd_eval(args, extra: list[str]) -> int:
     import numpy as np
 
     from agents import checkpoint
-    from agents.run import compile_cached, load_agent
+    from agents.run import load_agent, lower_evaluation_cached
 
     if extra:
         raise UsageError(f"eval: unexpected arguments {extra}")
@@ -477,14 +477,13 @@ def cmd_eval(args, extra: list[str]) -> int:
     _, _, agent, params = load_agent(args.checkpoint, env)
     seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
-    evaluate = compile_cached(f"{type(agent).__name__}.evaluate, {args.episodes} episodes",
-                              jax.vmap(lambda p, k: agent.evaluate(p, k, args.episodes)), (params, keys), agent, seeds,
-                              env_name, options)
+    episodes = args.episodes or saved.config.eval_episodes  # the run's own judge's, by default
+    evaluate = lower_evaluation_cached(agent, params, keys, env_name, options, episodes).compile()
     returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
     for i, mean in enumerate(means):
-        print(f"seed {i}: {POLICY_NAMES[saved.agent]} policy's mean return {mean:.1f} over {args.episodes} episodes")
-    print(json.dumps({"env": env_name, "env_options": options, "episodes": args.episodes,
+        print(f"seed {i}: {POLICY_NAMES[saved.agent]} policy's mean return {mean:.1f} over {episodes} episodes")
+    print(json.dumps({"env": env_name, "env_options": options, "episodes": episodes,
                       "mean_return": means.tolist()}))
     return 0
 
@@ -673,7 +672,8 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
 
     evaluate = sub.add_parser("eval", help="evaluate a saved run's policies, every seed", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
-    evaluate.add_argument("--episodes", type=ranged(int, COUNT), default=64)
+    evaluate.add_argument("--episodes", type=ranged(int, COUNT),
+                          help="fresh episodes per seed (default: the run's own evaluation's, its eval_episodes)")
     evaluate.add_argument("--seed", type=int, default=123)
     env_options.add_arguments(evaluate)  # given, they change the saved env options for this evaluation
 

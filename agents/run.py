@@ -138,13 +138,6 @@ def _in_background(work: Callable[[], Any], name: str, after: threading.Event | 
         pool.shutdown(wait=False)  # its one thread ends with its one task
 
 
-def compile_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
-                   env_options: dict | None, donate: bool = False) -> Callable:
-    """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) compiled for `args` with the
-    training programs' XLA options: `lower_cached(...).compile()`."""
-    return lower_cached(program, fn, args, learner, seeds, env_name, env_options, donate).compile()
-
-
 def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                  env_options: dict | None, donate: bool = False) -> traced_programs.LoweredProgram:
     """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) lowered for `args`, to compile with the
@@ -154,6 +147,20 @@ def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: i
     return traced_programs.lower_env_program(program, fn, args, learner.env, env_name, env_options,
                                           extra=key_parts(learner, seeds), donate=donate,
                                           compiler_options=training_compiler_options(env=learner.env))
+
+
+def lower_evaluation_cached(learner: Any, params: Any, keys: Any, env_name: str, env_options: dict | None,
+                            episodes: int | None = None) -> traced_programs.LoweredProgram:
+    """Every seed's evaluation over `episodes` fresh episodes (the config's `eval_episodes` when not
+    given), lowered through the export cache (`lower_cached`): `(params, keys) -> returns per seed
+    and episode`. A run's final evaluation and `mjxsuite eval` of its directory lower the same
+    program under the same key, so the command's first call after a run loads the program that the
+    run traced and compiled, from the export cache and JAX's compilation cache."""
+    episodes = episodes or learner.config.eval_episodes
+    seeds = jax.tree.leaves(params)[0].shape[0]
+    return lower_cached(f"{type(learner).__name__}.evaluate, {episodes} episodes",
+                        jax.vmap(partial(learner.evaluate, num_episodes=episodes)), (params, keys), learner, seeds,
+                        env_name, env_options)
 
 
 def key_parts(learner: Any, seeds: int) -> dict:
@@ -308,8 +315,7 @@ def train_run(
 
             def lower_evaluation(params: Any, keys: Any) -> Any:  # the final evaluation, for these shapes
                 if placement.mesh is None:
-                    return lower_cached(f"{kind}.evaluate", jax.vmap(learner.evaluate), (params, keys), learner,
-                                        agents, env_name, env_options)
+                    return lower_evaluation_cached(learner, params, keys, env_name, env_options)
                 return jax.jit(placement.spread(jax.vmap(learner.evaluate))).lower(params, keys)
 
             # The final evaluation's program compiles beside training (from the shapes: the first chunk

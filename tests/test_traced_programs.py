@@ -3,6 +3,7 @@ with identical results; anything that could change the program misses; a bad fil
 traced again; nothing is written while the cache is off."""
 
 import dataclasses
+import json
 import warnings
 
 import jax
@@ -219,6 +220,32 @@ def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypa
     finally:
         traced_programs.disable()
 
+
+
+def test_the_first_eval_of_a_run_loads_the_program_of_its_final_evaluation(tmp_path, monkeypatch, capsys):
+    """`mjxsuite eval` with the run's own number of episodes (its default) traces no env step after
+    the run: the run's final evaluation exported that program. Other episode counts are other
+    programs, traced once each."""
+    from agents import cli
+    from agents.cli import main as cli_main
+
+    run = str(tmp_path / "run")
+    traced_programs.enable(tmp_path / "export")
+    try:
+        train_run("cartpole", TINY, out_dir=run, progress=False)
+        monkeypatch.setattr(cli, "_use_compile_cache", lambda args: traced_programs.enable(tmp_path / "export"))
+        env_steps = []
+        step = envs.CartPole.step
+        monkeypatch.setattr(envs.CartPole, "step", lambda self, *args: env_steps.append(1) or step(self, *args))
+        assert cli_main(["eval", "--checkpoint", run]) == 0
+        assert env_steps == []
+        printed = capsys.readouterr().out
+        assert f"over {TINY.eval_episodes} episodes" in printed
+        assert json.loads(printed.splitlines()[-1])["episodes"] == TINY.eval_episodes
+        assert cli_main(["eval", "--checkpoint", run, "--episodes", str(TINY.eval_episodes + 1)]) == 0
+        assert env_steps  # another program
+    finally:
+        traced_programs.disable()
 
 def test_a_warp_env_is_not_traced_for_the_cache():
     """`jax.export` refuses MuJoCo Warp's FFI calls, after a whole trace: a Warp env's programs
