@@ -447,6 +447,16 @@ def train_run(
         finally:
             bar.close()
             result.train_state = ts
+        # The final evaluation, where it compiled beside training, is dispatched before the final save:
+        # the save's copy to the host, made on this thread where the agents are spread over devices,
+        # then runs while the devices evaluate. On MuJoCo Warp it comes after the save: a copy while the
+        # evaluation's first run captures a CUDA graph breaks the capture (`save`).
+        eval_start = time.perf_counter()
+        returns = None
+        if (final_evaluation is not None and not on_warp and not result.interrupted
+                and (last == config.num_chunks or solved_early)):
+            returns = final_evaluation.result()(ts.best_params, eval_keys)
+        eval_s = time.perf_counter() - eval_start
         # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
         # over it, and a failed chunk may have consumed its donated train state).
         if out is not None and clock.last != last:
@@ -467,13 +477,14 @@ def train_run(
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
         solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
         result.solve_step = [s if s >= 0 else None for s in solve]
-        evaluate = (final_evaluation.result() if final_evaluation is not None
-                    else lower_evaluation(ts.best_params, eval_keys).compile())
-        returns = evaluate(ts.best_params, eval_keys)
+        if returns is None:
+            evaluate = (final_evaluation.result() if final_evaluation is not None
+                        else lower_evaluation(ts.best_params, eval_keys).compile())
+            returns = evaluate(ts.best_params, eval_keys)
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
                                                  seed, first, every_seed=every_seed.result() if every_seed else None)
-        result.eval_s = time.perf_counter() - eval_start
+        result.eval_s = eval_s + time.perf_counter() - eval_start
         result.save_s += _waited(saves)
         result.finish(start)
         if writer:

@@ -82,21 +82,33 @@ def test_deterministic_pins_the_judge_to_every_chunk(tmp_path):
 @pytest.mark.parametrize("on_warp", [False, True])
 def test_the_final_saves_copy_to_the_host_is_made_beside_the_final_evaluation_except_on_warp(tmp_path, monkeypatch,
                                                                                             on_warp):
-    """The final save's copy to the host is made on the writing thread during the final evaluation;
-    on MuJoCo Warp it is made before, on the run's thread: a copy from another thread while the
-    evaluation's Warp kernels capture a CUDA graph breaks the capture (CUDA error 904) and never
-    ends. Warp's check is faked here (the suite's CPU tests run without warp-lang)."""
+    """The final evaluation is dispatched before the final save, whose copy to the host is then made
+    (on the writing thread on one device, on the run's thread where the agents are spread over
+    devices) while the devices evaluate. On MuJoCo Warp the copy is made before the evaluation, on
+    the run's thread: a copy while the evaluation's Warp kernels capture a CUDA graph breaks the
+    capture (CUDA error 904) and never ends. Warp's check is faked here (the suite's CPU tests run
+    without warp-lang). The results are the same either way."""
     from agents import checkpoint
     from agents import run as run_module
 
     handed = []  # per save: whether the writing thread makes the host copy (a function) or gets arrays
-    real_save = checkpoint.BackgroundSaves.save
+    events = []  # "save" (train_run's saves) and "evaluation" (the final evaluation's program run), in order
+    real_save, real_run_save = checkpoint.BackgroundSaves.save, run_module.save
+    real_call = jax.stages.Compiled.__call__
     monkeypatch.setattr(checkpoint.BackgroundSaves, "save", lambda self, out, env, state, *rest, **kw: (
         handed.append(callable(state)), real_save(self, out, env, state, *rest, **kw))[1])
+    monkeypatch.setattr(run_module, "save", lambda *args, **kw: (events.append("save"), real_run_save(*args, **kw))[1])
+    monkeypatch.setattr(jax.stages.Compiled, "__call__", lambda self, *args: (
+        events.append("evaluation") if len(args) == 2 and not hasattr(args[0], "best_params") else None,
+        real_call(self, *args))[1])  # the judge's program takes (train state, key)
     monkeypatch.setattr(run_module, "runs_warp", lambda env: on_warp)
-    train_run("cartpole", SMALL, out_dir=tmp_path / "run", progress=False)
+    result = train_run("cartpole", SMALL, out_dir=tmp_path / "run", progress=False)
     assert handed[-1] is not on_warp
+    assert events[-2:] == (["evaluation", "save"] if not on_warp else ["save", "evaluation"])
     assert checkpoint.chunks_saved(tmp_path / "run") == SMALL.num_chunks
+    monkeypatch.undo()
+    plain = train_run("cartpole", SMALL, progress=False)
+    assert result.mean_return == plain.mean_return
 
 
 @pytest.mark.parametrize("on_warp", [False, True])
