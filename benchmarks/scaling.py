@@ -22,7 +22,10 @@ same command filled, as a user's second run finds it), once per device count, th
     python -m benchmarks.scaling --whole-process --devices 1,2 --train "--env hopper --agent ppo --impl warp --seeds 8"
 
 The ratio is one device's process seconds over each count's; `linear_share` is that ratio over
-the count (1.0: linear).
+the count (1.0: linear). `--shares` also times one device training each count's share of the
+seeds alone (a half for two devices): each device of a K-device run trains that share, so one
+device's seconds over it (`best_ratio`) are the most K devices can give, and `of_best` says how
+close the run came.
 
 Smoke test on a CPU (forced host devices share the cores, so the ratio says nothing there):
 
@@ -104,7 +107,20 @@ def most_overflowed_steps(run_dirs: list[Path]) -> dict[str, int]:
             for buffer in ("contacts", "constraints")}
 
 
-def whole_process_scaling(train_args: str, counts: list[int], timeout: float, warm_cache: bool = False) -> list[dict]:
+def with_seeds(train_args: str, seeds: int) -> str:
+    """`train_args` with `--seeds` set to `seeds`."""
+    words = shlex.split(train_args)
+    if "--seeds" not in words:
+        raise SystemExit(f"--shares divides the run's --seeds; --train {train_args!r} gives none")
+    at = words.index("--seeds") + 1
+    return shlex.join([*words[:at], str(seeds), *words[at + 1:]])
+
+
+def whole_process_scaling(train_args: str, counts: list[int], timeout: float, warm_cache: bool = False,
+                          shares: bool = False) -> list[dict]:
+    """Each count's whole process against one device's. With `shares`, also one device training each
+    count's share of the seeds alone (K devices: a K-th): what K devices give at best, since each trains
+    that share, whatever the sharding (GPUs that a share leaves partly idle, each process's fixed costs)."""
     records = []
     for devices in counts:
         record = whole_process(train_args, devices, timeout, warm_cache)
@@ -116,6 +132,14 @@ def whole_process_scaling(train_args: str, counts: list[int], timeout: float, wa
               f"one device ({record['linear_share']:.2f} of linear); {record['parts_s']}", flush=True)
         for k, parts in enumerate(record.get("processes_parts_s", [])):
             print(f"    process {k}: {parts}", flush=True)
+        if shares and devices > 1:
+            share = whole_process(with_seeds(train_args, one["agents"] // devices), 1, timeout, warm_cache)
+            record["one_device_share"] = share
+            record["best_ratio"] = one["process_s"] / share["process_s"]  # at one device's per-process cost
+            record["of_best"] = share["process_s"] / record["process_s"]
+            print(f"    one device, {share['agents']} seeds: {share['process_s']:7.1f} s, the best {devices} devices can "
+                  f"give: {record['best_ratio']:.2f}x ({record['best_ratio'] / devices:.2f} of linear); "
+                  f"{share['parts_s']}", flush=True)
     return records
 
 
@@ -135,12 +159,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warm-cache", action="store_true",
                         help="--whole-process: time each count's second process, whose compilation cache the first "
                              "(untimed) filled: a user's second run of the same command")
+    parser.add_argument("--shares", action="store_true",
+                        help="--whole-process: also time one device training each count's share of --seeds alone, "
+                             "the best that count can give")
     args, extra = parser.parse_known_args(argv)
     if args.whole_process:
         counts = [int(k) for k in args.devices.split(",")] if args.devices else [1, jax.local_device_count()]
         if counts[0] != 1:
             raise SystemExit(f"--devices must start with 1 (the baseline of the ratio), got {args.devices}")
-        records = whole_process_scaling(args.train, counts, args.timeout, args.warm_cache)
+        records = whole_process_scaling(args.train, counts, args.timeout, args.warm_cache, args.shares)
         if args.json:
             Path(args.json).write_text(json.dumps(records, indent=2))
         return 0

@@ -295,6 +295,29 @@ def test_the_whole_process_benchmark_records_the_most_overflowed_steps_of_any_pr
     assert most_overflowed_steps([tmp_path / "p0", tmp_path / "p1"]) == {"contacts": 3, "constraints": 7}
 
 
+def test_the_whole_process_benchmark_times_each_counts_share_of_the_seeds_on_one_device(monkeypatch):
+    """`--shares`: beside K devices' run, one device trains a K-th of the seeds, the best K devices can give."""
+    from benchmarks import scaling
+
+    timed = []  # (seeds, devices) of every process timed
+
+    def fake(train_args, devices, timeout, warm_cache=False):
+        words = train_args.split()
+        seeds = int(words[words.index("--seeds") + 1])
+        timed.append((seeds, devices))
+        return {"process_s": 10.0 + seeds / devices, "agents": seeds, "parts_s": {}}
+
+    monkeypatch.setattr(scaling, "whole_process", fake)
+    records = scaling.whole_process_scaling("--env cartpole --seeds 80 --steps 400", [1, 2, 4], 60.0, shares=True)
+    assert timed == [(80, 1), (80, 2), (40, 1), (80, 4), (20, 1)]
+    two, four = records[1], records[2]
+    assert two["best_ratio"] == 90.0 / 50.0 and two["of_best"] == 1.0  # 80 seeds over 2 devices cost what 40 on one do
+    assert four["best_ratio"] == 90.0 / 30.0 and four["one_device_share"]["agents"] == 20
+    assert scaling.with_seeds("--env cartpole --seeds 80 --steps 400", 20) == "--env cartpole --seeds 20 --steps 400"
+    with pytest.raises(SystemExit, match="--seeds"):
+        scaling.with_seeds("--env cartpole", 2)
+
+
 @pytest.mark.slow
 def test_the_two_gpu_mjx_reproducer_runs_its_cases_on_two_cpu_devices():
     """benchmarks.two_gpu_mjx's bare case (what goes upstream) compiles and runs where XLA does not crash."""
