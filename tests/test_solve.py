@@ -14,7 +14,9 @@ def test_default_config_solves_15_of_16_seeds(name):
     config = DQNConfig(total_steps=50_000)
     env = envs.make(name)
     keys = jax.random.split(jax.random.PRNGKey(2026), 16)
-    best_params, metrics = jax.jit(jax.vmap(lambda k: train(config, env, k)))(keys)
+    # One seed after another (`lax.map`), as `mjxsuite train` runs seeds on a CPU: XLA:CPU runs one
+    # network's plain matmuls faster than a batch of them (agents.device_options.default_seed_axis).
+    best_params, metrics = jax.jit(lambda keys: jax.lax.map(lambda k: train(config, env, k), keys))(keys)
     fresh = jax.random.split(jax.random.PRNGKey(7), 16)
     returns = jax.jit(jax.vmap(lambda p, k: DQN(config, env).evaluate(p, k, 64)))(best_params, fresh)
     means = np.asarray(returns.mean(axis=-1))
