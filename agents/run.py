@@ -447,15 +447,20 @@ def train_run(
         finally:
             bar.close()
             result.train_state = ts
+        finished = last == config.num_chunks or solved_early  # else a checkpoint and no final evaluation
+
+        def evaluated():  # every agent's returns from the final evaluation, dispatched
+            evaluate = (final_evaluation.result() if final_evaluation is not None
+                        else lower_evaluation(ts.best_params, eval_keys).compile())
+            return evaluate(ts.best_params, eval_keys)
+
         # The final evaluation, where it compiled beside training, is dispatched before the final save:
         # the save's copy to the host, made on this thread where the agents are spread over devices,
         # then runs while the devices evaluate. On MuJoCo Warp it comes after the save: a copy while the
         # evaluation's first run captures a CUDA graph breaks the capture (`save`).
         eval_start = time.perf_counter()
-        returns = None
-        if (final_evaluation is not None and not on_warp and not result.interrupted
-                and (last == config.num_chunks or solved_early)):
-            returns = final_evaluation.result()(ts.best_params, eval_keys)
+        early = finished and not result.interrupted and final_evaluation is not None and not on_warp
+        returns = evaluated() if early else None
         eval_s = time.perf_counter() - eval_start
         # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
         # over it, and a failed chunk may have consumed its donated train state).
@@ -463,12 +468,13 @@ def train_run(
             checkpoint_now(ts, last, final=True)  # copied and written during the final evaluation
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
         result.judges, result.judge_s = judge_clock.judges, judge_clock.judge_s  # the clock keeps the count
-        # A signal during the last chunk or save stops before the final evaluation (which cannot be cut
-        # short once it runs): the checkpoint holds every chunk, and --resume evaluates.
+        # A signal during the last chunk or save stops without the final evaluation's results (it cannot be
+        # cut short once it runs, and one dispatched early is left to end): the checkpoint holds every
+        # chunk, and --resume evaluates.
         if placement.same_on_every_process(stop.requested is not None):
             result.interrupted = True
         result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
-        if result.interrupted or (last < config.num_chunks and not solved_early):  # checkpoint saved, no final eval
+        if result.interrupted or not finished:  # checkpoint saved, no final eval
             result.save_s += _waited(saves)
             result.finish(start)
             return result
@@ -478,9 +484,7 @@ def train_run(
         solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
         result.solve_step = [s if s >= 0 else None for s in solve]
         if returns is None:
-            evaluate = (final_evaluation.result() if final_evaluation is not None
-                        else lower_evaluation(ts.best_params, eval_keys).compile())
-            returns = evaluate(ts.best_params, eval_keys)
+            returns = evaluated()
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
         result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
                                                  seed, first, every_seed=every_seed.result() if every_seed else None)

@@ -221,7 +221,6 @@ def test_eval_and_rollout_commands_load_their_traced_programs(tmp_path, monkeypa
         traced_programs.disable()
 
 
-
 def test_the_first_eval_of_a_run_loads_the_program_of_its_final_evaluation(tmp_path, monkeypatch, capsys):
     """`mjxsuite eval` with the run's own number of episodes (its default) traces no env step after
     the run: the run's final evaluation exported that program. Other episode counts are other
@@ -246,6 +245,7 @@ def test_the_first_eval_of_a_run_loads_the_program_of_its_final_evaluation(tmp_p
         assert env_steps  # another program
     finally:
         traced_programs.disable()
+
 
 def test_a_warp_env_is_not_traced_for_the_cache():
     """`jax.export` refuses MuJoCo Warp's FFI calls, after a whole trace: a Warp env's programs
