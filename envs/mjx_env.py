@@ -279,10 +279,12 @@ class MjxEnv(Env):
     def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
         """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
         qpos, qvel = self.initial_qpos_qvel(key)
-        data = self._initial_data.replace(
-            qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
-            qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
-        )
+        qpos = jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq)
+        qvel = jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv)
+        if not isinstance(qpos, jax.core.Tracer):  # called outside jit: placed (committed) as the rest of
+            # the state is, as a step's output is, so the second step runs the physics the first compiled
+            qpos, qvel = jax.device_put((qpos, qvel), self._initial_data.qpos.sharding)
+        data = self._initial_data.replace(qpos=qpos, qvel=qvel)
         data = self._warp.without_shared(data) if self._warp else data
         if self.reset_computes_derived:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
