@@ -71,7 +71,7 @@ class SavedRun(NamedTuple):
     seed: int
     sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
     agent: str = "dqn"
-    judge_every: int | None = None  # chunks between greedy judges; None: by the time budget (`run_steps.JudgeClock`)
+    judge_every: int | None = None  # chunks between greedy judges (`run_steps.judge_every`); None: not yet resolved
     # (start, stop): this directory trains seeds start..stop-1 of the `seeds` (one process of several,
     # `agents.processes`), with the keys the whole run gives them; None: every seed
     seed_slice: tuple[int, int] | None = None
@@ -378,6 +378,13 @@ def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any
     if meta.get("replay_left_out"):
         template = without_replay(template)
     return _unflatten(path, record, template, RESUME_FIX), int(meta["chunks_done"])
+
+
+def check_saved(out_dir: str | os.PathLike, env: str) -> None:
+    """Read the run directory's checkpoint files through, as a resume and `eval` would: a
+    CheckpointError naming the file that is truncated, corrupted or of another version."""
+    _read(Path(out_dir) / STATE_FILE, "train_state", env, RESUME_FIX)
+    _read(Path(out_dir) / POLICY_FILE, "best_params", env, POLICY_FIX)
 
 
 def process_dirs(out_dir: str | os.PathLike) -> list[tuple[Path, tuple[int, int]]] | None:

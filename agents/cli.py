@@ -25,7 +25,7 @@ from pathlib import Path
 from agents import env_options
 from agents import sweep as sweeps
 from agents.dqn import PRESETS, DQNConfig
-from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, JUDGE_BUDGET, SAVE_COST_FACTOR
+from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS, JUDGE_SHARE, SAVE_COST_FACTOR
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 
@@ -182,6 +182,8 @@ def cmd_train(args, extra: list[str]) -> int:
 
     if args.resume:
         saved = _saved_run(args, extra, sweep=False)
+        if _finished(args, saved):
+            return 0
         parts = checkpoint.process_dirs(args.out)
         if parts is None and args.processes not in (None, 1):
             raise UsageError(f"--processes {args.processes}: {args.out} holds a run of one process; resume it without")
@@ -317,6 +319,28 @@ def _train(args, config, **kwargs):
         print(f"wrote Rerun recording {args.rerun}")
 
 
+def _finished(args, saved) -> bool:
+    """Whether the run in `out` has finished (every chunk saved and its eval.json written); then say
+    so with its results, and leave every file as it is: a resume of a finished run has nothing to do
+    (once its identity and its files are checked, as any resume's are)."""
+    import json
+
+    from agents import checkpoint
+
+    out = args.out
+    summary = Path(out) / "eval.json"
+    if not summary.is_file() or checkpoint.chunks_saved(Path(out)) < saved.config.num_chunks:
+        return False
+    checkpoint.check_resumable(Path(out), saved._replace(env=args.env, seeds=args.seeds, seed=args.seed))
+    checkpoint.check_saved(out, saved.env)
+    results = json.loads(summary.read_text())
+    returns = ", ".join(f"{r:.1f}" for r in results.get("mean_return", []))
+    print(f"{out} holds a finished run ({checkpoint.describe(Path(out))}): nothing to resume. Its final mean "
+          f"returns: {returns} (eval.json). `mjxsuite eval --checkpoint {out}` evaluates it again; "
+          "--overwrite without --resume trains it anew")
+    return True
+
+
 def _report(args, config, result) -> int:
     from agents import registry, sharding
 
@@ -330,6 +354,7 @@ def _report(args, config, result) -> int:
         reached = "" if config.solve_return is None else (
             f"; first reached {config.solve_return:g} at step {solve if solve is not None else 'never'}")
         best = " (the best seed: load_policy's default)" if len(result.mean_return) > 1 and i == result.best_seed else ""
+        best += " (diverged: its loss became non-finite; this is its best policy before)" if i in result.diverged else ""
         print(f"seed {i}: {policy} policy's mean return {ret:.1f} over {config.eval_episodes} episodes{reached}{best}")
     print(wall_line(result) + (f"; wrote {args.out}" if args.out else ""))
     return 0
@@ -636,8 +661,9 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                             "duration if longer (default %(default)s; 0: no limit)")
     train.add_argument("--judge-every", type=ranged(int, COUNT), metavar="CHUNKS",
                        help="judge the greedy policy (keep the best parameters, find the solve step) every CHUNKS "
-                            "chunks and after the last (default: as often as keeps judging within "
-                            f"{100 * JUDGE_BUDGET:g}%% of the run's time)")
+                            "chunks and after the last (default: from the config, every chunk where a judge's episodes "
+                            f"cost at most {100 * JUDGE_SHARE:g}%% of a chunk's env steps and updates; saved in "
+                            "config.json, docs/training.md)")
     train.add_argument("--processes", type=ranged(int, COUNT), metavar="K",
                         help="train the seeds in K child processes, each an ordinary one-device run of its share "
                              "(one GPU each, in turn; on a CPU each uses the CPU), merged into --out (default: "
@@ -722,8 +748,6 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
             from agents.device_options import make_deterministic
 
             make_deterministic()  # before any JAX computation
-            if getattr(args, "judge_every", 0) is None:
-                args.judge_every = 1  # the time budget's cadence reads the clock; a pinned one judges the same chunks
             if getattr(args, "impl", None) == "warp":
                 print("note: --deterministic makes XLA's ops deterministic; MuJoCo Warp's physics is not "
                       "(docs/reliability.md): runs with --impl warp still differ from run to run", file=sys.stderr)

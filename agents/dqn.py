@@ -105,6 +105,12 @@ class DQNConfig:
     def num_chunks(self) -> int:
         return max(1, math.ceil(self.total_steps / self.eval_every))
 
+    @property
+    def chunk_work(self) -> tuple[int, int]:
+        """(batched env steps, gradient updates) of one chunk, run one after another: the judge
+        cadence's cost model (`agents.run_steps.judge_every`)."""
+        return self.iterations_per_chunk * self.train_every, self.iterations_per_chunk * self.gradient_steps
+
 
 # ---- hyperparameters that may be traced: what `mjxsuite sweep` varies within one program ----
 # Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a

@@ -250,13 +250,15 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
                        compile_s=max(e["compile_s"] for e in evals), setup_s=parts["setup"], train_s=parts["train"],
                        judge_s=parts["judge"], save_s=parts["saves"], eval_s=parts["evaluation"],
                        judges=max(e["judged_chunks"] for e in evals), chunks_done=max(e["chunks"] for e in evals),
-                       devices=len(children), processes=len(children), best_seed=best_seed)
+                       devices=len(children), processes=len(children), best_seed=best_seed,
+                       diverged=[d for e in evals for d in e.get("diverged_seeds", [])])
     result.finish(start_time)  # the parent's wall time; what its processes' parts leave is "other"
     summary = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "best_seed": best_seed,
                "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,
                "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges, "chunks": result.chunks_done,
-               "tie_break_return": [tie_break_now.get(i) for i in range(len(mean_return))], "processes": len(children)}
+               "tie_break_return": [tie_break_now.get(i) for i in range(len(mean_return))], "processes": len(children),
+               "diverged_seeds": result.diverged}
     checkpoint.atomic_write(out / "eval.json", json.dumps(summary, indent=2).encode())
     return result
 

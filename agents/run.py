@@ -73,6 +73,7 @@ class RunResult:
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
     processes: int = 1  # processes that trained them, one device each (`agents.processes`)
     best_seed: int = 0  # the seed `load_policy` acts with (`break_ties`)
+    diverged: list[int] = field(default_factory=list)  # seeds whose losses became non-finite
 
 
 def seed_keys(seed: int, seeds: int) -> jax.Array:
@@ -191,7 +192,7 @@ def train_run(
     devices: int | None = None,  # devices to spread the agents over; None: all local ones that split them evenly
     sweep: dict[str, list[float]] | None = None,  # a grid over the agent's SWEEPABLE fields: every config x `seeds`
     overwrite: bool = False,  # replace a run that `out_dir` holds (without `resume`); else ValueError
-    judge_every: int | None = None,  # judge every this many chunks; None: within run_steps.JUDGE_BUDGET of the time
+    judge_every: int | None = None,  # judge every this many chunks; None: `run_steps.judge_every`'s cadence
     seed_slice: tuple[int, int] | None = None,  # (start, stop): train only these of the `seeds` (`agents.processes`)
 ) -> RunResult:
     """Train `seeds` agents (DQN, PPO or SAC, as `config` says) on `env_name` at once; see
@@ -222,11 +223,13 @@ def train_run(
         saves = checkpoint.BackgroundSaves()
         if resume and judge_every is None and out_dir is not None and (Path(out_dir) / checkpoint.CONFIG_FILE).is_file():
             judge_every = checkpoint.load_config(out_dir).judge_every  # the run's own cadence
-        judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
         sweep = sweep or None
         configs = sweep_configs(config, sweep)
         agents = trained_seeds * len(configs)
         env = envs.make(env_name, **(env_options or {}))
+        if judge_every is None:  # from the config and the time limit (`run_steps.judge_every`), saved in config.json
+            judge_every = run_steps.judge_every(config, getattr(env, "episode_length", None) or 1000)
+        judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
         mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
         placement = sharding.Placement(sharding.choose_devices(trained_seeds, devices, configs=len(configs), mjx_task=mjx_task))
         writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
@@ -400,7 +403,7 @@ def train_run(
                     tick = time.perf_counter()
                     ts, metrics, eval_key = train_program(ts)
                 eval_episode = None
-                judging = placement.same_on_every_process(judge_clock.due(index, tick - start))  # process 0's clock
+                judging = judge_clock.due(index)  # the config's cadence: the same on every process
                 # The whole chunk done, its train state too, so that its seconds are its own however
                 # its dispatch returned (one through MuJoCo Warp's FFI can return once it is done).
                 jax.block_until_ready((ts, metrics))
@@ -427,6 +430,7 @@ def train_run(
                 # training alone, the judge left out, as Brax's `training/sps` counts
                 record["steps_per_s"] = config.eval_every * agents / training_s
                 overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
+                _check_diverged(record, result.diverged, first, bar)
                 result.history.append(record)
                 now = time.perf_counter() - start
                 for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
@@ -467,7 +471,8 @@ def train_run(
         if out is not None and clock.last != last:
             checkpoint_now(ts, last, final=True)  # copied and written during the final evaluation
         result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
-        result.judges, result.judge_s = judge_clock.judges, judge_clock.judge_s  # the clock keeps the count
+        result.judges = sum(map(judge_clock.due, range(last)))  # every session's, by the config's cadence
+        result.judge_s = judge_clock.judge_s
         # A signal during the last chunk or save stops without the final evaluation's results (it cannot be
         # cut short once it runs, and one dispatched early is left to end): the checkpoint holds every
         # chunk, and --resume evaluates.
@@ -498,7 +503,8 @@ def train_run(
                                     "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
                                     "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges,
                                     "chunks": result.chunks_done,
-                                    "tie_break_return": [tie_break.get(first + i) for i in range(agents)]})
+                                    "tie_break_return": [tie_break.get(first + i) for i in range(agents)],
+                                    "diverged_seeds": result.diverged})
         return result
 
 
@@ -514,6 +520,21 @@ def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
     still says where the run stands (the logger's timeline, metrics.jsonl)."""
     ts, metrics, eval_key = learner.train_steps(ts)
     return ts, {**metrics, "env_steps": ts.env_steps}, eval_key
+
+
+def _check_diverged(record: dict, diverged: list[int], first: int, bar) -> None:
+    """Say once per seed when a chunk's losses became non-finite (the seed diverged), and add it to
+    `diverged` (run seed indices): its best parameters so far stay, the other seeds train on."""
+    losses = [np.atleast_1d(np.asarray(v, dtype=np.float64)) for k, v in record.items() if k.endswith("loss")]
+    if not losses:
+        return
+    bad = ~np.isfinite(np.stack(losses)).all(axis=0)
+    for i in np.flatnonzero(bad):
+        if first + i not in diverged:
+            diverged.append(int(first + i))
+            bar.write(f"seed {first + i} diverged in chunk {record['chunk']}: its loss is not finite. Its best "
+                      "parameters so far stay its policy; the other seeds train on (a lower learning_rate or "
+                      "max_grad_norm may keep it finite)")
 
 
 def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
@@ -560,8 +581,11 @@ def tie_break_keys(seed: int, indices: Any) -> jax.Array:
 
 def tied_seeds(returns: list[float]) -> np.ndarray:
     """The indices of the seeds that tie for the best final evaluation (`break_ties`)."""
-    returns = np.asarray(returns)
-    return np.flatnonzero(returns >= returns.max() - 1e-6 * max(1.0, abs(returns.max())))
+    returns = np.nan_to_num(np.asarray(returns, dtype=np.float64), nan=-np.inf)  # a diverged seed never ties
+    best = returns.max()
+    if not np.isfinite(best):  # no seed has a finite return: the first stands
+        return np.zeros(1, dtype=np.int64)
+    return np.flatnonzero(returns >= best - 1e-6 * max(1.0, abs(best)))
 
 
 def unmeasured_ties(returns: list[float], measured: dict[int, float] | None, first: int = 0) -> list[int]:

@@ -14,6 +14,7 @@ The files themselves (config.json, the checkpoints, metrics.jsonl) are `agents.c
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -109,51 +110,51 @@ class SaveClock:
         self.save_s = max(self.at - started, written_s)
 
 
-# The greedy judge (64 episodes per agent after a chunk) takes at most this share of a run's wall
-# time by default: a chunk is judged when the judges' time so far, plus the last judge's, stays
-# within it. Where a judge costs little beside a chunk every chunk is judged; on a CPU's one seed
-# of CartPole, or thousands of agents sharing a GPU, most chunks train without one.
-JUDGE_BUDGET = 0.05
+# The greedy judge's cadence is a function of the run's config alone, never of the clock, so a seed
+# and config give the same judged chunks, best parameters and solve steps whatever the compile
+# cache, the machine's load, the evaluation's size or a resume. PPO and SAC judge every chunk:
+# their `num_evals` is the run's count of evaluations, as in Brax, a handful per run. DQN's chunks
+# are the host loop's step (progress, signals, saves), hundreds per run, so its judge is spaced
+# out by a cost model of sequential work (`config.chunk_work`): a judge runs its episodes side by
+# side for up to the time limit (`horizon` batched env steps, however many episodes); a chunk runs
+# its batched env steps and gradient updates one after another, an update counted as UPDATE_COST
+# env steps (a backward pass and the optimizer beside a forward pass). A chunk is judged every
+# `judge_every` chunks, the fewest that keep a judge within JUDGE_SHARE of the chunks it follows.
+JUDGE_SHARE = 0.1
+UPDATE_COST = 3
+
+
+def judge_every(config, horizon: int) -> int:
+    """The default judge cadence of a run of `config` on a task whose episodes last at most
+    `horizon` steps: every chunk for an agent without `chunk_work` (PPO, SAC) or where a judge
+    costs at most JUDGE_SHARE of a chunk's sequential work, else every N-th chunk. A larger
+    evaluation (more episodes) never judges fewer chunks."""
+    work = getattr(config, "chunk_work", None)
+    if work is None:
+        return 1
+    env_steps, updates = work
+    return max(1, math.ceil(horizon / (JUDGE_SHARE * (env_steps + UPDATE_COST * updates))))
 
 
 class JudgeClock:
     """Which chunks end with the greedy judge (the evaluation that keeps the best parameters and
-    finds the solve step). `every` given: every `every`-th chunk (chunk index + 1 a multiple of
-    it), the same chunks in every run. `every` None (the default): a chunk is judged while the
-    judges' seconds so far plus the last judge's stay within `budget` of the run's seconds so
-    far (compile included), so judging costs at most about `budget` of the wall time; the first
-    chunk a process trains is judged, to measure a judge. Either way the run's last chunk is
-    judged: its final parameters are a candidate for the best.
+    finds the solve step): every `every`-th chunk (chunk index + 1 a multiple of it) and the
+    run's last, whose final parameters are a candidate for the best. The same chunks in every
+    run of a config (`judge_every` gives the default `every`)."""
 
-    The budget reads the clock, so two runs of a seed may judge different chunks: their training
-    (parameters, optimizer, replay, env states) is the same bit for bit, and their best parameters
-    come from the chunks each judged; `every` makes those the same too (tests and `--resume`
-    comparisons pin it)."""
-
-    def __init__(self, every: int | None, last_chunk: int, budget: float | None = None):
-        if every is not None:
-            COUNT.check("judge_every", every)
-        budget = JUDGE_BUDGET if budget is None else budget
-        NON_NEGATIVE.check("judge budget", budget)
-        self.every, self.last_chunk, self.budget = every, last_chunk, budget
-        self.judge_s = 0.0  # every judge's seconds so far
-        self.last_s: float | None = None  # the last judge's seconds (None: none measured yet)
+    def __init__(self, every: int, last_chunk: int):
+        COUNT.check("judge_every", every)
+        self.every, self.last_chunk = every, last_chunk
+        self.judge_s = 0.0  # every judge's seconds so far (reported, never read to decide)
         self.judges = 0
 
-    def due(self, index: int, run_s: float) -> bool:
-        """Whether chunk `index` (0-based) is judged, `run_s` seconds into the run."""
-        if index == self.last_chunk:
-            return True
-        if self.every is not None:
-            return (index + 1) % self.every == 0
-        if self.last_s is None:
-            return True
-        return self.judge_s + self.last_s <= self.budget * (run_s + self.last_s)
+    def due(self, index: int) -> bool:
+        """Whether chunk `index` (0-based) is judged."""
+        return index == self.last_chunk or (index + 1) % self.every == 0
 
     def judged(self, seconds: float) -> None:
         """Record a judge that took `seconds`."""
         self.judge_s += seconds
-        self.last_s = seconds
         self.judges += 1
 
 

@@ -19,6 +19,9 @@ Sections (all by default; pick with `--sections`):
 - `gym-mujoco` (only when named): env-steps/s of Gymnasium's MuJoCo tasks with impl "jax" (and
   "warp" where it runs) beside Brax's look-alikes and Gymnasium's own vector env
   (`benchmarks.gym_mujoco`; `--batch` sets its sizes, default 4,096 and 32,768);
+- `learning` (only when named; a GPU's work): every training to a threshold the suite claims,
+  several seeds in one run each: solve rate, steps and seconds to solve, every seed's final
+  return, the median and the worst (`benchmarks.learning`);
 - `gym-vector` (only when named): env-steps/s of `gymnasium.make_vec("mjxsuite/Hopper-v5")` in
   Gymnasium's `JaxToTorch` with a torch MLP policy every step, beside our pure JAX loop and
   Gymnasium's own vector env over every core (`benchmarks.gym_vector`; `--batch`, default 4,096).
@@ -29,7 +32,7 @@ is recorded with `skipped` and the reason. The first record (`kind: meta`) says 
 ran where. The bench itself does not use the persistent cache: its compile times are
 cold compiles.
 
-    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup gym-mujoco gym-vector]
+    mjxsuite bench [--quick] [--json FILE] [--sections env dqn logging startup gym-mujoco gym-vector learning]
     mjxsuite bench --plot FILE.json [--out docs/throughput.png]   # the plot, from saved records
     mjxsuite bench --table FILE.json                               # markdown tables, from saved records
 """
@@ -48,7 +51,8 @@ from pathlib import Path
 
 from agents import processes
 
-SECTIONS = ("env", "dqn", "first-second", "logging", "startup", "first-compile", "gym-mujoco", "gym-vector")
+SECTIONS = ("env", "dqn", "first-second", "logging", "startup", "first-compile", "gym-mujoco", "gym-vector",
+            "learning")
 DEFAULT_SECTIONS = ("env", "dqn", "first-second", "logging", "startup")  # gym-mujoco takes long, gym-vector needs torch: run them by name
 
 
@@ -219,6 +223,12 @@ def first_compile_section(runs: int = 3) -> list[dict]:
     return records
 
 
+def learning_section() -> list[dict]:
+    from benchmarks import learning
+
+    return learning.section()
+
+
 def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=("cartpole", "cartpole-mjx"),
               peers=("gymnax", "playground"), repeats=None, peer_dqn: str | None = None) -> list[dict]:
     """Every record of the chosen sections; a section that fails is recorded as skipped, with the reason."""
@@ -238,6 +248,7 @@ def run_bench(quick: bool = False, sections=DEFAULT_SECTIONS, batch=None, ours=(
         "first-compile": first_compile_section,
         "gym-mujoco": lambda: gym_mujoco_section(quick, batch, repeats),
         "gym-vector": lambda: gym_vector_section(quick, batch, repeats),
+        "learning": learning_section,
     }
     for section in sections:
         start = time.perf_counter()

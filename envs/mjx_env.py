@@ -63,7 +63,8 @@ class MjxEnv(Env):
     are scaled to each actuator's `ctrlrange`. Override `action_to_ctrl` for
     anything else.
 
-    `info["nan"]` is 1.0 on the step where the physics became non-finite: that step
+    `info["nan"]` is 1.0 on the step where the physics, the observation or the reward became
+    non-finite: that step
     terminates the episode, its reward is 0 and its observation is the previous
     one, so no NaN reaches a learner. Under impl="warp", `info["overflow"]` is nonzero
     on a step where MuJoCo Warp ran out of its contact pool (1.0: `nconmax`/`naconmax`),
@@ -295,12 +296,15 @@ class MjxEnv(Env):
         data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
         data = self._warp.run(self._physics, model, data) if self._warp else self._physics(model, data)
         data = self.post_step(prev, data)
-        finite = jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all()
         overflow = self._overflow(data)
-        valid = finite & (overflow == 0)
         obs, terminated = self.observation(data), self.terminated(data)
         reward, terms = self._reward_and_terms(data, action, prev)
         self._check_step_shapes(state.obs, obs, reward, terminated)
+        # A task's observation or reward can be non-finite where the physics is not (a user's
+        # reward dividing by zero): such a step ends its episode as non-finite physics does.
+        finite = (jnp.isfinite(data.qpos).all() & jnp.isfinite(data.qvel).all() & jnp.isfinite(reward)
+                  & (jnp.isfinite(obs).all() if jnp.issubdtype(obs.dtype, jnp.floating) else True))
+        valid = finite & (overflow == 0)
         obs = jnp.where(valid, obs, state.obs)
         reward = jnp.where(valid, reward, 0.0).astype(obs.dtype)
         metrics = {**state.metrics, **{name: jnp.where(valid, term, 0.0).astype(obs.dtype) for name, term in terms.items()}}

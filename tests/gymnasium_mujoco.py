@@ -134,14 +134,3 @@ def assert_same_options(name: str, gymnasium_id: str) -> None:
     assert options["episode_length"] == spec.max_episode_steps
 
 
-def assert_passes_check_env(name: str, gymnasium_id: str) -> None:
-    """`envs.to_gymnasium(name)` passes Gymnasium's env checker with Gymnasium's action space."""
-    from test_gym_interop import NORMALIZED_ACTION_WARNING, check_env_warnings, warns_of_action_space
-
-    env = envs.to_gymnasium(name)
-    their_space = gymnasium.make(gymnasium_id).action_space
-    assert env.action_space == their_space
-    # check_env_warnings leaves out the unbounded-observation warnings. check_env recommends a symmetric
-    # Box inside [-1, 1]; Gymnasium's own InvertedPendulum-v5 ([-3, 3]) gets that warning too.
-    found = check_env_warnings(env, skip_render_check=True)
-    assert [NORMALIZED_ACTION_WARNING in w for w in found] == ([True] if warns_of_action_space(their_space) else []), found

@@ -128,6 +128,9 @@ def test_check_env_passes_for_every_registered_env(name):
     """Every registered env (MJX compiles take tens of seconds each on a small CPU)."""
     env = envs.to_gymnasium(name)
     space = env.action_space
+    gymnasium_id = getattr(envs.make(name).unwrapped, "gymnasium_id", None)
+    if gymnasium_id is not None:  # Gymnasium's MuJoCo tasks: Gymnasium's own action space
+        assert space == gymnasium.make(gymnasium_id).action_space
     # A continuous env's space is its ctrlrange; check_env recommends a symmetric Box inside [-1, 1].
     found = check_env_warnings(env, skip_render_check=True)
     assert [NORMALIZED_ACTION_WARNING in w for w in found] == ([True] if warns_of_action_space(space) else []), found

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options,
+from gymnasium_mujoco import (assert_resets_match, assert_same_options,
                               assert_steps_match, exact_noise_bounds, gymnasium_kwargs,
                               gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
 
@@ -61,6 +61,3 @@ def test_reset_distribution_matches_gymnasium():
     assert np.abs(qvel).max() > 0.3, "velocities are 0.1 * N(0, 1), not uniform"
 
 
-@pytest.mark.slow  # a compile of its own; test_gym_interop's slow check_env test covers every env too
-def test_to_gymnasium_passes_check_env():
-    assert_passes_check_env(NAME, GYMNASIUM_ID)

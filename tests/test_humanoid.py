@@ -19,7 +19,7 @@ import pytest
 
 import envs
 from envs.mjx_env import mjx
-from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options, gymnasium_env,
+from gymnasium_mujoco import (assert_resets_match, assert_same_options, gymnasium_env,
                               gymnasium_kwargs, gymnasium_reset_samples, gymnasium_steps, through_our_task, transitions)
 
 NAME, GYMNASIUM_ID = "humanoid", "Humanoid-v5"
@@ -214,6 +214,3 @@ def test_reset_observation_is_gymnasiums():
     np.testing.assert_allclose(states.obs, their_obs, rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.slow  # issue #29: compiles humanoid's contact step for Gymnasium's checker (62-83 s on 2 cores)
-def test_to_gymnasium_passes_check_env():
-    assert_passes_check_env(NAME, GYMNASIUM_ID)

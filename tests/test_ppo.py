@@ -167,38 +167,6 @@ def test_a_run_resumed_from_a_host_copy_ends_as_an_uninterrupted_one():
     assert int(resumed.env_steps) == SMALL.total_steps
 
 
-@pytest.mark.slow  # about 2 minutes of 2 CPU cores
-def test_inverted_pendulum_recipe_balances_gymnasiums_inverted_pendulum():
-    """The table's inverted-pendulum recipe (agents/brax_defaults.py, Brax's field names), trained
-    by our PPO: its best deterministic policy, mapped to Gymnasium's action space as
-    `load_policy` maps it, scores at least 950 on Gymnasium's own InvertedPendulum-v5 (C MuJoCo,
-    10 episodes)."""
-    import gymnasium
-
-    from agents import brax_defaults
-
-    config = PPOConfig(**brax_defaults.settings("inverted-pendulum", "ppo"))
-    env = envs.make("inverted-pendulum")
-    ppo = PPO(config, env)
-    ts, records = run_chunks(ppo, jax.jit(ppo.init)(jax.random.PRNGKey(0)), config.num_chunks)
-    print(config.rounding(), [round(float(r["eval_return"]), 1) for r in records])
-    assert float(ts.best_return) >= config.solve_return and int(ts.solve_step) > 0
-    low, high = env.action_low, env.action_high
-    act = jax.jit(lambda obs: ppo.policy(ts.best_params, obs))
-    gym_env = gymnasium.make(env.unwrapped.gymnasium_id)
-    returns = []
-    for episode in range(10):
-        obs, _ = gym_env.reset(seed=episode)
-        total, done = 0.0, False
-        while not done:
-            unit = np.asarray(act(jnp.asarray(obs, jnp.float32)))
-            obs, reward, terminated, truncated, _ = gym_env.step(0.5 * (high + low) + np.clip(unit, -1, 1) * 0.5 * (high - low))
-            total, done = total + float(reward), terminated or truncated
-        returns.append(total)
-    print("InvertedPendulum-v5 returns:", returns)
-    assert np.mean(returns) >= 950
-
-
 def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
     """`params` has the layout of Brax's PPO parameters (what `benchmarks.brax_trainers` builds), and
     `policy` acts as Brax's deterministic policy does, in [-1, 1]."""

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import envs
-from gymnasium_mujoco import (assert_passes_check_env, assert_resets_match, assert_same_options,
+from gymnasium_mujoco import (assert_resets_match, assert_same_options,
                               assert_steps_match, exact_noise_bounds, gymnasium_reset_samples,
                               gymnasium_steps, reset_samples, transitions)
 
@@ -53,6 +53,3 @@ def test_reset_distribution_matches_gymnasium():
     np.testing.assert_array_equal(obs, np.concatenate([qpos[:, 2:], qvel], axis=1))
 
 
-@pytest.mark.slow  # a compile of its own; test_gym_interop's slow check_env test covers every env too
-def test_to_gymnasium_passes_check_env():
-    assert_passes_check_env(NAME, GYMNASIUM_ID)

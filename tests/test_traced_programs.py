@@ -55,7 +55,7 @@ def assert_same_run(a, b):
 
 def test_a_second_run_loads_the_traced_chunk_with_identical_results(tmp_path, chunk_traces):
     traced_programs.disable()
-    plain = train_run("cartpole", TINY, progress=False, judge_every=1)  # judged chunks pinned (not by the clock)
+    plain = train_run("cartpole", TINY, progress=False, judge_every=1)
     assert len(chunk_traces) == 1
     traced_programs.enable(tmp_path / "export")
     try:
