@@ -116,6 +116,27 @@ def test_nan_physics_ends_the_episode_with_a_flag():
     assert float(state.info["last_length"][0]) == 2  # counted as a finished episode
 
 
+class NaNRewardCartPole(envs.CartPoleMjx):
+    """Finite physics, but a reward that turns NaN once the cart moves right faster than 0.5 m/s
+    (a user's reward bug): such a step ends its episode as NaN physics does."""
+
+    def reward(self, data, action, prev):
+        return jnp.where(data.qvel[0] > 0.5, jnp.nan, 1.0)
+
+
+def test_a_nan_reward_ends_the_episode_with_a_flag_and_never_reaches_a_learner():
+    env = envs.wrap_for_training(NaNRewardCartPole(), num_envs=2)
+    step = jax.jit(env.step)
+    state = env.reset(jax.random.PRNGKey(0))
+    flags, dones, rewards = [], [], []
+    for _ in range(8):  # the first env pushed right (it speeds up past 0.5 m/s), the second left
+        state = step(state, jnp.array([1, 0]))
+        flags.append(state.info["nan"].tolist()), dones.append(state.done.tolist()), rewards.append(state.reward)
+    flags, dones, rewards = np.array(flags), np.array(dones), np.array(rewards)
+    assert flags[:, 0].any() and not flags[:, 1].any()
+    assert (dones[flags > 0] == 1).all() and (rewards[flags > 0] == 0).all() and np.isfinite(rewards).all()
+
+
 def test_missing_mjcf_names_the_file():
     with pytest.raises(FileNotFoundError, match="no_such_model.xml"):
         envs.CartPoleMjx(xml="no_such_model.xml")

@@ -202,3 +202,23 @@ def test_resuming_a_finished_run_changes_nothing(tmp_path, capsys):
     assert cli_main(["train", "--out", str(out), "--resume"]) == 0
     assert "holds a finished run" in capsys.readouterr().out
     assert {name: (out / name).read_bytes() for name in files} == files
+
+
+def test_a_diverged_seed_is_reported_and_never_sinks_the_others(capsys):
+    """One seed's NaN return (a diverged seed) neither ties nor wins, and the others are ranked as
+    ever; a chunk whose loss is NaN names its seed once. All NaN: the first seed stands."""
+    from agents import run
+
+    assert run.tied_seeds([float("nan"), 3.0, 3.0]).tolist() == [1, 2]
+    assert run.tied_seeds([float("nan"), float("nan")]).tolist() == [0]
+    diverged = []
+
+    class Bar:
+        def write(self, text):
+            print(text)
+
+    for chunk in (3, 4):
+        run._check_diverged({"chunk": chunk, "loss": [0.5, float("nan")], "q": [1.0, 1.0]}, diverged, 0, Bar())
+    assert diverged == [1]
+    said = capsys.readouterr().out
+    assert said.count("seed 1 diverged in chunk 3") == 1 and "chunk 4" not in said
