@@ -41,6 +41,21 @@ class _MjxOnFirstUse:
 
 
 mjx = _MjxOnFirstUse()  # tasks import it from here: `from envs.mjx_env import mjx`
+
+
+def physics_steps(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
+    """`substeps` calls of `mjx.step`: one env step's physics."""
+    if substeps == 1:
+        return mjx.step(model, data)
+    return jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(model, d), data)
+
+
+# The physics under `jax.jit` (impl="jax"). Called outside a program (a notebook, the README's
+# first lines) MJX's step then runs as one XLA program rather than op by op, which compiled
+# hundreds of small ones; inside a program JAX keeps its trace, so the programs of a run that
+# step the env (training, judge, final evaluation) trace MJX once (XLA inlines the call).
+compiled_physics_steps = jax.jit(physics_steps, static_argnums=2)
+compiled_forward = jax.jit(lambda model, data: mjx.forward(model, data))
 # True while `envs.registry.spec` builds a task to read what it is (its actions, its observation):
 # the task then skips `_put_on_device`, which loads MJX and MuJoCo Warp and starts JAX's backend.
 SPEC_ONLY = contextvars.ContextVar("mjxsuite_spec_only", default=False)
@@ -233,14 +248,14 @@ class MjxEnv(Env):
         `mjx.kinematics` (no collisions, no constraint solve); the first step is the same either
         way, since `mjx.step` recomputes everything from qpos and qvel and only the integrator
         writes `qacc_warmstart`."""
-        return mjx.forward(model, data)
+        return compiled_forward(model, data)
 
     def compute_derived(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
         """`mjx.forward` of `data` (an env state's `pipeline_state`) with this task's model or
         `model`: everything MuJoCo derives from qpos and qvel (positions, contacts, forces). Under
         impl="warp" MuJoCo Warp's buffers that a batch shares are lent for the call."""
         model = self.mjx_model if model is None else model
-        return self._warp.run(mjx.forward, model, data) if self._warp else mjx.forward(model, data)
+        return self._warp.run(mjx.forward, model, data) if self._warp else compiled_forward(model, data)
 
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
@@ -265,10 +280,12 @@ class MjxEnv(Env):
     def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
         """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
         qpos, qvel = self.initial_qpos_qvel(key)
-        data = self._initial_data.replace(
-            qpos=jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq),
-            qvel=jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv),
-        )
+        qpos = jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq)
+        qvel = jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv)
+        if not isinstance(qpos, jax.core.Tracer):  # called outside jit: placed (committed) as the rest of
+            # the state is, as a step's output is, so the second step runs the physics the first compiled
+            qpos, qvel = jax.device_put((qpos, qvel), self._initial_data.qpos.sharding)
+        data = self._initial_data.replace(qpos=qpos, qvel=qvel)
         data = self._warp.without_shared(data) if self._warp else data
         if self.reset_computes_derived:
             # mjx.forward writes unit quaternions back into qpos; C's mj_forward (Gymnasium's
@@ -319,9 +336,8 @@ class MjxEnv(Env):
         return result if isinstance(result, tuple) else (result, {})
 
     def _physics(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
-        if self.n_substeps == 1:
-            return mjx.step(model, data)
-        return jax.lax.fori_loop(0, self.n_substeps, lambda _, d: mjx.step(model, d), data)
+        return physics_steps(model, data, self.n_substeps) if self._warp else compiled_physics_steps(model, data,
+                                                                                                     self.n_substeps)
 
     def _overflow(self, data: mjx.Data) -> jax.Array:
         """info["overflow"]'s code for the step that gave `data` (0 under impl="jax")."""

@@ -98,9 +98,16 @@ def test_the_steps_differ_by_mjxs_plane_capsule_frame(monkeypatch):
     from mujoco.mjx._src import collision_driver, collision_primitive
     from mujoco.mjx._src.types import GeomType
 
+    # The task's physics is one jitted function (`envs.mjx_env.compiled_physics_steps`): JAX keeps its
+    # trace per shape, which an earlier test of this process may have made with MJX's own collider.
+    # The caches are cleared before the patched trace, and after it, so no later test steps with it.
+    jax.clear_caches()
     monkeypatch.setitem(collision_driver._COLLISION_FUNC, (GeomType.PLANE, GeomType.CAPSULE),
                         collision_primitive.collider(ncon=2)(plane_capsule_as_c))
-    starts = transitions(NAME, num_envs=16, num_steps=40, keep=200, forward_first=True)
+    try:
+        starts = transitions(NAME, num_envs=16, num_steps=40, keep=200, forward_first=True)
+    finally:
+        jax.clear_caches()
     theirs = gymnasium_steps(GYMNASIUM_ID, starts)
     assert (theirs.contacts > 0).mean() > 0.15, "many states must touch the floor"
     error = np.abs(starts.steps.obs - theirs.obs).max(axis=1)

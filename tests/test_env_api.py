@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import envs
+from agents.jax_compile_cache import CompileCounter
 
 NAMES = ["cartpole", "cartpole-mjx"]
 
@@ -60,6 +61,37 @@ def test_wrong_action_shape_or_dtype_fails_at_trace_time(name):
     batched = envs.wrap_for_training(env, 4)
     with pytest.raises(TypeError, match="leading dimension 4"):
         jax.eval_shape(batched.step, batched.reset(jax.random.PRNGKey(0)), jnp.zeros((3,), jnp.int32))
+
+
+def test_an_mjx_task_stepped_outside_jit_runs_its_physics_as_one_program():
+    """Called op by op (a notebook, a first try), MJX's step compiled hundreds of small programs
+    (479 for cartpole-mjx's first step, 18 s on 2 cores) and its second step compiled again; its
+    physics is one jitted program, compiled once, and the step equals the jitted env's."""
+    env = envs.make("cartpole-mjx")
+    state = env.reset(jax.random.PRNGKey(0))
+    with CompileCounter() as counter:
+        stepped = env.step(state, 1)
+    assert 0 < counter.compiles <= 60, counter.compiled
+    with CompileCounter() as again:
+        env.step(stepped, 0)
+    assert again.compiled == []
+    jax.tree.map(np.testing.assert_array_equal, stepped, jax.jit(env.step)(state, 1))
+
+
+def test_programs_that_step_an_mjx_task_trace_its_physics_once(monkeypatch):
+    """A run's programs (training, judge, final evaluation) each step the env: MJX's step is traced
+    once per shape for all of them, not once each (seconds of a run's start on a CPU)."""
+    import mujoco.mjx
+
+    env = envs.make("pendulum-mjx-discrete")  # a task no other test here traces in this process
+    calls = []
+    real_step = mujoco.mjx.step
+    monkeypatch.setattr(mujoco.mjx, "step", lambda model, data: calls.append(1) or real_step(model, data))
+    state = env.reset(jax.random.PRNGKey(0))
+    jax.jit(env.step).lower(state, 1)
+    batch = envs.wrap_for_training(env, 8)
+    jax.jit(batch.step).lower(batch.reset(jax.random.PRNGKey(0)), jnp.zeros(8, jnp.int32))
+    assert len(calls) <= 1
 
 
 # cartpole-mjx in the slow tests: pendulum-mjx-discrete runs an MJX task's scan with auto-reset here
