@@ -199,3 +199,22 @@ def test_td3_learns_to_hold_the_drifting_point_at_zero():
     assert float(untrained) < -4.0, untrained
     assert float(metrics["eval_return"][-1]) > -1.5, metrics["eval_return"]
     assert np.all(np.asarray(metrics["nan_episodes"]) == 0)
+
+
+@pytest.mark.slow  # under a minute on 2 CPU cores
+def test_td3_solves_pendulum_with_the_task_recipe():
+    from agents import brax_defaults
+
+    config = TD3Config(**brax_defaults.settings("pendulum-mjx", "td3"))  # solve_return -200 (Gymnasium's Pendulum-v1)
+    best, metrics = jax.jit(lambda k: train(config, envs.make("pendulum-mjx"), k))(jax.random.PRNGKey(0))
+    assert float(np.max(metrics["eval_return"])) >= config.solve_return, metrics["eval_return"]
+    assert 0 < int(metrics["solve_step"]) <= config.total_steps
+
+
+@pytest.mark.parametrize("task", ["hopper", "walker2d", "half-cheetah", "ant", "humanoid"])
+def test_the_gymnasium_tasks_have_fasttd3_recipes(task):
+    from agents import brax_defaults
+
+    config = TD3Config(**brax_defaults.settings(task, "td3"))
+    assert config.num_envs == 1024 and config.batch_size == 32768 and config.compute_dtype == "bfloat16"
+    assert config.critic_hidden == (1024, 512, 256) and config.v_min < 0 < config.v_max
