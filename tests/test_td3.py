@@ -101,6 +101,14 @@ def test_the_actor_steps_once_every_policy_frequency_critic_updates(policy_frequ
     assert moved == bool(actor_steps) and (float(stats["actor_loss"]) != 0.0) == bool(actor_steps)
 
 
+def test_the_delayed_actor_stays_a_branch_when_seeds_are_vmapped():
+    """Its schedule is the same for every seed, so under vmap the actor's update is skipped, not
+    computed and thrown away (a batched predicate would turn the cond into a select)."""
+    td3 = TD3(SMALL, drift())
+    ts = jax.eval_shape(jax.vmap(td3.init), jax.random.split(jax.random.PRNGKey(0), 3))
+    assert str(jax.make_jaxpr(jax.vmap(td3.train_steps))(ts)).count("cond[") == 1
+
+
 def test_bfloat16_runs_the_networks_matmuls_in_bf16_with_float32_params():
     td3 = TD3(dataclasses.replace(SMALL, compute_dtype="bfloat16"), drift())
     ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
@@ -163,23 +171,53 @@ TINY = TD3Config(num_timesteps=640, num_envs=8, min_replay_size=128, max_replay_
 
 @pytest.mark.slow  # compiles pendulum-mjx's programs three times (as test_agents_cli's SAC resume)
 def test_train_run_stopped_then_resumed_is_the_uninterrupted_run(tmp_path):
-    from agents import checkpoint, registry
-    from agents.run import seed_keys, train_run
+    from test_agents_cli import _leaves
+
+    from agents.run import train_run
 
     whole = train_run("pendulum-mjx", TINY, seeds=2, out_dir=tmp_path / "whole", progress=False, judge_every=1)
     train_run("pendulum-mjx", TINY, seeds=2, out_dir=tmp_path / "part", progress=False, stop_after_chunks=1,
               judge_every=1)
     resumed = train_run("pendulum-mjx", TINY, seeds=2, out_dir=tmp_path / "part", progress=False, resume=True)
-
-    def leaves(out):
-        run = checkpoint.load_config(out)
-        agent = registry.make(run.config, envs.make(run.env))
-        template = jax.eval_shape(jax.vmap(agent.init), seed_keys(run.seed, run.seeds))
-        return jax.tree.leaves(checkpoint.load_state(out, run.env, template)[0])
-
-    for a, b in zip(leaves(tmp_path / "whole"), leaves(tmp_path / "part"), strict=True):
+    for a, b in zip(_leaves(tmp_path / "whole"), _leaves(tmp_path / "part"), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    assert resumed.mean_return == whole.mean_return and registry.name_of(TINY) == "td3"
+    assert resumed.mean_return == whole.mean_return
+
+
+@pytest.mark.slow  # a compiling subprocess, killed, then resumed
+def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path):
+    """SIGKILL of `mjxsuite train --agent td3` once a checkpoint exists (saves slowed down, so the
+    kill lands mid-run), then `--resume`: the uninterrupted run's train state, replay included."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from test_agents_cli import SLOW_SAVES, _env, _leaves
+
+    from agents import checkpoint
+    from agents.cli import main as cli_main
+    from agents.run import train_run
+
+    config = dataclasses.replace(TINY, num_evals=7)
+    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False, judge_every=1)
+    args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
+            for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
+    out = tmp_path / "killed"
+    process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", "td3",
+                                "--out", str(out), "--checkpoint-seconds", "0", "--judge-every", "1", *args], env=_env(),
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while checkpoint.chunks_saved(out) < 1 and time.monotonic() < deadline and process.poll() is None:
+            time.sleep(0.01)
+    finally:
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+    assert 1 <= checkpoint.chunks_saved(out) < config.num_chunks and not (out / "eval.json").exists()
+    assert cli_main(["train", "--out", str(out), "--resume"]) == 0
+    for a, b in zip(_leaves(tmp_path / "whole"), _leaves(out), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
 # ---- learning -----------------------------------------------------------------------------------
