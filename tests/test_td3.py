@@ -55,6 +55,36 @@ def test_a_discrete_env_is_refused():
         TD3(SMALL, envs.make("cartpole"))
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["--env", "cartpole", "--agent", "td3"], "choose --agent dqn"),
+    (["--env", "pendulum-mjx", "--agent", "td3", "--compute_dtype", "fp8"], "TD3Config.compute_dtype must be one of"),
+    (["--env", "pendulum-mjx", "--agent", "td3", "--v_min", "60"], r"v_min \(60.0\) must be below v_max \(50.0\)"),
+    (["--env", "pendulum-mjx", "--agent", "td3", "--replay", "prioritized"], "--replay chooses DQN's replay"),
+], ids=lambda v: " ".join(v) if isinstance(v, list) else None)
+def test_the_command_line_refuses_bad_td3_runs_before_anything_compiles(argv, message, monkeypatch):
+    from agents.cli import UsageError
+    from agents.cli import main as cli_main
+
+    monkeypatch.setattr("agents.run.train_run", lambda *a, **k: pytest.fail("training started"))
+    with pytest.raises(UsageError, match=message):
+        cli_main(["train", *argv])
+
+
+def test_the_command_line_takes_the_task_recipe_and_every_field(monkeypatch):
+    from agents import brax_defaults
+    from agents.cli import main as cli_main
+
+    seen = {}
+    monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config, **k))
+    monkeypatch.setattr("agents.cli._report", lambda *a: 0)
+    argv = ["train", "--env", "hopper", "--agent", "td3", "--compute_dtype", "float32", "--actor_hidden", "64,64",
+            "--use_cdq", "false", "--seeds", "4"]
+    assert cli_main(argv) == 0
+    assert seen["config"] == TD3Config(**{**brax_defaults.settings("hopper", "td3"), "compute_dtype": "float32",
+                                          "actor_hidden": (64, 64), "use_cdq": False})
+    assert seen["seeds"] == 4
+
+
 # ---- the distributional critic's projection ----------------------------------------------
 def test_the_projection_moves_the_mean_keeps_the_mass_and_clips_to_the_support():
     support = jnp.linspace(-10.0, 10.0, 21)
