@@ -33,7 +33,9 @@ Where it differs from FastTD3's code, and why:
   critic learns the action the env took.
 - Truncation bootstraps from the true final observation; steps with non-finite or overflowing
   physics never reach the replay (as in `agents.sac`).
-- n-step returns are left out: FastTD3's default (`num_steps=1`) uses none.
+- n-step returns (`num_steps`, FastTD3's default 1: none) are formed as transitions enter the
+  replay, from a window of each env's last `num_steps` steps kept in the train state; FastTD3
+  forms them when it samples. Either way a return stops where its episode ends.
 - The delayed actor step counts updates within a chunk (update k of the chunk steps the actor
   when k % policy_frequency == policy_frequency - 1), so its schedule is a constant of the
   program (a real branch, also under `vmap`) rather than a per-seed counter.
@@ -104,6 +106,7 @@ class TD3Config:
     v_min: float = -250.0
     v_max: float = 250.0
     use_cdq: bool = True  # clipped double Q
+    num_steps: int = 1  # n-step returns (FastTD3's num_steps; 3 in its CheetahRun, 8 in its IsaacLab humanoids)
     init_scale: float = 0.01  # std of the actor's last layer at initialisation
     actor_hidden: tuple[int, ...] = (128, 64, 32)  # FastTD3: (512, 256, 128)
     critic_hidden: tuple[int, ...] = (256, 128, 64)  # FastTD3: (1024, 512, 256)
@@ -116,7 +119,7 @@ class TD3Config:
 
     RANGES: ClassVar[dict[str, Valid]] = {
         "num_timesteps": COUNT, "num_envs": COUNT, "batch_size": COUNT, "num_updates": COUNT,
-        "policy_frequency": COUNT, "actor_learning_rate": POSITIVE, "critic_learning_rate": POSITIVE,
+        "policy_frequency": COUNT, "num_steps": COUNT, "actor_learning_rate": POSITIVE, "critic_learning_rate": POSITIVE,
         "weight_decay": NON_NEGATIVE, "max_grad_norm": NON_NEGATIVE, "discounting": PROBABILITY,
         "tau": Range(0.0, 1.0, low_open=True), "reward_scaling": POSITIVE, "policy_noise": NON_NEGATIVE,
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
@@ -218,6 +221,23 @@ def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: j
     return jax.vmap(one)(probs, lower, upper, upper_share)
 
 
+def n_step_rows(window: jax.Array, obs_size: int, action_size: int, discounting: float):
+    """Each env's `len(window)`-step transition from its window of one-step rows (oldest first;
+    a packed `Transition`, then `ended` and `valid`): the discounted rewards up to the first step
+    that ended its episode, that step's next observation, and `discounting**k * (1 - terminated)`
+    as the discount (the critic multiplies in one more `discounting`). `window`: (n, envs, width).
+    Returns the packed rows and whether each may be stored (every step in it valid)."""
+    steps = unpack(window[..., :-2], obs_size, action_size)
+    ended, valid = window[..., -2], window[..., -1]
+    alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[:1]), 1.0 - ended[:-1]]), axis=0)  # before an end
+    powers = jnp.broadcast_to(discounting ** jnp.arange(window.shape[0], dtype=window.dtype)[:, None], ended.shape)
+    last = (alive.sum(0) - 1).astype(jnp.int32)  # the step the transition ends with
+    pick = jax.vmap(lambda column, k: column[k], in_axes=(1, 0))  # each env's step `last`
+    row = Transition(obs=steps.obs[0], action=steps.action[0], reward=(powers * alive * steps.reward).sum(0),
+                     discount=pick(powers, last) * pick(steps.discount, last), next_obs=pick(steps.next_obs, last))
+    return pack(row), (alive * (1.0 - valid)).sum(0) == 0
+
+
 @struct.dataclass
 class TrainState:
     params: Any  # (normalizer state, actor params): what `policy` and checkpoints take
@@ -233,6 +253,7 @@ class TrainState:
     best_params: Any  # `params` with the best evaluation so far
     best_return: jax.Array
     solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+    window: Any = None  # with num_steps > 1: each env's last num_steps one-step rows (`n_step_rows`)
     hyperparams: Any = None  # a sweep's per-agent values, as `DQN`'s; TD3 has none yet
 
 
@@ -303,10 +324,17 @@ class TD3:
         terminated = env_state.done * (1.0 - info["truncation"])
         rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
         overflow, stats = evaluation.step_stats(info)
-        buffer = self.buffer.add(ts.buffer, rows, mask=(info["nan"] == 0) & (overflow == 0))
+        valid = (info["nan"] == 0) & (overflow == 0)
+        window = ts.window
+        if cfg.num_steps > 1:
+            flags = jnp.stack([env_state.done, valid], axis=-1).astype(rows.dtype)
+            window = jnp.concatenate([window[1:], jnp.concatenate([rows, flags], axis=-1)[None]])
+            rows, valid = n_step_rows(window, self.obs_size, self.action_size, cfg.discounting)
+            valid &= ts.env_steps >= (cfg.num_steps - 1) * cfg.num_envs  # the window holds num_steps steps
+        buffer = self.buffer.add(ts.buffer, rows, mask=valid)
         normalizer = running_statistics.update(normalizer, obs)
         fresh = jax.random.uniform(scale_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max)
-        ts = ts.replace(params=(normalizer, actor_params), buffer=buffer, env_state=env_state,
+        ts = ts.replace(params=(normalizer, actor_params), buffer=buffer, env_state=env_state, window=window,
                         noise_scale=jnp.where(env_state.done > 0, fresh, ts.noise_scale),
                         env_steps=ts.env_steps + cfg.num_envs)
         return ts, stats
@@ -314,7 +342,8 @@ class TD3:
     # ---- the losses -----------------------------------------------------------
     def critic_loss(self, critic_params, ts: TrainState, batch: Transition, key: jax.Array):
         """Cross entropy of each critic against the target critics' projected distribution of
-        `r + gamma * discount * Z(s', a')`, a' the actor's smoothed next action; with clipped
+        `r + gamma * discount * Z(s', a')` (n-step: the row's reward and discount span its steps),
+        a' the actor's smoothed next action; with clipped
         double Q both learn the projection whose mean value is lower."""
         cfg = self.config
         normalizer, actor_params = ts.params
@@ -422,6 +451,7 @@ class TD3:
             best_params=(normalizer, actor_params),
             best_return=jnp.full((), -jnp.inf),
             solve_step=jnp.full((), -1, jnp.int32),
+            window=None if cfg.num_steps == 1 else jnp.zeros((cfg.num_steps, cfg.num_envs, example.shape[-1] + 2)),
         )
         if cfg.prefill_iterations:
             ts, _ = jax.lax.scan(self.collect, ts, jax.random.split(fill_key, cfg.prefill_iterations))

@@ -11,6 +11,7 @@ import pytest
 from test_sac import assert_trees_equal, drift, mapped, run_chunks
 
 import envs
+from agents.sac import unpack
 from agents.td3 import TD3, TD3Config, project, train
 
 SMALL = TD3Config(num_timesteps=392, num_envs=4, batch_size=16, num_updates=2, min_replay_size=32,
@@ -120,6 +121,37 @@ def test_each_env_keeps_its_noise_scale_until_its_episode_ends():
     np.testing.assert_array_equal(scales[5], scales[3])
 
 
+def collected(env, steps, num_steps):
+    td3 = TD3(dataclasses.replace(SMALL, num_envs=1, min_replay_size=0, num_steps=num_steps), env)
+    ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+    collect = jax.jit(td3.collect)
+    for i in range(steps):
+        ts, _ = collect(ts, jax.random.PRNGKey(i))
+    return jax.tree.map(np.asarray, unpack(ts.buffer.data[:int(ts.buffer.size)], 2, 1))
+
+
+def test_n_step_rows_sum_discounted_rewards_up_to_the_episode_end():
+    """Three-step rows against the one-step rows of the same run (the same actions): each sums
+    up to three rewards, stops at a termination (no bootstrap) or a truncation (bootstrapping
+    from that final observation), and its discount is gamma**(steps - 1) * (1 - terminated)."""
+    env, gamma = drift(episode_length=4, terminate_at=0.9), SMALL.discounting
+    one, three = collected(env, 12, 1), collected(env, 12, 3)
+    assert len(one.reward) == 12 and len(three.reward) == 10  # the last two steps' rows are not complete yet
+    ends = (one.discount == 0) | (np.round(one.next_obs[:, 1] * 10) == 4)  # terminated, or truncated at 4 steps
+    assert ends[:10].sum() >= 3 and (one.discount[:10] == 0).any()
+    for t in range(10):
+        reward, k = 0.0, t
+        while True:
+            reward += gamma ** (k - t) * one.reward[k]
+            if ends[k] or k == t + 2:
+                break
+            k += 1
+        np.testing.assert_allclose(three.reward[t], reward, rtol=1e-5)
+        np.testing.assert_allclose(three.discount[t], gamma ** (k - t) * one.discount[k], rtol=1e-6)
+        np.testing.assert_array_equal(three.next_obs[t], one.next_obs[k])
+        np.testing.assert_array_equal(three.obs[t], one.obs[t])
+
+
 @pytest.mark.parametrize("policy_frequency,actor_steps", [(2, 1), (4, 0)])
 def test_the_actor_steps_once_every_policy_frequency_critic_updates(policy_frequency, actor_steps):
     td3 = TD3(dataclasses.replace(SMALL, policy_frequency=policy_frequency), drift())
@@ -152,8 +184,6 @@ def test_bfloat16_runs_the_networks_matmuls_in_bf16_with_float32_params():
 
 
 def td3_batch(td3, ts):
-    from agents.sac import unpack
-
     return unpack(ts.buffer.data[:8], td3.obs_size, td3.action_size)
 
 
@@ -180,15 +210,15 @@ def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
 
 
 def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
-    """The whole state of a seed (replay, noise scales and envs included) is the train state: copied
-    to numpy after a chunk and back, the run continues bit for bit."""
-    td3 = TD3(SMALL, drift())
+    """The whole state of a seed (replay, noise scales, the n-step window and envs included) is the
+    train state: copied to numpy after a chunk and back, the run continues bit for bit."""
+    td3 = TD3(dataclasses.replace(SMALL, num_steps=2), drift())
     keys = jax.random.split(jax.random.PRNGKey(3), 2)
     init = jax.jit(jax.vmap(td3.init))
     whole, whole_history = run_chunks(td3, init(keys), SMALL.num_chunks, jax.vmap)
     part, _ = run_chunks(td3, init(keys), 1, jax.vmap)
     saved = jax.tree.map(np.asarray, part)
-    assert int(saved.buffer.size[0]) > SMALL.prefill_steps
+    assert int(saved.buffer.size[0]) > SMALL.prefill_steps and saved.window.shape[:3] == (2, 2, SMALL.num_envs)
     resumed, resumed_history = run_chunks(td3, jax.tree.map(jnp.asarray, saved), SMALL.num_chunks - 1, jax.vmap)
     assert_trees_equal(resumed, whole)
     np.testing.assert_array_equal(resumed_history[-1]["eval_return"], whole_history[-1]["eval_return"])
