@@ -1,13 +1,13 @@
 """FastTD3 (Seo et al. 2025, arXiv 2505.22642): TD3 at GPU scale, the whole loop inside `lax.scan`.
 
-Read top to bottom: config -> networks -> train state -> acting and collecting (the replay's
-first fill included) -> the critic's and the actor's losses -> one update -> deterministic
+Read top to bottom: config -> networks and C51's projection -> n-step rows -> train state ->
+acting and collecting (the replay's first fill included) -> the critic's and the actor's losses -> one update -> deterministic
 evaluation -> one training chunk -> `train`. Built like `agents.sac`: `train(config, env, key)`
 is pure and jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the
 same chunks from the host (`init`, `train_steps`, `evaluate_and_keep_best`) and saves the train
 state between them; that state is the whole of one seed (actor, twin critics and their target,
-optimizers, normalizer, per-env exploration noise, replay buffer, envs, key), so resuming from
-it is exact.
+optimizers, normalizer, per-env exploration noise, n-step window, replay buffer, envs, key), so
+resuming from it is exact.
 
 The recipe is FastTD3's (github.com/younggyoseo/FastTD3, `fast_td3/train.py`,
 `fast_td3/fast_td3.py`, `fast_td3/hyperparams.py` read at commit 229ed59), written here from
