@@ -1,7 +1,8 @@
-"""Per-task settings of Brax's PPO and SAC: the one table `mjxsuite train --agent ppo|sac` reads.
+"""Per-task settings of PPO, SAC and TD3: the one table `mjxsuite train --agent ppo|sac|td3` reads.
 
 `SETTINGS[task][agent][preset]` holds the fields that differ from the agent's base recipe
-(`PPOConfig()` in `agents/ppo.py`, `SACConfig()` in `agents/sac.py`, sized for small tasks on a CPU);
+(`PPOConfig()` in `agents/ppo.py`, `SACConfig()` in `agents/sac.py`, `TD3Config()` in `agents/td3.py`,
+sized for small tasks on a CPU);
 `--FIELD VALUE` options then change the result. A task without a row trains with the base
 recipe. Rows are keyed by name only, so a row for a task that is not registered (yet) costs
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default"; without it a
@@ -16,6 +17,7 @@ Where each row comes from:
   MJCF and reward), as published; sized for an accelerator (thousands of envs).
 - "Playground": MuJoCo Playground's `dm_control_suite_params.py` (`brax_ppo_config`,
   `brax_sac_config`, `brax_vision_ppo_config`) for the dm_control look-alike.
+- "FastTD3": FastTD3's hyperparams.py (`_FASTTD3`), for a GPU.
 Rows run on a GPU (`python -m benchmarks.gym_training`) say "run"; docs/agents.md, "Per-task
 recipes", has each run (machine, time, steps, score on Gymnasium's env; records "gym-training" in
 docs/bench-gpu.json). The others have not been run here on the Gymnasium tasks: treat them as
@@ -53,6 +55,19 @@ PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {
 }
 _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, learning_rate=1e-3, num_envs=128,
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
+# FastTD3's recipe (github.com/younggyoseo/FastTD3, fast_td3/hyperparams.py at commit 229ed59):
+# BaseArgs (its HumanoidBench defaults: discount 0.99, batches of 32,768, 2 updates per env step,
+# an actor update every 2, tau 0.1, AdamW with weight decay 0.1, noise std in [0.001, 0.4], smoothing
+# 0.001, 101 atoms, networks 512 / 1024 wide, bf16 AMP) with MuJoCoPlaygroundArgs' 1,024 envs; its
+# learning_starts (10 env-step batches) as min_replay_size. Ours: a replay of 1M transitions per seed
+# (FastTD3 keeps 10,240 steps of each of 1,024 envs; several seeds share one GPU here), the critic's
+# support per task (below: about the task's per-step reward bound over 1 - discount, as FastTD3's
+# v_min/v_max bound its tasks' returns) and the run's length. Not run yet: starting points.
+_FASTTD3 = dict(num_envs=1024, batch_size=32768, num_updates=2, policy_frequency=2, actor_learning_rate=3e-4,
+                critic_learning_rate=3e-4, weight_decay=0.1, discounting=0.99, tau=0.1, policy_noise=0.001,
+                noise_clip=0.5, std_min=0.001, std_max=0.4, num_atoms=101, init_scale=0.01,
+                actor_hidden=(512, 256, 128), critic_hidden=(1024, 512, 256), compute_dtype="bfloat16",
+                min_replay_size=10 * 1024, max_replay_size=1 << 20, num_evals=11)
 # The agent `mjxsuite train` picks on a continuous task without --agent: "ppo" unless a row here
 # says otherwise: on half-cheetah, walker2d and swimmer SAC's row beat Gymnasium's goal where PPO's
 # fell far short or was not needed (docs/agents.md, "Per-task recipes").
@@ -63,6 +78,9 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     "pendulum-mjx": {
         "ppo": {"default": dict(num_timesteps=1_500_000, discounting=0.95, reward_scaling=0.1, solve_return=-200.0)},
         "sac": {"default": dict(num_timesteps=30_000, num_evals=4, solve_return=-200.0)},
+        # TD3: the base recipe, rewards scaled into the critic's support (returns of -1,600 to 0)
+        "td3": {"default": dict(num_timesteps=20_000, num_evals=4, reward_scaling=0.1, v_min=-200.0, v_max=50.0,
+                                solve_return=-200.0)},
     },
     # dm_control's cartpole swing-up. default: measured here (SAC learns it in 100k steps on a
     # CPU; PPO needs an accelerator's budget). playground: Playground's recipe, for a GPU. pixels:
@@ -96,6 +114,7 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "ppo": {"default": dict(_BRAX_NOTEBOOK_PENDULUMS, num_timesteps=50_000_000, num_evals=10, num_envs=4096,
                                 batch_size=2048, solve_return=6000.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=6000.0)},
+        "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-300.0, v_max=800.0, solve_return=6000.0)},
     },
     "humanoid": {  # PPO run, impl="warp"; SAC run once, a starting point.
         # PPO: Brax's training notebook recipe for its humanoid look-alike (google/brax
@@ -105,12 +124,14 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.97, learning_rate=3e-4,
                                 entropy_cost=1e-3, num_envs=2048, batch_size=1024)},
         "sac": {"default": dict(_PLAYGROUND_SAC)},
+        "td3": {"default": dict(_FASTTD3, num_timesteps=20_480_000, v_min=-100.0, v_max=1200.0)},
     },
     "half-cheetah": {  # SAC run, impl="warp"; PPO's row fell far short of Gymnasium's goal
         "ppo": {"default": dict(num_timesteps=50_000_000, num_evals=20, reward_scaling=1.0, unroll_length=20,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.95, learning_rate=3e-4,
                                 entropy_cost=1e-3, num_envs=2048, batch_size=512, solve_return=4800.0)},
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=4800.0)},
+        "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-300.0, v_max=1500.0, solve_return=4800.0)},
     },
     "hopper": {  # Brax's notebook trains its hopper with SAC. PPO: Playground's recipe with the discount 0.99,
         # where its 0.995 left some seeds standing still (docs/agents.md, "GPU results")
@@ -118,12 +139,14 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
                                 max_replay_size=1048576, min_replay_size=8192, solve_return=3800.0)},
+        "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-100.0, v_max=500.0, solve_return=3800.0)},
     },
     "walker2d": {  # SAC run, impl="warp"
         "ppo": {"default": dict(num_timesteps=7_864_320, num_evals=20, reward_scaling=5.0, unroll_length=20,
                                 num_minibatches=32, num_updates_per_batch=8, discounting=0.97, learning_rate=6e-4,
                                 entropy_cost=1e-2, num_envs=128, batch_size=128)},
         "sac": {"default": dict(_PLAYGROUND_SAC)},
+        "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-100.0, v_max=700.0)},
     },
     "reacher": {  # PPO run, impl="warp". Brax's notebook also repeats
         # each action 4 times (not offered here)

@@ -108,8 +108,8 @@ def config_from_args(base, pairs: list[str], **given):
         raise UsageError(str(err))
 
 
-AGENTS = ("dqn", "ppo", "sac")
-POLICY_NAMES = {"dqn": "greedy", "ppo": "deterministic", "sac": "deterministic"}  # what each agent judges
+AGENTS = ("dqn", "ppo", "sac", "td3")
+POLICY_NAMES = {"dqn": "greedy", "ppo": "deterministic", "sac": "deterministic", "td3": "deterministic"}  # what each agent judges
 
 
 def sweep_fields() -> tuple[str, ...]:
@@ -128,7 +128,7 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
 
     env = envs.spec(env_name, **env_opts)  # not envs.make: an MJX task would load MJX and take a device
     discrete = env.num_actions is not None
-    fits = ("dqn",) if discrete else ("ppo", "sac")
+    fits = ("dqn",) if discrete else ("ppo", "sac", "td3")
     agent = agent or ("dqn" if discrete else brax_defaults.default_agent(env_name))
     if agent not in fits:
         kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"

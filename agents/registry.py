@@ -1,4 +1,4 @@
-"""The agents by name ("dqn", "ppo", "sac"): the name config.json records, the config class and
+"""The agents by name ("dqn", "ppo", "sac", "td3"): the name config.json records, the config class and
 the agent class behind it. Every agent has DQN's interface (`agents.dqn.DQN`):
 `init(key)`, `train_steps(ts)`, `evaluate_and_keep_best(ts, eval_key)`, `evaluate(params, key)` and
 `policy(params, obs)`, all pure; its config has `eval_every`, `num_chunks`, `total_steps`,
@@ -21,7 +21,7 @@ from envs import Env
 
 # name -> (module, config class, agent class)
 AGENTS = {"dqn": ("agents.dqn", "DQNConfig", "DQN"), "ppo": ("agents.ppo", "PPOConfig", "PPO"),
-          "sac": ("agents.sac", "SACConfig", "SAC")}
+          "sac": ("agents.sac", "SACConfig", "SAC"), "td3": ("agents.td3", "TD3Config", "TD3")}
 
 
 def module(name: str):

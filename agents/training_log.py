@@ -39,6 +39,8 @@ CURVES = {
             "v_loss": "v_loss", "entropy_loss": "entropy_loss"},
     "sac": {"eval_return": "eval_return", "train_return": "train_return", "actor_loss": "actor_loss",
             "critic_loss": "critic_loss", "alpha": "alpha"},
+    "td3": {"eval_return": "eval_return", "train_return": "train_return", "actor_loss": "actor_loss",
+            "critic_loss": "critic_loss", "target_q": "target_q"},
 }
 SEED_CURVES = CURVES["dqn"]
 

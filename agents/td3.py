@@ -1,0 +1,515 @@
+"""FastTD3 (Seo et al. 2025, arXiv 2505.22642): TD3 at GPU scale, the whole loop inside `lax.scan`.
+
+Read top to bottom: config -> networks and C51's projection -> n-step rows -> train state ->
+acting and collecting (the replay's first fill included) -> the critic's and the actor's losses -> one update -> deterministic
+evaluation -> one training chunk -> `train`. Built like `agents.sac`: `train(config, env, key)`
+is pure and jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the
+same chunks from the host (`init`, `train_steps`, `evaluate_and_keep_best`) and saves the train
+state between them; that state is the whole of one seed (actor, twin critics and their target,
+optimizers, normalizer, per-env exploration noise, n-step window, replay buffer, envs, key), so
+resuming from it is exact.
+
+The recipe is FastTD3's (github.com/younggyoseo/FastTD3, `fast_td3/train.py`,
+`fast_td3/fast_td3.py`, `fast_td3/hyperparams.py` read at commit 229ed59), written here from
+its description, not its code:
+- many parallel envs, each iteration one step of every env then `num_updates` gradient steps on
+  large uniform batches from a replay on the device (`agents.replay.UniformReplay`);
+- twin distributional (C51) critics over `num_atoms` atoms on [v_min, v_max], trained by cross
+  entropy against the target critics' projected distribution; with `use_cdq` (clipped double Q)
+  both learn the projection of whichever target critic's mean value is lower;
+- no target actor: the next action is the actor's, smoothed by clipped Gaussian noise
+  (`policy_noise`, `noise_clip`); the actor maximises the lower twin's mean value, once every
+  `policy_frequency` critic updates (delayed updates); the target critics' Polyak step `tau`
+  follows every update;
+- exploration: each env has its own Gaussian noise scale, drawn uniformly from
+  [std_min, std_max] when its episode ends;
+- AdamW (`weight_decay`) for both networks, an actor head initialised at `init_scale`;
+  optionally bfloat16 matmuls (`compute_dtype`, FastTD3's AMP), losses in float32.
+
+Where it differs from FastTD3's code, and why:
+- The observation normalizer is Brax's running statistics (as our PPO and SAC), updated with the
+  observations acted on; FastTD3's also updates on every replay batch it normalises.
+- An exploring action is clipped to [-1, 1] before the env and the replay see it, so the
+  critic learns the action the env took.
+- Truncation bootstraps from the true final observation; steps with non-finite or overflowing
+  physics never reach the replay (as in `agents.sac`).
+- n-step returns (`num_steps`, FastTD3's default 1: none) are formed as transitions enter the
+  replay, from a window of each env's last `num_steps` steps kept in the train state; FastTD3
+  forms them when it samples. Either way a return stops where its episode ends.
+- The delayed actor step counts updates within a chunk (update k of the chunk steps the actor
+  when k % policy_frequency == policy_frequency - 1), so its schedule is a constant of the
+  program (a real branch, also under `vmap`) rather than a per-seed counter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from agents import device_options
+from agents import evaluation
+from agents.ppo import scale_by_adam
+from agents.replay import UniformReplay
+from agents.sac import SACConfig, Transition, pack, unpack
+from envs import Env, wrap_for_training
+from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, Valid,
+                         check_fields)
+
+COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
+
+
+class _OneOf(Valid):
+    def __init__(self, choices):
+        self.choices = tuple(choices)
+
+    def __contains__(self, value: Any) -> bool:
+        return value in self.choices
+
+    def __str__(self) -> str:
+        return "one of " + ", ".join(repr(c) for c in self.choices)
+
+
+@dataclasses.dataclass(frozen=True)
+class TD3Config:
+    """Every hyperparameter of a run. The defaults are sized for small tasks on a CPU; FastTD3's
+    own (for a GPU) are in the comments and in `agents/brax_defaults.py`'s TD3 rows.
+
+    The run is timed as `agents.sac.SACConfig`'s: the replay is first filled with
+    `min_replay_size` env steps (rounded up to whole batches of `num_envs`); each iteration then
+    takes one step of every env and makes `num_updates` gradient steps on batches of `batch_size`;
+    the run is `num_evals - 1` chunks, each followed by an evaluation of `num_eval_envs` episodes."""
+
+    num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
+    num_envs: int = 16  # FastTD3: 128 (HumanoidBench), 1,024 (Playground), 4,096 (IsaacLab)
+    batch_size: int = 256  # FastTD3: 32,768
+    num_updates: int = 4  # gradient steps per iteration; FastTD3: 2
+    policy_frequency: int = 2  # critic updates per actor update (TD3's delay)
+    actor_learning_rate: float = 3e-4
+    critic_learning_rate: float = 3e-4
+    weight_decay: float = 0.1  # AdamW's, both networks
+    max_grad_norm: float = 0.0  # clip each network's gradient to this global norm; 0: no clipping (FastTD3's default)
+    discounting: float = 0.99
+    tau: float = 0.1  # the target critics' Polyak step (FastTD3's; TD3's was 0.005)
+    reward_scaling: float = 1.0
+    normalize_observations: bool = True
+    policy_noise: float = 0.001  # target policy smoothing: the next action's noise std
+    noise_clip: float = 0.5  # ...clipped to +-noise_clip
+    std_min: float = 0.001  # per-env exploration noise std, drawn in [std_min, std_max]
+    std_max: float = 0.4
+    num_atoms: int = 101  # the distributional critic's support
+    v_min: float = -250.0
+    v_max: float = 250.0
+    use_cdq: bool = True  # clipped double Q
+    num_steps: int = 1  # n-step returns (FastTD3's num_steps; 3 in its CheetahRun, 8 in its IsaacLab humanoids)
+    init_scale: float = 0.01  # std of the actor's last layer at initialisation
+    actor_hidden: tuple[int, ...] = (128, 64, 32)  # FastTD3: (512, 256, 128)
+    critic_hidden: tuple[int, ...] = (256, 128, 64)  # FastTD3: (1024, 512, 256)
+    compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
+    min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
+    max_replay_size: int = 100_000  # transitions per seed
+    num_evals: int = 6  # as SACConfig's: one evaluation after each of num_evals - 1 chunks
+    num_eval_envs: int = 64  # episodes per evaluation
+    solve_return: float | None = None  # an evaluation return that counts as solved; None: never
+
+    RANGES: ClassVar[dict[str, Valid]] = {
+        "num_timesteps": COUNT, "num_envs": COUNT, "batch_size": COUNT, "num_updates": COUNT,
+        "policy_frequency": COUNT, "num_steps": COUNT, "actor_learning_rate": POSITIVE, "critic_learning_rate": POSITIVE,
+        "weight_decay": NON_NEGATIVE, "max_grad_norm": NON_NEGATIVE, "discounting": PROBABILITY,
+        "tau": Range(0.0, 1.0, low_open=True), "reward_scaling": POSITIVE, "policy_noise": NON_NEGATIVE,
+        "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
+        "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
+        "compute_dtype": _OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
+        "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
+    }
+
+    def __post_init__(self):
+        check_fields(self, self.RANGES)
+        for name in ("actor_hidden", "critic_hidden"):
+            widths = getattr(self, name)
+            if not widths:
+                raise ValueError(f"TD3Config.{name} needs at least one layer width, got {widths!r}; e.g. (64, 64)")
+            for width in widths:
+                COUNT.check(f"TD3Config.{name} (layer widths {widths})", width)
+        if self.std_min > self.std_max:
+            raise ValueError(f"TD3Config.std_min ({self.std_min}) must not exceed std_max ({self.std_max}); "
+                             "swap them, or set them equal for one noise scale")
+        if self.v_min >= self.v_max:
+            raise ValueError(f"TD3Config.v_min ({self.v_min}) must be below v_max ({self.v_max}): the critic's "
+                             "support; set them around the task's discounted returns (reward_scaling included)")
+        if self.solve_return is not None:
+            FINITE.check("TD3Config.solve_return (None: no threshold)", self.solve_return)
+        if self.prefill_steps >= self.num_timesteps:
+            raise ValueError(f"TD3Config.min_replay_size ({self.min_replay_size}, {self.prefill_steps} env steps "
+                             f"over {self.num_envs} envs) must be below num_timesteps ({self.num_timesteps}), "
+                             "or no training happens; lower min_replay_size or raise num_timesteps")
+        need = max(self.min_replay_size, self.num_envs)
+        if self.max_replay_size < need:
+            raise ValueError(f"TD3Config.max_replay_size ({self.max_replay_size}) must hold at least "
+                             f"min_replay_size ({self.min_replay_size}) and num_envs ({self.num_envs}) "
+                             f"transitions; raise it to {need} or more")
+
+    # The run's timing is SAC's, field for field.
+    prefill_steps = SACConfig.prefill_steps
+    prefill_iterations = SACConfig.prefill_iterations
+    iterations_per_chunk = SACConfig.iterations_per_chunk
+    eval_every = SACConfig.eval_every
+    num_chunks = SACConfig.num_chunks
+    eval_episodes = SACConfig.eval_episodes
+    total_steps = SACConfig.total_steps
+
+    @property
+    def actor_updates_per_chunk(self) -> int:
+        return self.iterations_per_chunk * self.num_updates // self.policy_frequency
+
+
+# ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits ----------
+def _dense(features: int, dtype, **kwargs) -> nn.Dense:
+    # PyTorch's default layer init (FastTD3's networks are PyTorch's): U(+-1/sqrt(fan_in)) kernels.
+    kwargs.setdefault("kernel_init", nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform"))
+    return nn.Dense(features, dtype=dtype, param_dtype=jnp.float32, **kwargs)
+
+
+class Actor(nn.Module):
+    action_size: int
+    hidden: tuple[int, ...]
+    init_scale: float
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = obs
+        for width in self.hidden:
+            x = nn.relu(_dense(width, self.dtype)(x))
+        # A small last layer: the untrained actor acts near zero, and exploration is the noise's.
+        head = _dense(self.action_size, self.dtype, kernel_init=nn.initializers.normal(self.init_scale))
+        return jnp.tanh(head(x).astype(jnp.float32))
+
+
+class DistributionalQ(nn.Module):
+    num_atoms: int
+    hidden: tuple[int, ...]
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        x = jnp.concatenate([obs, action], axis=-1)
+        for width in self.hidden:
+            x = nn.relu(_dense(width, self.dtype)(x))
+        return _dense(self.num_atoms, self.dtype)(x).astype(jnp.float32)  # logits over the atoms
+
+
+def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: jax.Array) -> jax.Array:
+    """C51's projection (Bellemare et al. 2017) of the distribution `probs` over `support`, shifted
+    to `reward + discount * z` and clipped to the support, back onto the support's atoms: each
+    shifted atom's mass is split between its two neighbours by distance. `probs`: (batch, atoms)."""
+    v_min, v_max, atoms = support[0], support[-1], support.shape[0]
+    shifted = jnp.clip(reward[:, None] + discount[:, None] * support[None, :], v_min, v_max)
+    position = (shifted - v_min) / ((v_max - v_min) / (atoms - 1))
+    lower = jnp.clip(jnp.floor(position), 0, atoms - 1)
+    upper_share = position - lower  # 0 on an atom, so the clipped upper neighbour gets nothing there
+    lower, upper = lower.astype(jnp.int32), jnp.minimum(lower.astype(jnp.int32) + 1, atoms - 1)
+
+    def one(p, lo, up, share):
+        return jnp.zeros(atoms, p.dtype).at[lo].add(p * (1 - share)).at[up].add(p * share)
+
+    return jax.vmap(one)(probs, lower, upper, upper_share)
+
+
+def n_step_rows(window: jax.Array, obs_size: int, action_size: int, discounting: float):
+    """Each env's `len(window)`-step transition from its window of one-step rows (oldest first;
+    a packed `Transition`, then `ended` and `valid`): the discounted rewards up to the first step
+    that ended its episode, that step's next observation, and `discounting**k * (1 - terminated)`
+    as the discount (the critic multiplies in one more `discounting`). `window`: (n, envs, width).
+    Returns the packed rows and whether each may be stored (every step in it valid)."""
+    steps = unpack(window[..., :-2], obs_size, action_size)
+    ended, valid = window[..., -2], window[..., -1]
+    alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[:1]), 1.0 - ended[:-1]]), axis=0)  # before an end
+    powers = jnp.broadcast_to(discounting ** jnp.arange(window.shape[0], dtype=window.dtype)[:, None], ended.shape)
+    last = (alive.sum(0) - 1).astype(jnp.int32)  # the step the transition ends with
+    pick = jax.vmap(lambda column, k: column[k], in_axes=(1, 0))  # each env's step `last`
+    row = Transition(obs=steps.obs[0], action=steps.action[0], reward=(powers * alive * steps.reward).sum(0),
+                     discount=pick(powers, last) * pick(steps.discount, last), next_obs=pick(steps.next_obs, last))
+    return pack(row), (alive * (1.0 - valid)).sum(0) == 0
+
+
+@struct.dataclass
+class TrainState:
+    params: Any  # (normalizer state, actor params): what `policy` and checkpoints take
+    critic_params: Any  # the twin critics, stacked on a leading axis of 2
+    target_critic_params: Any
+    actor_opt_state: Any
+    critic_opt_state: Any
+    noise_scale: jax.Array  # (num_envs,): each env's exploration noise std
+    buffer: Any
+    env_state: Any
+    key: jax.Array
+    env_steps: jax.Array  # int32, env steps taken so far (all envs, the first fill included)
+    best_params: Any  # `params` with the best evaluation so far
+    best_return: jax.Array
+    solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
+    window: Any = None  # with num_steps > 1: each env's last num_steps one-step rows (`n_step_rows`)
+    hyperparams: Any = None  # a sweep's per-agent values, as `DQN`'s; TD3 has none yet
+
+
+def _adamw(learning_rate: float, weight_decay: float, max_grad_norm: float) -> optax.GradientTransformation:
+    """AdamW, its Adam divisions pinned as PPO's (`agents.ppo.scale_by_adam`): a seed's update is
+    the same program whether seeds are vmapped or not, up to the normalizer's own rounding."""
+    clip = [optax.clip_by_global_norm(max_grad_norm)] if max_grad_norm > 0 else []
+    return optax.chain(*clip, scale_by_adam(), optax.add_decayed_weights(weight_decay),
+                       optax.scale_by_learning_rate(learning_rate))
+
+
+class TD3:
+    """The pieces of a FastTD3 run for one env and config; all methods are pure."""
+
+    def __init__(self, config: TD3Config, env: Env, platform: str | None = None, agents: int = 1):
+        """`platform`: the backend whose program shapes to use (`agents.device_options`); None: JAX's
+        default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
+        interface has it)."""
+        if env.action_size is None:
+            raise ValueError(f"TD3 needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
+                             "(train it with --agent dqn)")
+        self.config = config
+        self.env = env
+        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
+        self.obs_size, self.action_size = env.observation_size, env.action_size
+        dtype = COMPUTE_DTYPES[config.compute_dtype]
+        self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype)
+        self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype)
+        self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
+        self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
+        self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
+
+    # ---- the networks, on normalized observations ---------------------------------------
+    def normalize(self, normalizer, obs):
+        from brax.training.acme import running_statistics
+
+        return running_statistics.normalize(obs, normalizer) if self.config.normalize_observations else obs
+
+    def twin_logits(self, critic_params, obs, action):
+        """Both critics' atom logits, (2, batch, atoms)."""
+        return jax.vmap(lambda p: self.critic.apply(p, obs, action))(critic_params)
+
+    def twin_values(self, probs):
+        return (probs * self.support).sum(-1)
+
+    # ---- acting -------------------------------------------------------------
+    def policy(self, params, obs):
+        """The deterministic policy: the actor's action in [-1, 1] per observation;
+        `params` = (normalizer state, actor params)."""
+        normalizer, actor_params = params
+        return self.actor.apply(actor_params, self.normalize(normalizer, obs))
+
+    def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
+        """One step of every env with the actor and each env's own Gaussian noise; the normalizer
+        sees the observations acted on, the transitions go to the buffer (NaN and overflow steps
+        never do), and an env whose episode ended draws a new noise scale."""
+        from brax.training.acme import running_statistics
+
+        cfg = self.config
+        noise_key, scale_key = jax.random.split(key)
+        normalizer, actor_params = ts.params
+        obs = ts.env_state.obs
+        noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
+        action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
+        env_state = self.train_env.step(ts.env_state, action)
+        info = env_state.info
+        terminated = env_state.done * (1.0 - info["truncation"])
+        rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
+        overflow, stats = evaluation.step_stats(info)
+        valid = (info["nan"] == 0) & (overflow == 0)
+        window = ts.window
+        if cfg.num_steps > 1:
+            flags = jnp.stack([env_state.done, valid], axis=-1).astype(rows.dtype)
+            window = jnp.concatenate([window[1:], jnp.concatenate([rows, flags], axis=-1)[None]])
+            rows, valid = n_step_rows(window, self.obs_size, self.action_size, cfg.discounting)
+            valid &= ts.env_steps >= (cfg.num_steps - 1) * cfg.num_envs  # the window holds num_steps steps
+        buffer = self.buffer.add(ts.buffer, rows, mask=valid)
+        normalizer = running_statistics.update(normalizer, obs)
+        fresh = jax.random.uniform(scale_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max)
+        ts = ts.replace(params=(normalizer, actor_params), buffer=buffer, env_state=env_state, window=window,
+                        noise_scale=jnp.where(env_state.done > 0, fresh, ts.noise_scale),
+                        env_steps=ts.env_steps + cfg.num_envs)
+        return ts, stats
+
+    # ---- the losses -----------------------------------------------------------
+    def critic_loss(self, critic_params, ts: TrainState, batch: Transition, key: jax.Array):
+        """Cross entropy of each critic against the target critics' projected distribution of
+        `r + gamma * discount * Z(s', a')` (n-step: the row's reward and discount span its steps),
+        a' the actor's smoothed next action; with clipped
+        double Q both learn the projection whose mean value is lower."""
+        cfg = self.config
+        normalizer, actor_params = ts.params
+        obs, next_obs = self.normalize(normalizer, batch.obs), self.normalize(normalizer, batch.next_obs)
+        smoothing = jnp.clip(jax.random.normal(key, batch.action.shape) * cfg.policy_noise, -cfg.noise_clip, cfg.noise_clip)
+        next_action = jnp.clip(self.actor.apply(actor_params, next_obs) + smoothing, -1.0, 1.0)
+        next_probs = jax.nn.softmax(self.twin_logits(ts.target_critic_params, next_obs, next_action))
+        reward, discount = batch.reward * cfg.reward_scaling, batch.discount * cfg.discounting
+        target = jax.vmap(lambda p: project(p, reward, discount, self.support))(next_probs)
+        if cfg.use_cdq:
+            values = self.twin_values(target)
+            lower = jnp.where((values[0] < values[1])[:, None], target[0], target[1])
+            target = jnp.stack([lower, lower])
+        target = jax.lax.stop_gradient(target)
+        log_probs = jax.nn.log_softmax(self.twin_logits(critic_params, obs, batch.action))
+        loss = -(target * log_probs).sum(-1).mean(-1).sum()  # the two critics' losses, summed
+        return loss, self.twin_values(target[0]).mean()
+
+    def actor_loss(self, actor_params, ts: TrainState, batch: Transition):
+        """Minus the mean value of the actor's actions: the lower twin's with clipped double Q,
+        else the twins' average."""
+        normalizer, _ = ts.params
+        obs = self.normalize(normalizer, batch.obs)
+        values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, self.actor.apply(actor_params, obs))))
+        value = values.min(0) if self.config.use_cdq else values.mean(0)
+        return -value.mean()
+
+    # ---- learning -----------------------------------------------------------
+    def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:
+        normalizer, actor_params = ts.params
+        loss, grads = jax.value_and_grad(self.actor_loss)(actor_params, ts, batch)
+        updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor_params)
+        return ts.replace(params=(normalizer, optax.apply_updates(actor_params, updates)),
+                          actor_opt_state=opt_state), loss
+
+    def learn(self, ts: TrainState, batch: Transition, key: jax.Array, actor_turn: jax.Array):
+        """One update on `batch`: the critics, then (on `actor_turn`, a value the same for every
+        seed) the actor against the updated critics, then the target critics' Polyak average."""
+        (critic_loss, target_q), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
+            ts.critic_params, ts, batch, key)
+        updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
+        ts = ts.replace(critic_params=optax.apply_updates(ts.critic_params, updates), critic_opt_state=opt_state)
+        ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
+        tau = self.config.tau
+        target = jax.tree.map(lambda old, new: old * (1 - tau) + new * tau, ts.target_critic_params, ts.critic_params)
+        return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
+                                                         "target_q": target_q}
+
+    def update(self, ts: TrainState, key: jax.Array, iteration: jax.Array) -> tuple[TrainState, dict]:
+        """`num_updates` updates, each on its own uniform batch from the buffer; `iteration` (the
+        iteration's index in its chunk, the same for every seed) places them on the actor's clock."""
+        cfg = self.config
+        sample_key, noise_key = jax.random.split(key)
+        bits = jax.random.bits(sample_key, (cfg.num_updates * cfg.batch_size,), jnp.uint32)
+        rows, _ = self.buffer.sample_from_bits(ts.buffer, bits)
+        batches = unpack(rows.reshape(cfg.num_updates, cfg.batch_size, -1), self.obs_size, self.action_size)
+        counts = iteration * cfg.num_updates + jnp.arange(cfg.num_updates)
+
+        def one_update(ts, inputs):
+            batch, key, count = inputs
+            return self.learn(ts, batch, key, count % cfg.policy_frequency == cfg.policy_frequency - 1)
+
+        ts, stats = jax.lax.scan(one_update, ts, (batches, jax.random.split(noise_key, cfg.num_updates), counts))
+        return ts, {"critic_loss": stats["critic_loss"].mean(), "actor_loss": stats["actor_loss"].sum(),
+                    "target_q": stats["target_q"].mean()}
+
+    # ---- evaluation -----------------------------------------------------------
+    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
+        """The deterministic policy's return of each of `num_episodes` fresh episodes (the config's
+        `num_eval_envs` when not given); with `record`, also the first episode step by step."""
+        return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
+                                   num_episodes or self.config.eval_episodes,
+                                   jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
+
+    # ---- a training run ---------------------------------------------------------
+    def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
+        """Fresh networks, optimizers, per-env noise scales and envs, and the replay's first fill:
+        `prefill_iterations` steps of every env with the untrained actor and its noise, which also
+        feed the normalizer. `hyperparams`: DQN's sweep argument; TD3 traces none of its settings."""
+        from brax.training.acme import running_statistics, specs
+
+        if hyperparams is not None:
+            raise ValueError("TD3 cannot sweep settings within one program yet (no field of TD3Config is traced); "
+                             "run one `mjxsuite train --agent td3` per value instead")
+        cfg = self.config
+        actor_key, critic_key, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
+        obs0, act0 = jnp.zeros((1, self.obs_size)), jnp.zeros((1, self.action_size))
+        actor_params = self.actor.init(actor_key, obs0)
+        critic_params = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
+        normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
+        env_state = self.train_env.reset(env_key)
+        example = pack(Transition(env_state.obs[0], jnp.zeros((self.action_size,), jnp.float32), env_state.reward[0],
+                                  env_state.reward[0], env_state.obs[0]))
+        ts = TrainState(
+            params=(normalizer, actor_params),
+            critic_params=critic_params,
+            target_critic_params=critic_params,
+            actor_opt_state=self.actor_optimizer.init(actor_params),
+            critic_opt_state=self.critic_optimizer.init(critic_params),
+            noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
+            buffer=self.buffer.init(example),
+            env_state=env_state,
+            key=loop_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            best_params=(normalizer, actor_params),
+            best_return=jnp.full((), -jnp.inf),
+            solve_step=jnp.full((), -1, jnp.int32),
+            window=None if cfg.num_steps == 1 else jnp.zeros((cfg.num_steps, cfg.num_envs, example.shape[-1] + 2)),
+        )
+        if cfg.prefill_iterations:
+            ts, _ = jax.lax.scan(self.collect, ts, jax.random.split(fill_key, cfg.prefill_iterations))
+        # The first evaluation compares against these: the untrained actor after the fill.
+        return ts.replace(best_params=ts.params)
+
+    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
+        """`eval_every` env steps of acting and learning (`train_steps`), then an evaluation
+        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
+        ts, trained, eval_key = self.train_steps(ts)
+        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
+        return ts, {**judged, **trained}
+
+    # What a chunk adds up over its iterations (`train_steps`), with their types.
+    CHUNK_TOTALS = {
+        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
+        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
+        "critic_loss": jnp.float32, "actor_loss": jnp.float32, "target_q": jnp.float32,
+    }
+
+    def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
+        """A chunk's `eval_every` env steps of acting and learning: the train state, its
+        training metrics and the key of the evaluation that follows."""
+        cfg = self.config
+
+        def iteration(carry, inputs):
+            # Running totals in the loop's carry, not a stacked row per iteration (see DQN.train_steps).
+            ts, totals = carry
+            key, index = inputs
+            act_key, learn_key = jax.random.split(key)
+            ts, collected = self.collect(ts, act_key)
+            ts, learned = self.update(ts, learn_key, index)
+            stats = {**collected, **learned}
+            if stats.keys() != totals.keys():
+                raise KeyError(f"TD3.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
+            totals = {name: (total + stats[name]).astype(total.dtype) for name, total in totals.items()}
+            return (ts, totals), None
+
+        key, loop_key, eval_key = jax.random.split(ts.key, 3)
+        ts = ts.replace(key=key)
+        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
+        iterations = cfg.iterations_per_chunk
+        inputs = (jax.random.split(loop_key, iterations), jnp.arange(iterations))
+        (ts, totals), _ = jax.lax.scan(iteration, (ts, totals), inputs)
+        metrics = {
+            "critic_loss": totals["critic_loss"] / iterations, "target_q": totals["target_q"] / iterations,
+            "actor_loss": totals["actor_loss"] / max(cfg.actor_updates_per_chunk, 1),
+            **evaluation.episode_metrics(totals),
+        }
+        return ts, metrics, eval_key
+
+    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
+                               record: bool = False) -> tuple[TrainState, dict]:
+        """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
+        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+
+
+def train(config: TD3Config, env: Env, key: jax.Array):
+    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
+    vmap it over keys for seeds."""
+    return evaluation.whole_run(TD3(config, env), key)
