@@ -33,7 +33,7 @@ import numpy as np
 class Case(NamedTuple):
     name: str
     env: str
-    agent: str  # "dqn", "ppo", "sac", or "brax-sac" (Brax's own trainer, the same recipe)
+    agent: str  # "dqn", "ppo", "sac", "td3", or "brax-sac" (Brax's own trainer, SAC's recipe)
     config: dict  # the config's fields over the agent's base (for PPO/SAC: the task's recipe)
     seeds: int
     goal: float  # a final return that counts as solved
@@ -59,6 +59,7 @@ CASES = (
     Case("ppo-inverted-pendulum", "inverted-pendulum", "ppo", {}, 4, 950.0, 4, judge="gymnasium"),
     Case("sac-pendulum", "pendulum-mjx", "sac", {}, 4, -200.0, 4),
     Case("brax-sac-pendulum", "pendulum-mjx", "brax-sac", {}, 1, -200.0, 1),
+    Case("td3-pendulum", "pendulum-mjx", "td3", {}, 4, -200.0, 4),
 )
 TINY_STEPS = {"dqn": dict(total_steps=600, eval_every=200, learning_starts=64, batch_size=32, buffer_size=512,
                           exploration_steps=200, eval_episodes=4),
@@ -66,6 +67,8 @@ TINY_STEPS = {"dqn": dict(total_steps=600, eval_every=200, learning_starts=64, b
                           num_evals=3, num_eval_envs=4),
               "sac": dict(num_timesteps=400, num_envs=8, batch_size=32, min_replay_size=64, num_evals=3,
                           num_eval_envs=4, grad_updates_per_step=2)}
+TINY_STEPS["td3"] = {**TINY_STEPS["sac"], "num_updates": TINY_STEPS["sac"]["grad_updates_per_step"]}
+del TINY_STEPS["td3"]["grad_updates_per_step"]
 
 
 def config_of(case: Case, tiny: bool = False) -> Any:

@@ -151,3 +151,26 @@ def test_merge_replaces_only_the_kinds_a_run_wrote():
     assert merged[0]["note"] == "first-second re-run alone at d1" and "note" not in old[0]
     again = merge_records(merged, [{"kind": "dqn-first-second", "met": False}])
     assert [r.get("met") for r in again if r["kind"] == "dqn-first-second"] == [False]
+
+
+def test_every_learning_case_builds_its_config_and_unknown_cases_are_refused():
+    from benchmarks import learning
+
+    for case in learning.CASES:
+        config = learning.config_of(case)
+        assert getattr(config, "solve_return", case.goal) == case.goal, case.name
+        assert learning.config_of(case, tiny=True).total_steps < config.total_steps
+    with pytest.raises(ValueError, match="unknown learning case"):
+        learning.section(["no-such-case"])
+
+
+@pytest.mark.slow  # three tiny trainings, one judged on Gymnasium's own env, one by Brax's trainer
+def test_the_learning_section_runs_at_tiny_sizes():
+    from benchmarks import learning
+
+    records = learning.section(["dqn-cartpole", "ppo-inverted-pendulum", "brax-sac-pendulum"], tiny=True)
+    for record in records:
+        assert record["kind"] == "learning" and record["tiny"] and len(record["final_returns"]) == record["seeds"]
+        assert record["solved"] == sum(r >= record["goal"] for r in record["final_returns"])
+        assert np.isfinite(record["final_returns"]).all() and record["wall_s"] > 0
+    assert records[1]["judge"] == "gymnasium"
