@@ -26,7 +26,7 @@ from agents.device_options import default_seed_axis, init_compiler_options, trai
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
-from envs.mjx_warp import runs_warp
+from envs.mjx_warp import CompileRules, runs_warp
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
@@ -175,7 +175,7 @@ def _host(tree) -> dict:
 
 def train_run(
     env_name: str,
-    config: Any = DQNConfig(),  # DQNConfig, PPOConfig or SACConfig: the agent to train
+    config: Any = DQNConfig(),  # DQNConfig, PPOConfig, SACConfig or TD3Config: the agent to train
     seeds: int = 1,
     seed: int = 0,
     out_dir: str | Path | None = None,
@@ -195,7 +195,7 @@ def train_run(
     judge_every: int | None = None,  # judge every this many chunks; None: `run_steps.judge_every`'s cadence
     seed_slice: tuple[int, int] | None = None,  # (start, stop): train only these of the `seeds` (`agents.processes`)
 ) -> RunResult:
-    """Train `seeds` agents (DQN, PPO or SAC, as `config` says) on `env_name` at once; see
+    """Train `seeds` agents (DQN, PPO, SAC or TD3, as `config` says) on `env_name` at once; see
     docs/training.md for the files written to `out_dir`.
 
     With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
@@ -209,303 +209,358 @@ def train_run(
 
     With `seed_slice` (start, stop) the run trains seeds start..stop-1 of `seeds`, each with the
     keys a run of all `seeds` gives it, so it ends as that run's seeds do: `agents.processes`
-    trains a run's seeds in several processes this way."""
+    trains a run's seeds in several processes this way.
+
+    The run's steps, in order (`_Run`): check the settings and open the run directory; compile the
+    programs (in the background); train the chunks, each judged on the config's cadence and saved
+    on the save clock; then the final evaluation, the tie-break, the final save and eval.json."""
     with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
-        start = time.perf_counter()
+        run = _Run(stop, env_name, config, seeds, seed, out_dir, resume, env_options, sweep, judge_every, seed_slice,
+                   devices, overwrite, run_steps.SaveClock(checkpoint_every, checkpoint_seconds))
+        if run.placement.same_on_every_process(stop.requested is not None):  # a signal while the command started
+            return run.not_started()
+        run.compile_programs(progress, record_episode=on_chunk is not None, seed_axis=seed_axis,
+                             evaluates=stop_after_chunks is None or stop_after_chunks >= config.num_chunks)
+        run.train_chunks(progress, on_chunk, stop_after_chunks, stop_when_solved)
+        return run.finish()
+
+
+class _Run:
+    """One `train_run`: its checked settings, and what each of its steps hands the next (the
+    programs, the train state, the clocks, the result). Its methods are the steps, in order."""
+
+    def __init__(self, stop: signals.StopSignals, env_name: str, config: Any, seeds: int, seed: int, out_dir,
+                 resume: bool, env_options: dict | None, sweep: dict | None, judge_every: int | None,
+                 seed_slice: tuple[int, int] | None, devices: int | None, overwrite: bool,
+                 clock: run_steps.SaveClock):
+        self.start, self.stop, self.clock = time.perf_counter(), stop, clock
         COUNT.check("seeds", seeds)
-        first, stop_seed = seed_slice or (0, seeds)
-        if not 0 <= first < stop_seed <= seeds:
+        self.first, stop_seed = seed_slice or (0, seeds)
+        if not 0 <= self.first < stop_seed <= seeds:
             raise ValueError(f"seed_slice {seed_slice} must be (start, stop) with 0 <= start < stop <= seeds ({seeds})")
         if seed_slice is not None and sweep:
             raise ValueError("seed_slice trains part of a train run's seeds; a sweep runs in one process")
-        trained_seeds = stop_seed - first
-        clock = run_steps.SaveClock(checkpoint_every, checkpoint_seconds)
-        saves = checkpoint.BackgroundSaves()
+        self.env_name, self.config, self.seeds, self.seed, self.env_options = env_name, config, seeds, seed, env_options
+        self.stop_seed, self.trained_seeds, self.resume = stop_seed, stop_seed - self.first, resume
         if resume and judge_every is None and out_dir is not None and (Path(out_dir) / checkpoint.CONFIG_FILE).is_file():
             judge_every = checkpoint.load_config(out_dir).judge_every  # the run's own cadence
-        sweep = sweep or None
-        configs = sweep_configs(config, sweep)
-        agents = trained_seeds * len(configs)
-        env = envs.make(env_name, **(env_options or {}))
+        self.sweep = sweep or None
+        self.configs = sweep_configs(config, self.sweep)
+        self.agents = self.trained_seeds * len(self.configs)
+        self.env = envs.make(env_name, **(env_options or {}))
         if judge_every is None:  # from the config and the time limit (`run_steps.judge_every`), saved in config.json
-            judge_every = run_steps.judge_every(config, getattr(env, "episode_length", None) or 1000)
-        judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
-        mjx_task = env_name if is_mjx_task(env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
-        placement = sharding.Placement(sharding.choose_devices(trained_seeds, devices, configs=len(configs), mjx_task=mjx_task))
-        writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
-        agent = registry.name_of(config)
-        run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, sweep, agent, judge_every,
-                                  None if seed_slice is None else tuple(seed_slice))
-        out = run_steps.open_run_dir(out_dir, run, resume, writer, overwrite)
-        # a signal while the command started: nothing to compile
-        if placement.same_on_every_process(stop.requested is not None):
-            saved = checkpoint.chunks_saved(out) if out is not None and resume else 0
-            return RunResult(params=None, train_state=None, interrupted=True, stop_signal=stop.name,
-                             saved_chunks=None if out is None else saved, total_chunks=config.num_chunks,
-                             wall_s=time.perf_counter() - start, started=False)
-        learner = registry.make(config, env, agents=agents // placement.count)  # the agent: DQN, PPO or SAC
-        init = jax.jit(placement.spread(jax.vmap(learner.init)), compiler_options=init_compiler_options())
-        on_warp = runs_warp(learner.env)
-        if progress and writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
-            builds = " (MuJoCo Warp also builds its kernels once per machine)" if on_warp else ""
-            print(f"{env_name}: compiling{builds}...", file=sys.stderr, flush=True)
+            judge_every = run_steps.judge_every(config, getattr(self.env, "episode_length", None) or 1000)
+        self.judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
+        mjx_task = env_name if is_mjx_task(self.env) else None  # not envs.MjxEnv: it loads mujoco.mjx (start-up time)
+        self.placement = sharding.Placement(sharding.choose_devices(self.trained_seeds, devices,
+                                                                    configs=len(self.configs), mjx_task=mjx_task))
+        self.writer = sharding.is_writer()  # in a multi-host run only process 0 writes; every process reads
+        self.agent = registry.name_of(config)
+        self.saved_run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, self.sweep, self.agent,
+                                             judge_every, None if seed_slice is None else tuple(seed_slice))
+        self.out = run_steps.open_run_dir(out_dir, self.saved_run, resume, self.writer, overwrite)
+        self.saves = checkpoint.BackgroundSaves()
 
-        def run_inputs():  # the init program's arguments and the final evaluation's keys
-            keys, eval_keys = run_keys(seed, seeds)
-            if sweep is None:  # every seed's keys made, these seeds' kept: the same keys whatever the slice
-                return (keys[first:stop_seed],), eval_keys[first:stop_seed]
-            return (jnp.tile(keys, (len(configs), 1)), per_agent(configs, seeds)), jnp.tile(eval_keys, (len(configs), 1))
+    def not_started(self) -> RunResult:
+        """The result of a run that a signal stopped before anything compiled."""
+        saved = checkpoint.chunks_saved(self.out) if self.out is not None and self.resume else 0
+        return RunResult(params=None, train_state=None, interrupted=True, stop_signal=self.stop.name,
+                         saved_chunks=None if self.out is None else saved, total_chunks=self.config.num_chunks,
+                         wall_s=time.perf_counter() - self.start, started=False)
 
-        # The inputs are made on another thread while the programs compile from their shapes. Making
-        # them runs the keys' program, and on a GPU the first allocation, where XLA reserves most of the
-        # device's memory (docs/bench-gpu.json, "dqn-run-inputs"); on several devices, their placement too.
-        # On MuJoCo Warp nothing may run beside a compile, and tracing loads Warp's modules onto the GPU:
-        # there the inputs and every compile wait until every program is traced (`traced_all`), then
-        # run together, and the init program runs once all are done.
-        traced_all = threading.Event()
-        after_traces = traced_all if on_warp else None
-        try:
-            inputs = _in_background(lambda: placement.put(run_inputs()), "inputs", after=after_traces)
-            init_args, eval_keys = placement.abstract(jax.eval_shape(run_inputs))
-            chunks_done = 0
-            compile_start = time.perf_counter()
-            init_program = None  # a fresh run's init program, compiling on another thread (`_in_background`)
-            if resume and checkpoint.has_state(out):
-                ts, chunks_done = checkpoint.load_state(out, env_name, jax.eval_shape(init, *init_args))
-                ts = placement.put(ts)  # saved from any number of devices, split over this run's
-                compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
-            else:  # a run killed before its first checkpoint resumes from the start, as it began
-                traced = init.trace(*init_args)
-                init_program = _in_background(traced.lower().compile, "init", after=after_traces)
-                # the train state's shapes (weak types kept) and placement: all the chunk's compile needs
-                ts = placement.abstract(traced.out_info)
-                if out is not None and writer:
-                    checkpoint.start_run(out, run)
-            if out is not None and writer:
-                checkpoint.keep_metrics(out, chunks_done)
-
-            seed_axis = seed_axis or default_seed_axis()
-            # Without `on_chunk` nobody sees the evaluation episode: the chunk records none (less to
-            # compile; the same train state and metrics).
-            record_episode = on_chunk is not None
-            per_device = agents // placement.count
-            judge = partial(learner.evaluate_and_keep_best, record=record_episode)
-            # Two programs, a chunk's training steps and its evaluation, on one device and on several. One
-            # device: each holds a copy of the env's step, and together were one program that XLA compiled
-            # alone. Tracing and lowering hold Python's lock, XLA's compile does not: so the training steps
-            # are traced first and compile on another thread while this one traces the judge (traced on
-            # two threads at once, both compiles waited for both traces; docs/results.md). Several
-            # devices: two sharded programs are faster than one (docs/bench-gpu.json, "dqn-sharded-programs").
-            train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
-            judge_fn = seed_batched(judge, per_device, seed_axis)
-            kind = type(learner).__name__  # names its programs in the export cache
-            train_program = judge_program = None  # a finished run (resumed to evaluate) trains no chunk
-            if chunks_done < config.num_chunks and placement.mesh is None:
-                judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
-                          + ("" if record_episode else ", no episode recorded"))
-                trained = f"{kind}.train_steps over seeds by {seed_axis}"
-                train_program = _in_background(lower_cached(trained, train_fn, (ts,), learner, agents, env_name,
-                                                            env_options, donate=True).compile, "train",
-                                               after=after_traces)
-                judge_program = lower_cached(judged, judge_fn, (ts, ts.key), learner, agents,
-                                             env_name, env_options, donate=True)
-            elif chunks_done < config.num_chunks:  # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-                options = training_compiler_options(env=learner.env)
-                train_program = _in_background(partial(jax.jit(placement.spread(train_fn), donate_argnums=0)
-                                                       .lower(ts).compile, options), "train", after=after_traces)
-                judge_program = traced_programs.LoweredProgram(
-                    jax.jit(placement.spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
-
-            def lower_evaluation(params: Any, keys: Any) -> Any:  # the final evaluation, for these shapes
-                if placement.mesh is None:
-                    return lower_evaluation_cached(learner, params, keys, env_name, env_options)
-                return jax.jit(placement.spread(jax.vmap(learner.evaluate))).lower(params, keys)
-
-            # The final evaluation's program compiles beside training (from the shapes: the first chunk
-            # consumes the arrays), on MuJoCo Warp beside the other programs. In a multi-host run its
-            # arrays are gathered and placed anew: it compiles at the end.
-            evaluates = (stop_after_chunks is None or stop_after_chunks >= config.num_chunks) and jax.process_count() == 1
-            params_shape = placement.abstract(ts.best_params)
-            final_evaluation = None
-            if evaluates and on_warp:
-                final_evaluation = _in_background(lower_evaluation(params_shape, eval_keys).compile, "evaluation",
-                                                  after=after_traces)
-        finally:
-            traced_all.set()
-        if judge_program is not None:
-            judge_program = judge_program.compile()
-        if train_program is not None:
-            train_program = train_program.result()
-        init_args, eval_keys = inputs.result()
-        if final_evaluation is not None:  # MuJoCo Warp's, compiled before its kernels run
-            final_evaluation.result()
+    # ---- the programs ------------------------------------------------------------------------
+    def compile_programs(self, progress: bool, record_episode: bool, seed_axis: str | None, evaluates: bool) -> None:
+        """Every program the run needs, compiled in the background (`_in_background`): the inputs
+        and the init program (or the checkpoint, on resume), a chunk's training steps and its judge,
+        the final evaluation and, on a GPU, the tie-break over every seed. Without `on_chunk` nobody
+        sees the judge's episode (`record_episode` False): the chunk records none (less to compile;
+        the same train state and metrics). In a multi-host run the final evaluation's arrays are
+        gathered and placed anew: it compiles at the end. MuJoCo Warp's rules:
+        `envs.mjx_warp.CompileRules` (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
+        self.learner = registry.make(self.config, self.env, agents=self.agents // self.placement.count)
+        self.rules = CompileRules(runs_warp(self.learner.env))
+        if progress and self.writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
+            builds = " (MuJoCo Warp also builds its kernels once per machine)" if self.rules.on_warp else ""
+            print(f"{self.env_name}: compiling{builds}...", file=sys.stderr, flush=True)
+        self.evaluates = evaluates and jax.process_count() == 1
+        self.final_evaluation = self.every_seed = None
+        with self.rules.tracing() as after_traces:
+            inputs, init_program, init_args = self._lower_state(after_traces)
+            train_program, judge_program = self._lower_chunk(record_episode, seed_axis or default_seed_axis(),
+                                                             after_traces)
+            self.params_shape = self.placement.abstract(self.ts.best_params)
+            if self.evaluates and self.rules.on_warp:  # compiled with the others, before any Warp kernel runs
+                self.final_evaluation = _in_background(
+                    self.lower_evaluation(self.params_shape, self.eval_keys).compile, "evaluation", after=after_traces)
+        self.judge_program = None if judge_program is None else judge_program.compile()
+        self.train_program = None if train_program is None else train_program.result()
+        init_args, self.eval_keys = inputs.result()
+        if self.final_evaluation is not None:
+            self.final_evaluation.result()
         if init_program is not None:
-            ts = init_program.result()(*init_args)
-        compile_s = time.perf_counter() - compile_start  # a fresh run's init program included
-        every_seed = None  # the tie-break over every seed, compiling beside training (GPUs)
-        if evaluates and not on_warp:
-            final_evaluation = _in_background(lambda: lower_evaluation(params_shape, eval_keys).compile(), "evaluation")
-            # On a GPU thousands of seeds can tie (CartPole's held to the time limit): the tie-break's
-            # program for every seed compiles beside training, as the final evaluation's does, and
-            # serves where at least half of them tie. On a CPU, measuring every seed costs more than
-            # compiling for the tied ones.
-            if agents > 1 and placement.devices[0].platform == "gpu":
-                tie_keys = jax.eval_shape(lambda: tie_break_keys(seed, jnp.arange(agents)))
-                every_seed = _in_background(partial(every_seed_tie_break, learner, env_name, env_options, placement,
-                                                    params_shape, tie_keys), "tie-break")
+            self.ts = init_program.result()(*init_args)
+        self.compile_s = time.perf_counter() - self.compile_start  # a fresh run's init program included
+        if self.evaluates and not self.rules.on_warp:
+            self._compile_final_beside_training()
 
-        result = RunResult(params=None, train_state=ts, compile_s=compile_s, solve_wall_s=[None] * agents,
-                           devices=placement.count, setup_s=compile_start - start, total_chunks=config.num_chunks)
-        prefill = getattr(config, "prefill_steps", 0)  # SAC's first fill of its replay, in `init`
-        bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
-                                  prefill + chunks_done * config.eval_every, env_name, enabled=progress and writer)
-        last = clock.last = chunks_done
+    def _run_inputs(self):
+        """The init program's arguments and the final evaluation's keys."""
+        keys, eval_keys = run_keys(self.seed, self.seeds)
+        if self.sweep is None:  # every seed's keys made, these seeds' kept: the same keys whatever the slice
+            return (keys[self.first:self.stop_seed],), eval_keys[self.first:self.stop_seed]
+        configs = len(self.configs)
+        return (jnp.tile(keys, (configs, 1)), per_agent(self.configs, self.seeds)), jnp.tile(eval_keys, (configs, 1))
 
-        def checkpoint_now(state: Any, done: int, final: bool = False) -> None:  # timed on the save clock
-            save_start = time.perf_counter()
-            save(saves, out, env_name, placement, state, done, final=final, finished=done == config.num_chunks,
-                 copy_beside=not on_warp)
-            clock.saved(done, save_start, saves.written_s)
-            result.save_s += time.perf_counter() - save_start
+    def _lower_state(self, after_traces):
+        """The inputs, made on another thread while the programs compile from their shapes (making
+        them runs the keys' program, and on a GPU the first allocation, where XLA reserves most of
+        the device's memory; on several devices, their placement too); the train state's shapes
+        from the checkpoint (resume) or from the init program, compiling on another thread."""
+        placement = self.placement
+        inputs = _in_background(lambda: placement.put(self._run_inputs()), "inputs", after=after_traces)
+        init = jax.jit(placement.spread(jax.vmap(self.learner.init)), compiler_options=init_compiler_options())
+        init_args, self.eval_keys = placement.abstract(jax.eval_shape(self._run_inputs))
+        self.chunks_done, init_program = 0, None
+        self.compile_start = time.perf_counter()
+        if self.resume and checkpoint.has_state(self.out):
+            ts, self.chunks_done = checkpoint.load_state(self.out, self.env_name, jax.eval_shape(init, *init_args))
+            self.ts = placement.put(ts)  # saved from any number of devices, split over this run's
+            self.compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
+        else:  # a run killed before its first checkpoint resumes from the start, as it began
+            traced = init.trace(*init_args)
+            init_program = _in_background(traced.lower().compile, "init", after=after_traces)
+            self.ts = placement.abstract(traced.out_info)  # the train state's shapes (weak types kept) and placement
+            if self.out is not None and self.writer:
+                checkpoint.start_run(self.out, self.saved_run)
+        if self.out is not None and self.writer:
+            checkpoint.keep_metrics(self.out, self.chunks_done)
+        return inputs, init_program, init_args
 
-        clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(ts)))  # the first save's cost, before it is measured
-        solved_early = False
-        overflow_told = False
-        # The next chunk is dispatched before this one's host work (its metrics to JSON, the bar), so
-        # the device trains on while the host works, where nothing of that work can change what the
-        # next chunk does: no `on_chunk` (it is handed the train state, which the next chunk
-        # consumes), no stop when solved, no save due, no signal, and signals caught (where they
-        # are not, a KeyboardInterrupt could come with a chunk in flight and its state unlogged).
-        look_ahead = on_chunk is None and not stop_when_solved and stop.catching
-        stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
+    def _lower_chunk(self, record_episode: bool, seed_axis: str, after_traces):
+        """A chunk's two programs, its training steps (compiling on another thread) and its judge
+        (lowered, compiled by the caller). One device: each holds a copy of the env's step, and
+        together were one program that XLA compiled alone; tracing and lowering hold Python's
+        lock, XLA's compile does not, so the training steps are traced first and compile while this
+        thread traces the judge. Several devices: two sharded programs are faster than one
+        (docs/bench-gpu.json, "dqn-sharded-programs"). A finished run (resumed to evaluate) has none."""
+        if self.chunks_done >= self.config.num_chunks:
+            return None, None
+        learner, ts, per_device = self.learner, self.ts, self.agents // self.placement.count
+        train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
+        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
+        if self.placement.mesh is None:
+            kind = type(learner).__name__  # names its programs in the export cache
+            judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
+                      + ("" if record_episode else ", no episode recorded"))
+            lowered = lower_cached(f"{kind}.train_steps over seeds by {seed_axis}", train_fn, (ts,), learner,
+                                   self.agents, self.env_name, self.env_options, donate=True)
+            train_program = _in_background(lowered.compile, "train", after=after_traces)
+            return train_program, lower_cached(judged, judge_fn, (ts, ts.key), learner, self.agents, self.env_name,
+                                               self.env_options, donate=True)
+        # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
+        options = training_compiler_options(env=learner.env)
+        spread = self.placement.spread
+        train_program = _in_background(partial(jax.jit(spread(train_fn), donate_argnums=0).lower(ts).compile, options),
+                                       "train", after=after_traces)
+        return train_program, traced_programs.LoweredProgram(
+            jax.jit(spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
 
-        def save_due(done: int) -> bool:  # a periodic save; a run's last chunk is the final save's (after the loop)
-            return placement.same_on_every_process(out is not None and done < config.num_chunks
-                                                   and clock.due(done))  # process 0's clock
+    def lower_evaluation(self, params: Any, keys: Any) -> Any:
+        """The final evaluation, lowered for these shapes."""
+        if self.placement.mesh is None:
+            return lower_evaluation_cached(self.learner, params, keys, self.env_name, self.env_options)
+        return jax.jit(self.placement.spread(jax.vmap(self.learner.evaluate))).lower(params, keys)
 
-        def dispatched(ts):  # the next chunk's outputs and when it began (a dispatch can return only once done)
-            began = time.perf_counter()
-            return train_program(ts), began
+    def _compile_final_beside_training(self) -> None:
+        """The final evaluation's program, compiling while the agents train; on a GPU also the
+        tie-break's program for every seed: thousands of seeds can tie there (CartPole's held to
+        the time limit), and it serves where at least half of them tie. On a CPU, measuring every
+        seed costs more than compiling for the tied ones."""
+        self.final_evaluation = _in_background(
+            lambda: self.lower_evaluation(self.params_shape, self.eval_keys).compile(), "evaluation")
+        if self.agents > 1 and self.placement.devices[0].platform == "gpu":
+            tie_keys = jax.eval_shape(lambda: tie_break_keys(self.seed, jnp.arange(self.agents)))
+            self.every_seed = _in_background(partial(every_seed_tie_break, self.learner, self.env_name,
+                                                     self.env_options, self.placement, self.params_shape, tie_keys),
+                                             "tie-break")
 
-        ahead = None  # the next chunk, `dispatched` early
+    # ---- the chunks --------------------------------------------------------------------------
+    def train_chunks(self, progress: bool, on_chunk, stop_after_chunks: int | None, stop_when_solved: bool) -> None:
+        """Train the chunks from the last checkpoint's on, judging on the config's cadence and saving
+        on the save clock, until the last chunk, `stop_after_chunks`, a signal or (with
+        `stop_when_solved`) every agent solved. The next chunk is dispatched before this one's host
+        work (its metrics to JSON, the bar), so the device trains on while the host works, where
+        nothing of that work can change what the next chunk does: no `on_chunk` (it is handed the
+        train state, which the next chunk consumes), no stop when solved, no save due, no signal,
+        and signals caught (where they are not, a KeyboardInterrupt could come with a chunk in
+        flight and its state unlogged)."""
+        config = self.config
+        self.result = RunResult(params=None, train_state=self.ts, compile_s=self.compile_s,
+                                solve_wall_s=[None] * self.agents, devices=self.placement.count,
+                                setup_s=self.compile_start - self.start, total_chunks=config.num_chunks)
+        prefill = getattr(config, "prefill_steps", 0)  # SAC's and TD3's first fill of the replay, in `init`
+        self.bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
+                                          prefill + self.chunks_done * config.eval_every, self.env_name,
+                                          enabled=progress and self.writer)
+        self.clock.last = self.chunks_done
+        self.clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(self.ts)))  # the first save, before one is timed
+        self.last, self.solved_early, self.overflow_told = self.chunks_done, False, False
+        self.on_chunk, self.stop_when_solved = on_chunk, stop_when_solved
+        self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching
+        self.stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
+        ahead = None  # the next chunk, `_dispatched` early
         try:
-            for index in range(chunks_done, config.num_chunks):
-                if ahead is not None:
-                    (ts, metrics, eval_key), tick = ahead
-                    ahead = None
-                else:
-                    if stop_after_chunks is not None and index >= stop_after_chunks:
+            for index in range(self.chunks_done, config.num_chunks):
+                if ahead is None:
+                    if index >= self.stop_at:
                         break
-                    # a signal during compile, a chunk or a save
-                    if placement.same_on_every_process(stop.requested is not None):
-                        result.interrupted = True
+                    if self._signalled():  # a signal during compile, a chunk or a save
+                        self.result.interrupted = True
                         break
-                    tick = time.perf_counter()
-                    ts, metrics, eval_key = train_program(ts)
-                eval_episode = None
-                judging = judge_clock.due(index)  # the config's cadence: the same on every process
-                # The whole chunk done, its train state too, so that its seconds are its own however
-                # its dispatch returned (one through MuJoCo Warp's FFI can return once it is done).
-                jax.block_until_ready((ts, metrics))
-                trained_at = time.perf_counter()
-                if judging:
-                    ts, judged = judge_program(ts, eval_key)
-                    eval_episode = judged.pop("eval_episode")
-                    metrics = {**judged, **metrics}
-                    if on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
-                        eval_episode = placement.to_host(eval_episode)
-                last = index + 1
-                look = (look_ahead and last < stop_at and not save_due(last)
-                        and not placement.same_on_every_process(stop.requested is not None))
-                if look and not judging:  # the device trains on while the host copies and logs this chunk
-                    ahead = dispatched(ts)
-                record = _host(placement.to_host(metrics))
-                if judging:
-                    judge_clock.judged(time.perf_counter() - trained_at)
-                    if look:  # after the judge's results reached the host, whose seconds are the judge's
-                        ahead = dispatched(ts)
-                training_s = trained_at - tick
-                result.train_s += training_s
-                record["chunk"] = index
-                # training alone, the judge left out, as Brax's `training/sps` counts
-                record["steps_per_s"] = config.eval_every * agents / training_s
-                overflow_told = _check_overflow(env, record, config.eval_every, bar, overflow_told)
-                _check_diverged(record, result.diverged, first, bar)
-                result.history.append(record)
-                now = time.perf_counter() - start
-                for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
-                    if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
-                        result.solve_wall_s[i] = now
-                if writer:
-                    run_steps.append_metrics(out, record)
-                if on_chunk is not None:
-                    on_chunk(index, ts, {**record, "eval_episode": eval_episode})
-                run_steps.show(bar, config.eval_every, record)
-                if stop_when_solved and judging and None not in result.solve_wall_s:
-                    solved_early = True
+                    ahead = self._dispatched(self.ts)
+                (self.ts, metrics, eval_key), tick = ahead
+                ahead = self._after_chunk(index, metrics, eval_key, tick)
+                if self.solved_early:
                     break
-                if ahead is None and save_due(last):  # (a chunk dispatched ahead: none was due)
-                    checkpoint_now(ts, last)  # written while the next chunks train
         except KeyboardInterrupt:  # only where no handler could be installed (not the main thread)
-            result.interrupted = True
+            self.result.interrupted = True
         finally:
-            bar.close()
-            result.train_state = ts
-        finished = last == config.num_chunks or solved_early  # else a checkpoint and no final evaluation
+            self.bar.close()
+            self.result.train_state = self.ts
 
-        def evaluated():  # every agent's returns from the final evaluation, dispatched
-            evaluate = (final_evaluation.result() if final_evaluation is not None
-                        else lower_evaluation(ts.best_params, eval_keys).compile())
-            return evaluate(ts.best_params, eval_keys)
+    def _signalled(self) -> bool:
+        return self.placement.same_on_every_process(self.stop.requested is not None)
 
+    def _dispatched(self, ts):
+        """The next chunk's outputs and when it began (a dispatch can return only once done)."""
+        began = time.perf_counter()
+        return self.train_program(ts), began
+
+    def _save_due(self, done: int) -> bool:
+        """A periodic save; a run's last chunk is the final save's (`finish`). Process 0's clock."""
+        return self.placement.same_on_every_process(self.out is not None and done < self.config.num_chunks
+                                                    and self.clock.due(done))
+
+    def _after_chunk(self, index: int, metrics: dict, eval_key, tick: float):
+        """A trained chunk's judge (on the cadence), its record and a periodic save; returns the next
+        chunk where it was dispatched ahead (`train_chunks`), else None."""
+        judging, eval_episode, placement = self.judge_clock.due(index), None, self.placement
+        # The whole chunk done, its train state too, so that its seconds are its own however its
+        # dispatch returned (one through MuJoCo Warp's FFI can return once it is done).
+        jax.block_until_ready((self.ts, metrics))
+        trained_at = time.perf_counter()
+        if judging:
+            self.ts, judged = self.judge_program(self.ts, eval_key)
+            eval_episode = judged.pop("eval_episode")
+            metrics = {**judged, **metrics}
+            if self.on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
+                eval_episode = placement.to_host(eval_episode)
+        self.last = index + 1
+        look = (self.look_ahead and self.last < self.stop_at and not self._save_due(self.last)
+                and not self._signalled())
+        ahead = self._dispatched(self.ts) if look and not judging else None  # the device trains on meanwhile
+        record = _host(placement.to_host(metrics))
+        if judging:
+            self.judge_clock.judged(time.perf_counter() - trained_at)
+            if look:  # after the judge's results reached the host, whose seconds are the judge's
+                ahead = self._dispatched(self.ts)
+        self.result.train_s += trained_at - tick
+        record["chunk"] = index
+        record["steps_per_s"] = self.config.eval_every * self.agents / (trained_at - tick)  # as Brax's training/sps
+        self._observe(index, record, eval_episode, judging)
+        if ahead is None and not self.solved_early and self._save_due(self.last):
+            self._checkpoint(self.ts, self.last)  # written while the next chunks train
+        return ahead
+
+    def _observe(self, index: int, record: dict, eval_episode, judging: bool) -> None:
+        """What watches a chunk's record: MuJoCo Warp's overflow, diverged seeds, the solve times,
+        metrics.jsonl, `on_chunk` (e.g. the Rerun logger) and the progress bar."""
+        config, result = self.config, self.result
+        self.overflow_told = _check_overflow(self.env, record, config.eval_every, self.bar, self.overflow_told)
+        _check_diverged(record, result.diverged, self.first, self.bar)
+        result.history.append(record)
+        now = time.perf_counter() - self.start
+        for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
+            if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
+                result.solve_wall_s[i] = now
+        if self.writer:
+            run_steps.append_metrics(self.out, record)
+        if self.on_chunk is not None:
+            self.on_chunk(index, self.ts, {**record, "eval_episode": eval_episode})
+        run_steps.show(self.bar, config.eval_every, record)
+        self.solved_early = self.stop_when_solved and judging and None not in result.solve_wall_s
+
+    def _checkpoint(self, state: Any, done: int, final: bool = False) -> None:
+        """A save of `state` after `done` chunks, timed on the save clock."""
+        save_start = time.perf_counter()
+        save(self.saves, self.out, self.env_name, self.placement, state, done, final=final,
+             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside)
+        self.clock.saved(done, save_start, self.saves.written_s)
+        self.result.save_s += time.perf_counter() - save_start
+
+    # ---- the end -------------------------------------------------------------------------------
+    def _evaluated(self):
+        """Every agent's returns from the final evaluation, dispatched."""
+        evaluate = (self.final_evaluation.result() if self.final_evaluation is not None
+                    else self.lower_evaluation(self.ts.best_params, self.eval_keys).compile())
+        return evaluate(self.ts.best_params, self.eval_keys)
+
+    def finish(self) -> RunResult:
+        """The final save, and for a finished run the final evaluation, the tie-break and eval.json.
+        A stopped run (a signal, `stop_after_chunks`) keeps its checkpoint and evaluates nothing."""
+        result, ts = self.result, self.ts
+        finished = self.last == self.config.num_chunks or self.solved_early
         # The final evaluation, where it compiled beside training, is dispatched before the final save:
-        # the save's copy to the host, made on this thread where the agents are spread over devices,
-        # then runs while the devices evaluate. On MuJoCo Warp it comes after the save: a copy while the
-        # evaluation's first run captures a CUDA graph breaks the capture (`save`).
+        # the save's copy to the host, made on this thread where the agents are spread over devices, then
+        # runs while the devices evaluate. MuJoCo Warp's rules put it after the save (`CompileRules`).
         eval_start = time.perf_counter()
-        early = finished and not result.interrupted and final_evaluation is not None and not on_warp
-        returns = evaluated() if early else None
+        early = (finished and not result.interrupted and self.final_evaluation is not None
+                 and self.rules.evaluate_before_final_save)
+        returns = self._evaluated() if early else None
         eval_s = time.perf_counter() - eval_start
         # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
         # over it, and a failed chunk may have consumed its donated train state).
-        if out is not None and clock.last != last:
-            checkpoint_now(ts, last, final=True)  # copied and written during the final evaluation
-        result.chunks_done, result.saved_chunks = last, clock.last if out is not None else None
-        result.judges = sum(map(judge_clock.due, range(last)))  # every session's, by the config's cadence
-        result.judge_s = judge_clock.judge_s
+        if self.out is not None and self.clock.last != self.last:
+            self._checkpoint(ts, self.last, final=True)  # copied and written during the final evaluation
+        result.chunks_done, result.saved_chunks = self.last, self.clock.last if self.out is not None else None
+        result.judges = sum(map(self.judge_clock.due, range(self.last)))  # every session's, by the config's cadence
+        result.judge_s = self.judge_clock.judge_s
         # A signal during the last chunk or save stops without the final evaluation's results (it cannot be
         # cut short once it runs, and one dispatched early is left to end): the checkpoint holds every
         # chunk, and --resume evaluates.
-        if placement.same_on_every_process(stop.requested is not None):
-            result.interrupted = True
-        result.stop_signal = stop.name or ("SIGINT" if result.interrupted else None)
+        signalled = self._signalled()  # on every process (a collective where there are several)
+        result.interrupted = result.interrupted or signalled
+        result.stop_signal = self.stop.name or ("SIGINT" if result.interrupted else None)
         if result.interrupted or not finished:  # checkpoint saved, no final eval
-            result.save_s += _waited(saves)
-            result.finish(start)
+            result.save_s += _waited(self.saves)
+            result.finish(self.start)
             return result
-
         eval_start = time.perf_counter()
+        placement = self.placement
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
-        solve = np.asarray(placement.to_host(ts.solve_step)).tolist()
-        result.solve_step = [s if s >= 0 else None for s in solve]
-        if returns is None:
-            returns = evaluated()
+        result.solve_step = [s if s >= 0 else None for s in np.asarray(placement.to_host(ts.solve_step)).tolist()]
+        returns = self._evaluated() if returns is None else returns
         result.mean_return = np.asarray(placement.to_host(returns.mean(axis=-1))).tolist()
-        result.best_seed, tie_break = break_ties(learner, env_name, env_options, result.params, result.mean_return,
-                                                 seed, first, every_seed=every_seed.result() if every_seed else None)
+        every_seed = self.every_seed.result() if self.every_seed else None
+        result.best_seed, tie_break = break_ties(self.learner, self.env_name, self.env_options, result.params,
+                                                 result.mean_return, self.seed, self.first, every_seed=every_seed)
         result.eval_s = eval_s + time.perf_counter() - eval_start
-        result.save_s += _waited(saves)
-        result.finish(start)
-        if writer:
-            run_steps.write_eval(out, {"agent": agent, "env": env_name, "seeds": trained_seeds, "best_seed": result.best_seed,
-                                    "mean_return": result.mean_return,
-                                    "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-                                    "wall_s": result.wall_s, "compile_s": compile_s, "devices": placement.count,
-                                    "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges,
-                                    "chunks": result.chunks_done,
-                                    "tie_break_return": [tie_break.get(first + i) for i in range(agents)],
-                                    "diverged_seeds": result.diverged})
+        result.save_s += _waited(self.saves)
+        result.finish(self.start)
+        if self.writer:
+            run_steps.write_eval(self.out, self._summary(tie_break))
         return result
+
+    def _summary(self, tie_break: dict[int, float]) -> dict:
+        """eval.json: the same keys for every agent (docs/training.md)."""
+        result = self.result
+        return {"agent": self.agent, "env": self.env_name, "seeds": self.trained_seeds, "best_seed": result.best_seed,
+                "mean_return": result.mean_return, "solve_step": result.solve_step,
+                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": self.compile_s,
+                "devices": self.placement.count, "wall_parts_s": result.wall_parts(),
+                "judged_chunks": result.judges, "chunks": result.chunks_done,
+                "tie_break_return": [tie_break.get(self.first + i) for i in range(self.agents)],
+                "diverged_seeds": result.diverged}
 
 
 def _waited(saves: checkpoint.BackgroundSaves) -> float:

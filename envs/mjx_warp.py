@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import io
+import threading
 from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import jax
@@ -50,6 +51,34 @@ def import_mjx():
 def runs_warp(env: Any) -> bool:
     """Whether `env`'s physics runs on MuJoCo Warp (impl="warp")."""
     return getattr(getattr(env, "unwrapped", env), "impl", None) == "warp"
+
+
+class CompileRules:
+    """What MuJoCo Warp's CUDA graphs ask of a run whose env it steps (`on_warp`), in one place;
+    a run of any other env takes the defaults. The incidents behind each rule are in docs/mjx.md,
+    "MuJoCo Warp and CUDA graphs".
+    - `tracing()`: Warp runs compile their programs only once every program is traced (tracing
+      loads Warp's modules onto the GPU), and nothing runs beside a compile; elsewhere programs
+      compile on other threads while this one traces the next.
+    - `evaluate_before_final_save`: elsewhere the final evaluation is dispatched before the final
+      save, so the save's copy to the host runs while the devices evaluate; on Warp the save comes
+      first, since a copy while the evaluation's first run captures a CUDA graph breaks the capture.
+    - `host_copy_beside`: elsewhere a save's copy to the host is made on the writing thread; on
+      Warp on the run's thread, between kernels."""
+
+    def __init__(self, on_warp: bool):
+        self.on_warp = on_warp
+        self.evaluate_before_final_save = self.host_copy_beside = not on_warp
+
+    @contextlib.contextmanager
+    def tracing(self):
+        """The event the background compiles wait for (`agents.run._in_background`'s `after`):
+        set once this block has traced every program. None off Warp: nothing waits."""
+        traced = threading.Event()
+        try:
+            yield traced if self.on_warp else None
+        finally:
+            traced.set()
 
 
 class WarpUnavailable(RuntimeError):

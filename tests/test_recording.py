@@ -229,7 +229,7 @@ def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
 def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     out, train_file, rollout_file = tmp_path / "run", tmp_path / "train.rrd", tmp_path / "rollout.rrd"
     assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), "--rerun-every", "1",
-                     *TINY]) == 0
+                     "--judge-every", "1", *TINY]) == 0
     contents = Contents(train_file)
     for name in ("loss", "mean_q", "epsilon", "eval_return", "env_steps_per_s"):
         assert contents.rows[f"train/seed_0/{name}"] == 2  # one row per chunk
@@ -373,7 +373,7 @@ def test_interrupted_training_leaves_a_readable_file(tmp_path, monkeypatch):
 
     monkeypatch.setattr(agent_recording.TrainingLogger, "__call__", interrupt_after_first_chunk)
     out = tmp_path / "run"
-    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(path), *TINY]) == 130
+    assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(path), "--judge-every", "1", *TINY]) == 130
     # Ctrl-C keeps the checkpoint too: one chunk done, resumable.
     assert json.loads((out / "progress.json").read_text())["chunks_done"] == 1
     assert (out / "train_state.ckpt").is_file()
