@@ -19,7 +19,7 @@ test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once); at most 6 minutes on 2 cores
 
 test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
-	$(BIN)/python -m pytest -q -m slow -n 2 --durations=30  # two workers: the slow tests are independent runs; the 30 longest listed
+	$(BIN)/python -m pytest -q -m slow -n 2 --dist loadfile --durations=30  # two workers, each test file on one (its compiled programs shared); the 30 longest listed
 
 # `make bench BENCH_TAG=gpu` on a GPU machine
 BENCH_TAG ?= cpu

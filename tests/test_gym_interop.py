@@ -122,15 +122,29 @@ def test_continuous_actions_are_the_ctrl_gymnasium_sets(slider):
         np.testing.assert_allclose(np.asarray(env.state.pipeline_state.ctrl), action, rtol=0, atol=1e-7)
 
 
+@pytest.mark.slow  # every task built (no compile)
+def test_every_registered_env_has_gymnasiums_spaces():
+    """Every registered env's spaces as a `gymnasium.Env`: Gymnasium's own action space for its
+    MuJoCo tasks, a float32 Box of the task's observation size."""
+    for name in envs.names():
+        env, ours = envs.to_gymnasium(name), envs.make(name)
+        gymnasium_id = getattr(ours.unwrapped, "gymnasium_id", None)
+        if gymnasium_id is not None:
+            assert env.action_space == gymnasium.make(gymnasium_id).action_space, name
+        assert env.observation_space.shape == (ours.observation_size,) and env.observation_space.dtype == np.float32
+
+
+# check_env steps each env through the adapter's one code path: one task of each kind (analytic,
+# classic control as MJCF, dm_control-like, Gymnasium's MuJoCo tasks without and with contacts),
+# the spaces of every task above. MJX compiles take tens of seconds each on a small CPU.
+CHECK_ENV_TASKS = ["acrobot", "pendulum-mjx", "cartpole-swingup-mjx", "half-cheetah", "hopper", "pusher"]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", envs.names())
-def test_check_env_passes_for_every_registered_env(name):
-    """Every registered env (MJX compiles take tens of seconds each on a small CPU)."""
+@pytest.mark.parametrize("name", CHECK_ENV_TASKS)
+def test_check_env_passes_for_every_kind_of_env(name):
     env = envs.to_gymnasium(name)
     space = env.action_space
-    gymnasium_id = getattr(envs.make(name).unwrapped, "gymnasium_id", None)
-    if gymnasium_id is not None:  # Gymnasium's MuJoCo tasks: Gymnasium's own action space
-        assert space == gymnasium.make(gymnasium_id).action_space
     # A continuous env's space is its ctrlrange; check_env recommends a symmetric Box inside [-1, 1].
     found = check_env_warnings(env, skip_render_check=True)
     assert [NORMALIZED_ACTION_WARNING in w for w in found] == ([True] if warns_of_action_space(space) else []), found

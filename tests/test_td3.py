@@ -103,6 +103,7 @@ def test_the_projection_moves_the_mean_keeps_the_mass_and_clips_to_the_support()
 
 
 # ---- acting and the actor's schedule ---------------------------------------------------------
+@pytest.mark.slow  # a compile of its own
 def test_each_env_keeps_its_noise_scale_until_its_episode_ends():
     config = dataclasses.replace(SMALL, min_replay_size=0, std_min=0.1, std_max=0.3)
     td3 = TD3(config, drift(episode_length=3))
@@ -130,6 +131,7 @@ def collected(env, steps, num_steps):
     return jax.tree.map(np.asarray, unpack(ts.buffer.data[:int(ts.buffer.size)], 2, 1))
 
 
+@pytest.mark.slow  # a compile of its own; the resume test runs n-step rows in the default run
 def test_n_step_rows_sum_discounted_rewards_up_to_the_episode_end():
     """Three-step rows against the one-step rows of the same run (the same actions): each sums
     up to three rewards, stops at a termination (no bootstrap) or a truncation (bootstrapping
@@ -171,6 +173,7 @@ def test_the_delayed_actor_stays_a_branch_when_seeds_are_vmapped():
     assert str(jax.make_jaxpr(jax.vmap(td3.train_steps))(ts)).count("cond[") == 1
 
 
+@pytest.mark.slow  # a compile of its own
 def test_bfloat16_runs_the_networks_matmuls_in_bf16_with_float32_params():
     td3 = TD3(dataclasses.replace(SMALL, compute_dtype="bfloat16"), drift())
     ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
