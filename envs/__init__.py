@@ -20,8 +20,8 @@ from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, 
 # derive from this table: adding a task is one row.
 TASKS = (
     # analytic (the Gymnasium / gymnax equations)
-    ("cartpole", "envs.tasks.cartpole:CartPole", 500, ("CartPolePhysics", "CartPoleRules", "CartPoleState")),
-    ("acrobot", "envs.tasks.acrobot:Acrobot", 500, ("AcrobotPhysics", "AcrobotRules")),
+    ("cartpole", "envs.tasks.cartpole:DmcCartPole", 500, ("CartPolePhysics", "CartPoleRules", "CartPoleState")),
+    ("acrobot", "envs.tasks.acrobot:DmcAcrobot", 500, ("AcrobotPhysics", "AcrobotRules")),
     # MJX: classic control as MJCF models
     ("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", 500, ()),
     ("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", 500, ()),
@@ -41,6 +41,19 @@ TASKS = (
     ("ant", "envs.tasks.ant:Ant", 1000, ("AntParams",)),
     ("humanoid", "envs.tasks.humanoid:Humanoid", 1000, ("HumanoidParams",)),
     ("pusher", "envs.tasks.pusher:Pusher", 100, ("PusherParams",)),
+    # MJX: the DeepMind Control Suite's tasks (dm_control 1.0.50's MJCF and rules; envs.interop.dm_control proves them)
+    ("dmc-acrobot-swingup", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUp", 1000, ("DmcAcrobot",)),
+    ("dmc-acrobot-swingup-sparse", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUpSparse", 1000, ()),
+    ("dmc-cartpole-balance", "envs.tasks.dmc_cartpole:DmcCartPoleBalance", 1000, ("DmcCartPole",)),
+    ("dmc-cartpole-balance-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleBalanceSparse", 1000, ()),
+    ("dmc-cartpole-swingup", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUp", 1000, ()),
+    ("dmc-cartpole-swingup-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUpSparse", 1000, ()),
+    ("dmc-cheetah-run", "envs.tasks.dmc_cheetah:DmcCheetahRun", 1000, ()),
+    ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
+    ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
+    ("dmc-walker-stand", "envs.tasks.dmc_walker:DmcWalkerStand", 1000, ("DmcWalker",)),
+    ("dmc-walker-walk", "envs.tasks.dmc_walker:DmcWalkerWalk", 1000, ()),
+    ("dmc-walker-run", "envs.tasks.dmc_walker:DmcWalkerRun", 1000, ()),
 )
 
 # Public names of the API imported on first use too: their modules load mujoco.mjx (which loads
