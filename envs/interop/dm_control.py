@@ -15,13 +15,15 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
 
-dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used.
-Set `MUJOCO_GL=disable` (or `egl`) before the first import: nothing here renders.
+dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
+(`load`, with MUJOCO_GL=disable unless the variable is set).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 from typing import Any, Mapping
 
 import jax
@@ -60,7 +62,18 @@ def shim_mujoco_4() -> None:
 
 
 def load(domain: str, task: str, seed: int = 0):
-    """dm_control's `suite.load(domain, task)` seeded with `seed`, on the installed mujoco."""
+    """dm_control's `suite.load(domain, task)` seeded with `seed`, on the installed mujoco. Where
+    dm_control is first imported here and `MUJOCO_GL` is unset, it is imported with
+    MUJOCO_GL=disable (nothing here renders; without it dm_control tries GLFW, which warns on a
+    machine without a display) and the variable is removed again: set MUJOCO_GL=egl before the
+    first import for dm_control's pixels in the same process."""
+    if "dm_control.suite" not in sys.modules and "MUJOCO_GL" not in os.environ:
+        os.environ["MUJOCO_GL"] = "disable"
+        try:
+            shim_mujoco_4()
+            import dm_control.suite  # noqa: F401  (dm_control reads MUJOCO_GL when first imported)
+        finally:
+            del os.environ["MUJOCO_GL"]
     shim_mujoco_4()
     from dm_control import suite
 

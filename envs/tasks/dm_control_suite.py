@@ -19,7 +19,7 @@ never copied here) and its task's rules:
   terminated, `discount` 1 on every step (dm_control's `LAST` step included): `envs.make`'s
   TimeLimit truncates.
 - **Observation**: dm_control's OrderedDict flattened in its order (`observations`, each value
-  raveled, as `control.flatten_observation`), float32.
+  raveled, as `control.flatten_observation`), in the physics' dtype (float32 unless x64).
 - **Reward**: in [0, 1], built from `tolerance`, dm_control's `rewards.tolerance` in JAX.
 
 One edit is made to dm_control's models, here and nowhere else: the `energy` flag (acrobot,
@@ -102,9 +102,10 @@ def randomize_joints(model: mujoco.MjModel, qpos: jax.Array, key: jax.Array) -> 
     the sphere) with its position untouched; unlimited slides are left as they are."""
     keys = jax.random.split(key, max(model.njnt, 1))
     for joint in range(model.njnt):
-        kind, limited, adr = model.jnt_type[joint], bool(model.jnt_limited[joint]), model.jnt_qposadr[joint]
+        # Python ints: a numpy int is never `in` a tuple of MuJoCo's enum values (== works, `in` does not).
+        kind, limited, adr = int(model.jnt_type[joint]), bool(model.jnt_limited[joint]), int(model.jnt_qposadr[joint])
         low, high = model.jnt_range[joint]
-        if kind in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE) and limited:
+        if kind in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)) and limited:
             qpos = qpos.at[adr].set(jax.random.uniform(keys[joint], minval=low, maxval=high))
         elif kind == mujoco.mjtJoint.mjJNT_HINGE:
             qpos = qpos.at[adr].set(jax.random.uniform(keys[joint], minval=-jnp.pi, maxval=jnp.pi))
@@ -188,7 +189,7 @@ class DmControlEnv(MjxEnv):
         if tuple(values) != tuple(key for key, _ in self.observation_shapes):
             raise ValueError(f"task {self.name}: observations() gave keys {tuple(values)}, "
                              f"observation_shapes names {tuple(k for k, _ in self.observation_shapes)}")
-        return jnp.concatenate([jnp.ravel(value) for value in values.values()]).astype(jnp.float32)
+        return jnp.concatenate([jnp.ravel(value) for value in values.values()]).astype(data.qpos.dtype)
 
     def terminated(self, data: mjx.Data) -> jax.Array:
         return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)

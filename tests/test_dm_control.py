@@ -1,0 +1,213 @@
+"""The DeepMind Control Suite's tasks (dmc-*) against dm_control 1.0.50's own envs (C MuJoCo, float64):
+single steps from shared states, the observation of shared reset states, reset distributions, the
+tasks' specs, and `tolerance` against dm_control's `rewards.tolerance`."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+
+pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
+                                         "(pip install 'mjxsuite[dmc]'; the test extra has it)")
+
+from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, compare_with_dm_control,  # noqa: E402
+                                     dm_control_observations, dm_control_reset_samples, dm_control_steps, flatten,
+                                     load, shim_mujoco_4, transitions)
+from envs.tasks.dm_control_suite import tolerance  # noqa: E402
+
+# Every dmc task: (domain, task) of dm_control.
+TASKS = {
+    "dmc-acrobot-swingup": ("acrobot", "swingup"), "dmc-acrobot-swingup-sparse": ("acrobot", "swingup_sparse"),
+    "dmc-cartpole-balance": ("cartpole", "balance"), "dmc-cartpole-balance-sparse": ("cartpole", "balance_sparse"),
+    "dmc-cartpole-swingup": ("cartpole", "swingup"), "dmc-cartpole-swingup-sparse": ("cartpole", "swingup_sparse"),
+    "dmc-cheetah-run": ("cheetah", "run"), "dmc-pendulum-swingup": ("pendulum", "swingup"),
+    "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-walker-stand": ("walker", "stand"),
+    "dmc-walker-walk": ("walker", "walk"), "dmc-walker-run": ("walker", "run"),
+}
+# One task per domain in the fast suite (one compile each); the others share its physics and differ
+# in reward and reset (the reset distributions of all are in the fast suite, their steps in the slow).
+FAST = ("dmc-acrobot-swingup", "dmc-cartpole-swingup", "dmc-cheetah-run", "dmc-pendulum-swingup",
+        "dmc-point-mass-easy", "dmc-walker-walk")
+# float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
+# (plus 1e-4 relative) and the reward's. Contacts (cheetah, walker) and walker's 10 substeps make
+# the velocities' rounding larger.
+BOUNDS = {"acrobot": (1e-5, 1e-5), "cartpole": (1e-5, 1e-5), "pendulum": (1e-5, 1e-5),
+          "point_mass": (1e-5, 1e-5), "cheetah": (1e-3, 1e-5), "walker": (2e-3, 1e-5)}
+
+
+def bounds(name):
+    obs, reward = BOUNDS[TASKS[name][0]]
+    return {"obs": obs, "reward": reward}
+
+
+@pytest.fixture(scope="module", params=FAST)
+def fast_case(request):
+    name = request.param
+    env = envs.make(name).unwrapped
+    starts = transitions(env)
+    return name, env, starts, dm_control_steps(env, starts)
+
+
+def test_steps_match_dm_control(fast_case):
+    name, env, starts, theirs = fast_case
+    comparison = Comparison(starts.steps, theirs)
+    comparison.assert_within(bounds(name))
+    assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
+    assert np.ptp(theirs.reward) > 0 or name == "dmc-cheetah-run", "the rewards must vary over the states"
+    assert np.ptp(theirs.obs, axis=0).min() > 0, "every observation element must vary over the states"
+
+
+def test_reset_observation_is_dm_controls(fast_case):
+    name, env, starts, _ = fast_case
+    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
+    np.testing.assert_allclose(starts.reset_obs, theirs, atol=bounds(name)["obs"], rtol=1e-4)
+
+
+def test_a_stale_observation_fails_the_proof():
+    """Without dm_control's legacy step (kinematics refreshed after the step) the pendulum's
+    observation is one physics step old: the proof must catch it."""
+    from envs.tasks.dmc_pendulum import DmcPendulumSwingUp
+
+    class Stale(DmcPendulumSwingUp):
+        def refresh(self, model, data):
+            return data
+
+    comparison = compare_with_dm_control(Stale(), num_envs=4, num_steps=10, keep=40)
+    assert comparison.worst()["obs"] > 1e-3
+    with pytest.raises(AssertionError, match="observation"):
+        comparison.assert_within({"obs": 1e-5, "reward": 1e-5})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(set(TASKS) - set(FAST)))
+def test_steps_match_dm_control_other_tasks(name):
+    comparison = compare_with_dm_control(name)
+    comparison.assert_within(bounds(name))
+    sparse = name.endswith("-sparse")
+    assert sparse or np.ptp(comparison.theirs.reward) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["dmc-walker-walk", "dmc-cheetah-run", "dmc-acrobot-swingup"])
+def test_steps_match_dm_control_in_x64(name):
+    """Under x64 the float32 rounding goes: what is left is MJX's algorithm against C MuJoCo's."""
+    with jax.enable_x64(True):
+        comparison = compare_with_dm_control(envs.make(name), num_envs=8, num_steps=10, keep=80)
+    comparison.assert_within({"obs": 1e-8, "reward": 1e-9}, rtol=1e-8)
+
+
+# ---- resets ----------------------------------------------------------------------------------------
+def assert_same_distribution(ours: np.ndarray, theirs: np.ndarray, what: str) -> None:
+    """Per coordinate, the means and the variances within 5 standard errors of their differences
+    (each variance's standard error from the sample's fourth moment, so uniform and normal draws are
+    judged alike); a coordinate constant on one side must be the same constant on the other."""
+    def variance_error(x):
+        centred = x - x.mean(0)
+        return np.sqrt(np.maximum((centred ** 4).mean(0) - x.var(0) ** 2, 0) / len(x))
+
+    mean_error = np.sqrt(ours.var(0) / len(ours) + theirs.var(0) / len(theirs))
+    np.testing.assert_array_less(np.abs(ours.mean(0) - theirs.mean(0)), 5 * mean_error + 1e-6, err_msg=f"{what}: mean")
+    spread_error = np.sqrt(variance_error(ours) ** 2 + variance_error(theirs) ** 2)
+    np.testing.assert_array_less(np.abs(ours.var(0) - theirs.var(0)), 5 * spread_error + 1e-9,
+                                 err_msg=f"{what}: variance")
+
+
+def our_reset_draws(name: str, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """`count` draws of the task's reset state (its `initial_qpos_qvel`, jitted and vmapped)."""
+    env = envs.make(name).unwrapped
+    keys = jax.random.split(jax.random.PRNGKey(3), count)
+    return tuple(np.asarray(x) for x in jax.jit(jax.vmap(env.initial_qpos_qvel))(keys))
+
+
+@pytest.mark.parametrize("name", sorted(set(TASKS) - {"dmc-cheetah-run"}))
+def test_reset_distribution_matches_dm_control(name):
+    qpos, qvel = our_reset_draws(name, 2000)
+    their_qpos, their_qvel, _ = dm_control_reset_samples(*TASKS[name], 2000)
+    assert_same_distribution(qpos, their_qpos, f"{name} qpos")
+    assert_same_distribution(qvel, their_qvel, f"{name} qvel")
+    drawn = their_qpos.std(0) > 0
+    assert drawn.any() and np.array_equal(qpos.std(0) > 0, drawn), "the positions dm_control draws, and only those"
+
+
+@pytest.mark.slow
+def test_cheetah_reset_distribution_matches_dm_control():
+    """Cheetah settles for 200 physics steps at reset: after them, the same distribution."""
+    qpos, qvel = our_reset_draws("dmc-cheetah-run", 400)
+    their_qpos, their_qvel, _ = dm_control_reset_samples("cheetah", "run", 400)
+    assert_same_distribution(qpos, their_qpos, "qpos")
+    assert_same_distribution(qvel, their_qvel, "qvel")
+
+
+# ---- what the tasks are ------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_task_is_dm_controls(name):
+    """Action bounds, control timestep, episode length and observation layout equal dm_control's."""
+    env = envs.make(name)
+    theirs = load(*TASKS[name])
+    spec = theirs.action_spec()
+    np.testing.assert_array_equal(env.action_low, spec.minimum), np.testing.assert_array_equal(env.action_high, spec.maximum)
+    assert env.unwrapped.dt == pytest.approx(theirs.control_timestep(), rel=1e-12)
+    assert env.unwrapped.n_substeps == theirs._n_sub_steps
+    assert envs.options(name)["episode_length"] == theirs._step_limit == 1000
+    observation = theirs.reset().observation
+    assert [(key, np.size(value)) for key, value in observation.items()] == list(env.unwrapped.observation_shapes)
+    assert env.observation_size == flatten(observation).size
+
+
+def test_names_and_gymnasium_ids():
+    from envs.interop.gymnasium_ids import IDS
+
+    assert sorted(name for name in envs.names() if name.startswith("dmc-")) == sorted(TASKS)
+    assert all(IDS[f"{name}-v0"] == (name, 1000) for name in TASKS)
+
+
+# ---- tolerance, the shim ---------------------------------------------------------------------------------
+SIGMOIDS = ("gaussian", "hyperbolic", "long_tail", "reciprocal", "cosine", "linear", "quadratic", "tanh_squared")
+
+
+@pytest.mark.parametrize("sigmoid", SIGMOIDS)
+def test_tolerance_is_dm_controls(sigmoid):
+    from dm_control.utils import rewards
+
+    x = np.linspace(-6, 6, 2401)
+    cases = [((0.0, 0.0), 1.0, 0.1), ((-1.0, 2.0), 2.0, 0.3), ((1.2, np.inf), 0.6, 0.5), ((-np.inf, 0.5), 3.0, 0.01)]
+    with jax.enable_x64(True):
+        for bounds_, margin, value in cases:
+            ours = np.asarray(tolerance(jnp.asarray(x), bounds_, margin, sigmoid, value))
+            np.testing.assert_allclose(ours, rewards.tolerance(x, bounds_, margin, sigmoid, value), atol=1e-14,
+                                       err_msg=str((bounds_, margin, value)))
+    ours32 = np.asarray(tolerance(jnp.asarray(x, jnp.float32), (-1.0, 2.0), 2.0, sigmoid, 0.3))
+    assert ours32.dtype == np.float32
+    np.testing.assert_allclose(ours32, rewards.tolerance(x, (-1.0, 2.0), 2.0, sigmoid, 0.3), atol=1e-6)
+
+
+def test_tolerance_margin_zero_and_refusals():
+    from dm_control.utils import rewards
+
+    x = np.array([-0.3, -0.25, 0.0, 0.25, 0.26])
+    np.testing.assert_array_equal(np.asarray(tolerance(jnp.asarray(x), (-0.25, 0.25))), rewards.tolerance(x, (-0.25, 0.25)))
+    for bad in (dict(bounds=(1.0, 0.0)), dict(margin=-1.0)):
+        with pytest.raises(ValueError):
+            tolerance(jnp.asarray(x), **{"bounds": (0.0, 0.0), "margin": 1.0, **bad})
+    for sigmoid, value in (("gaussian", 0.0), ("linear", 1.0), ("cubic", 0.1)):
+        with pytest.raises(ValueError):
+            tolerance(jnp.asarray(x), margin=1.0, sigmoid=sigmoid, value_at_margin=value)
+        with pytest.raises(ValueError):
+            rewards.tolerance(x, margin=1.0, sigmoid=sigmoid, value_at_margin=value)
+
+
+def test_the_shim_removes_exactly_mujoco_4s_dropped_fields():
+    from dm_control.mujoco.wrapper.mjbindings import sizes
+
+    shim_mujoco_4()
+    shim_mujoco_4()  # idempotent
+    for struct, cls in (("mjmodel", mujoco.MjModel), ("mjdata", mujoco.MjData)):
+        assert all(hasattr(cls, name) for name in sizes.array_sizes[struct])
+        if mujoco.__version__.startswith("4."):
+            assert not any(hasattr(cls, name) for name in MUJOCO_4_DROPPED[struct])
+            assert not MUJOCO_4_DROPPED[struct] & set(sizes.array_sizes[struct])
