@@ -20,8 +20,8 @@ from envs.wrappers import AutoReset, BatchedAutoReset, EpisodeStats, TimeLimit, 
 # derive from this table: adding a task is one row.
 TASKS = (
     # analytic (the Gymnasium / gymnax equations)
-    ("cartpole", "envs.tasks.cartpole:DmcCartPole", 500, ("CartPolePhysics", "CartPoleRules", "CartPoleState")),
-    ("acrobot", "envs.tasks.acrobot:DmcAcrobot", 500, ("AcrobotPhysics", "AcrobotRules")),
+    ("cartpole", "envs.tasks.cartpole:CartPole", 500, ("CartPolePhysics", "CartPoleRules", "CartPoleState")),
+    ("acrobot", "envs.tasks.acrobot:Acrobot", 500, ("AcrobotPhysics", "AcrobotRules")),
     # MJX: classic control as MJCF models
     ("acrobot-mjx", "envs.tasks.acrobot_mjx:AcrobotMjx", 500, ()),
     ("cartpole-mjx", "envs.tasks.cartpole_mjx:CartPoleMjx", 500, ()),
@@ -61,6 +61,7 @@ TASKS = (
 _LAZY_API = {
     "MjxEnv": "envs.mjx_env",
     "GymnasiumMujocoEnv": "envs.tasks.gymnasium_mujoco",
+    "DmControlEnv": "envs.tasks.dm_control_suite",
     "BraxEnv": "envs.interop.brax",
     "to_brax": "envs.interop.brax",
 }

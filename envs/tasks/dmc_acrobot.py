@@ -1,6 +1,6 @@
 """The DeepMind Control Suite's acrobot (dm_control/suite/acrobot.py), stepped by MJX:
 `envs.make("dmc-acrobot-swingup")` and `-swingup-sparse`. A two-link pendulum driven at the elbow
-only (RK4 at 0.01 s, one physics step per control step) must bring its tip to a target above the
+only (RK4, timestep 0.01, one physics step per control step) must bring its tip to a target above the
 shoulder. The MJCF is dm_control's `acrobot.xml`, read from the installed package.
 
 - Action: Box(-1, 1, (1,)): the elbow's torque.
@@ -8,7 +8,7 @@ shoulder. The MJCF is dm_control's `acrobot.xml`, read from the installed packag
   zz, lower_arm zz), velocity = (shoulder, elbow velocities).
 - Reward: tolerance(|tip - target|, (0, target radius), margin 1); sparse: margin 0 (0 or 1).
 - Reset: shoulder and elbow U(-pi, pi), at rest.
-- Episode: 1,000 steps (10 s), never terminated.
+- Episode: 1,000 steps (10 s simulated), never terminated.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The DeepMind Control Suite's cart-pole (dm_control/suite/cartpole.py), stepped by MJX:
 `envs.make("dmc-cartpole-balance")`, `-balance-sparse`, `-swingup`, `-swingup-sparse`. A pole hinged
-on a cart that slides on a rail (limited to +-1.8 m, RK4 at 0.01 s, one physics step per control
+on a cart that slides on a rail (limited to +-1.8 m, RK4, timestep 0.01, one physics step per control
 step): keep the pole up (balance) or swing it up from hanging down and keep it there (swingup).
 The MJCF is dm_control's `cartpole.xml`, read from the installed package.
 
@@ -13,7 +13,7 @@ The MJCF is dm_control's `cartpole.xml`, read from the installed package.
   Sparse: tolerance(cart, (-0.25, 0.25)) * tolerance(cos, (0.995, 1)), 0 or 1.
 - Reset: swingup: cart 0.01 N(0, 1), pole pi + 0.01 N(0, 1); balance: cart U(-0.1, 0.1), pole
   U(-0.034, 0.034); both: velocities 0.01 N(0, 1).
-- Episode: 1,000 steps (10 s), never terminated.
+- Episode: 1,000 steps (10 s simulated), never terminated.
 """
 
 from __future__ import annotations

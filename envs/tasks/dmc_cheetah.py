@@ -11,7 +11,7 @@ installed package.
   at zero control to let it settle, the clock back at 0 (dm_control's `initialize_episode`). As in
   dm_control, the first of those steps integrates the accelerations of `mj_resetData`'s state
   (qpos0 at rest, whose `mj_forward` ran before the joints were drawn) from the drawn joints.
-- Episode: 1,000 steps (10 s), never terminated.
+- Episode: 1,000 steps (10 s simulated), never terminated.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """The DeepMind Control Suite's pendulum swing-up (dm_control/suite/pendulum.py), stepped by MJX:
-`envs.make("dmc-pendulum-swingup")`. A pendulum with a weak motor (Euler at 0.02 s, one physics
+`envs.make("dmc-pendulum-swingup")`. A pendulum with a weak motor (Euler, timestep 0.02, one physics
 step per control step) must swing up and stay within 8 degrees of upright. The MJCF is dm_control's
 `pendulum.xml`, read from the installed package.
 
@@ -7,7 +7,7 @@ step per control step) must swing up and stay within 8 degrees of upright. The M
 - Observation (3), dm_control's order: orientation = (pole xmat zz, xz), velocity = (hinge velocity).
 - Reward: tolerance(pole xmat zz, (cos 8 deg, 1)): 1 within 8 degrees of upright, else 0.
 - Reset: the hinge U(-pi, pi), at rest.
-- Episode: 1,000 steps (20 s), never terminated.
+- Episode: 1,000 steps (20 s simulated), never terminated.
 """
 
 from __future__ import annotations

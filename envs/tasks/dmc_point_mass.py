@@ -1,5 +1,5 @@
 """The DeepMind Control Suite's point mass, easy (dm_control/suite/point_mass.py), stepped by MJX:
-`envs.make("dmc-point-mass-easy")`. A mass on two slides in a walled plane (Euler at 0.02 s, one
+`envs.make("dmc-point-mass-easy")`. A mass on two slides in a walled plane (Euler, timestep 0.02, one
 physics step per control step), pushed through two tendons, must reach the target at the centre.
 The MJCF is dm_control's `point_mass.xml`, read from the installed package.
 
@@ -9,7 +9,7 @@ The MJCF is dm_control's `point_mass.xml`, read from the installed package.
   with r the target's radius, small_control = (4 + mean tolerance(ctrl, margin 1,
   value_at_margin 0, quadratic)) / 5.
 - Reset: both slides uniform in their ranges (dm_control's joint randomiser), at rest.
-- Episode: 1,000 steps (20 s), never terminated. "hard" (random actuation directions per episode,
+- Episode: 1,000 steps (20 s simulated), never terminated. "hard" (random actuation directions per episode,
   a per-episode model edit) is not offered.
 """
 

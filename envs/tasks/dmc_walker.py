@@ -1,6 +1,6 @@
 """The DeepMind Control Suite's planar walker (dm_control/suite/walker.py), stepped by MJX:
-`envs.make("dmc-walker-stand")`, `-walk`, `-run`. A planar biped (9 joints, 6 motors; Euler at
-0.0025 s, 10 physics steps per control step of 0.025 s) stands up, walks at 1 m/s or runs at 8 m/s.
+`envs.make("dmc-walker-stand")`, `-walk`, `-run`. A planar biped (9 joints, 6 motors; Euler,
+timestep 0.0025, 10 physics steps per control step: dt 0.025) stands up, walks at 1 m/s or runs at 8 m/s.
 The MJCF is dm_control's `walker.xml`, read from the installed package.
 
 - Action: Box(-1, 1, (6,)): right and left hip, knee, ankle.
@@ -12,7 +12,7 @@ The MJCF is dm_control's `walker.xml`, read from the installed package.
   value_at_margin 0.5, linear).
 - Reset: dm_control's joint randomiser: limited hinges uniform in their ranges, rooty U(-pi, pi),
   rootx and rootz (unlimited slides) at 0, at rest; the walker starts in the air and falls.
-- Episode: 1,000 steps (25 s), never terminated.
+- Episode: 1,000 steps (25 s simulated), never terminated.
 """
 
 from __future__ import annotations
