@@ -49,6 +49,8 @@ TASKS = (
     ("dmc-cartpole-swingup", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUp", 1000, ()),
     ("dmc-cartpole-swingup-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUpSparse", 1000, ()),
     ("dmc-cheetah-run", "envs.tasks.dmc_cheetah:DmcCheetahRun", 1000, ()),
+    ("dmc-hopper-hop", "envs.tasks.dmc_hopper:DmcHopperHop", 1000, ("DmcHopper",)),
+    ("dmc-hopper-stand", "envs.tasks.dmc_hopper:DmcHopperStand", 1000, ()),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
     ("dmc-walker-stand", "envs.tasks.dmc_walker:DmcWalkerStand", 1000, ("DmcWalker",)),

@@ -104,9 +104,9 @@ class Transitions:
     qacc_warmstart: np.ndarray  # MuJoCo's solver starts from it; dm_control's physics is given the same
     actions: np.ndarray  # in dm_control's action space (the ctrlrange)
     steps: Steps
-    reset_obs: np.ndarray  # each episode's first observation
-    reset_qpos: np.ndarray
-    reset_qvel: np.ndarray
+    reset_obs: np.ndarray | None = None  # each episode's first observation (`transitions`)
+    reset_qpos: np.ndarray | None = None
+    reset_qvel: np.ndarray | None = None
 
 
 def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: int = 160,
@@ -136,6 +136,27 @@ def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: i
     qpos, qvel, act, warmstart, obs, reward, discount = map(pick, record)
     env_actions = np.stack([env.to_env_action(a) for a in pick(actions).astype(np.float64)])
     return Transitions(qpos, qvel, act, warmstart, env_actions, Steps(obs, reward, discount), *resets)
+
+
+def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray) -> Transitions:
+    """Our env stepped once from each given state (qpos, qvel; everything else as after a reset,
+    `mjx.forward` of it) with each action in [-1, 1] (one jitted vmap): for states that random
+    rollouts from resets rarely reach (a hopper standing, a cheetah running)."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+
+    def step(key, q, v, action):
+        state = env.reset(key)
+        data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
+                                            qvel=v.astype(state.pipeline_state.qvel.dtype))
+        before = env.compute_derived(data)
+        after = env.step(state.replace(pipeline_state=before), action)
+        return before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done
+
+    keys = jax.random.split(jax.random.PRNGKey(0), len(qpos))
+    act, warmstart, obs, reward, discount = jax.tree.map(np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel,
+                                                                                               actions))
+    env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
+    return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount))
 
 
 def put_state(physics, qpos, qvel, act=None, qacc_warmstart=None) -> None:

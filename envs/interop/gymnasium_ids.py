@@ -51,6 +51,8 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-cartpole-swingup-v0": ("dmc-cartpole-swingup", 1000),
     "dmc-cartpole-swingup-sparse-v0": ("dmc-cartpole-swingup-sparse", 1000),
     "dmc-cheetah-run-v0": ("dmc-cheetah-run", 1000),
+    "dmc-hopper-hop-v0": ("dmc-hopper-hop", 1000),
+    "dmc-hopper-stand-v0": ("dmc-hopper-stand", 1000),
     "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),
     "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
     "dmc-walker-stand-v0": ("dmc-walker-stand", 1000),
