@@ -53,6 +53,8 @@ TASKS = (
     ("dmc-hopper-stand", "envs.tasks.dmc_hopper:DmcHopperStand", 1000, ()),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
+    ("dmc-reacher-easy", "envs.tasks.dmc_reacher:DmcReacherEasy", 1000, ("DmcReacher",)),
+    ("dmc-reacher-hard", "envs.tasks.dmc_reacher:DmcReacherHard", 1000, ()),
     ("dmc-walker-stand", "envs.tasks.dmc_walker:DmcWalkerStand", 1000, ("DmcWalker",)),
     ("dmc-walker-walk", "envs.tasks.dmc_walker:DmcWalkerWalk", 1000, ()),
     ("dmc-walker-run", "envs.tasks.dmc_walker:DmcWalkerRun", 1000, ()),

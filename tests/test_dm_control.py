@@ -27,18 +27,19 @@ TASKS = {
     "dmc-cartpole-swingup": ("cartpole", "swingup"), "dmc-cartpole-swingup-sparse": ("cartpole", "swingup_sparse"),
     "dmc-cheetah-run": ("cheetah", "run"), "dmc-hopper-hop": ("hopper", "hop"), "dmc-hopper-stand": ("hopper", "stand"),
     "dmc-pendulum-swingup": ("pendulum", "swingup"),
-    "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-walker-stand": ("walker", "stand"),
+    "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-reacher-easy": ("reacher", "easy"),
+    "dmc-reacher-hard": ("reacher", "hard"), "dmc-walker-stand": ("walker", "stand"),
     "dmc-walker-walk": ("walker", "walk"), "dmc-walker-run": ("walker", "run"),
 }
 # One task per domain in the fast suite (one compile each); the others share its physics and differ
 # in reward and reset (the reset distributions of all are in the fast suite, their steps in the slow).
 FAST = ("dmc-acrobot-swingup", "dmc-cartpole-swingup", "dmc-cheetah-run", "dmc-hopper-hop", "dmc-pendulum-swingup",
-        "dmc-point-mass-easy", "dmc-walker-walk")
+        "dmc-point-mass-easy", "dmc-reacher-easy", "dmc-walker-walk")
 # float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
 # (plus 1e-4 relative) and the reward's. Contacts (cheetah, walker) and walker's 10 substeps make
 # the velocities' rounding larger.
 BOUNDS = {"acrobot": (1e-5, 1e-5), "cartpole": (1e-5, 1e-5), "pendulum": (1e-5, 1e-5),
-          "point_mass": (1e-5, 1e-5), "cheetah": (1e-3, 1e-5), "walker": (2e-3, 1e-5), "hopper": (1e-3, 1e-5)}
+          "point_mass": (1e-5, 1e-5), "cheetah": (1e-3, 1e-5), "walker": (2e-3, 1e-5), "hopper": (1e-3, 1e-5), "reacher": (1e-5, 1e-5)}
 # States near each task's goal, where random rollouts from resets rarely go (the cheetah is slow, the
 # hopper lies down, the sparse rewards stay 0 or 1, the point mass misses its target): qpos0 plus
 # U(-spread, spread) (cartpole's cart: +-0.3, around the sparse reward's +-0.25), velocities
@@ -46,7 +47,7 @@ BOUNDS = {"acrobot": (1e-5, 1e-5), "cartpole": (1e-5, 1e-5), "pendulum": (1e-5, 
 NEAR_GOAL = {"dmc-cheetah-run": (0.1, 1.0, 10.0), "dmc-hopper-hop": (0.1, 1.0, 2.0), "dmc-hopper-stand": (0.1, 1.0, 0.0),
              "dmc-cartpole-balance-sparse": (0.15, 0.5, 0.0), "dmc-cartpole-swingup-sparse": (0.15, 0.5, 0.0),
              "dmc-acrobot-swingup-sparse": (0.3, 0.5, 0.0), "dmc-point-mass-easy": (0.03, 0.05, 0.0)}
-FAST_NEAR_GOAL = ("dmc-hopper-hop", "dmc-point-mass-easy")
+FAST_NEAR_GOAL = ("dmc-point-mass-easy",)
 
 
 def bounds(name):
@@ -73,7 +74,7 @@ def test_steps_match_dm_control(fast_case):
 
 def test_reset_observation_is_dm_controls(fast_case):
     name, env, starts, _ = fast_case
-    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
+    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
     np.testing.assert_allclose(starts.reset_obs, theirs, atol=bounds(name)["obs"], rtol=1e-4)
 
 
@@ -166,6 +167,21 @@ def test_reset_distribution_matches_dm_control(name):
     assert_same_distribution(qvel, their_qvel, f"{name} qvel")
     drawn = their_qpos.std(0) > 0
     assert drawn.any() and np.array_equal(qpos.std(0) > 0, drawn), "the positions dm_control draws, and only those"
+
+
+def test_reacher_target_distribution_matches_dm_control():
+    """Reacher's per-episode target (dm_control: `geom_pos` of the target, here `info["target"]`)."""
+    env = envs.make("dmc-reacher-easy").unwrapped
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(5), 2000))
+    ours = np.asarray(states.info["target"])
+    theirs = load("reacher", "easy")
+    their_targets = []
+    for _ in range(2000):
+        theirs.reset()
+        their_targets.append(theirs.physics.named.model.geom_pos["target", :2].copy())
+    assert_same_distribution(ours, np.array(their_targets), "target")
+    radius = np.linalg.norm(ours, axis=1)
+    assert radius.min() >= 0.05 - 1e-6 and radius.max() <= 0.2 + 1e-6 and np.ptp(radius) > 0.14
 
 
 @pytest.mark.slow

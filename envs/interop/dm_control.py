@@ -9,8 +9,10 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `load(domain, task)`: dm_control's env (`dm_control.suite.load`), after `shim_mujoco_4`.
 - `transitions(env)`: our env (jit + vmap) from its resets under random actions; each kept step is
   (the state before, the action, what our step returned).
-- `dm_control_steps(env, starts)`: dm_control's env reset, its physics put in each start state
-  (qpos, qvel, act, `mj_forward`, then MuJoCo's solver warm start) and stepped once with the action.
+- `dm_control_steps(env, starts)`: dm_control's env reset, given the episode's model edits (the
+  task's `put_episode`, e.g. reacher's target), its physics put in each start state (qpos, qvel,
+  act, `mj_forward`, then MuJoCo's solver warm start) and stepped once with the action.
+- `steps_from(env, qpos, qvel, actions)`: our steps from given states (near a task's goal).
 - `Comparison`: both sides, with the error of each step's observation, reward and discount.
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
@@ -104,9 +106,11 @@ class Transitions:
     qacc_warmstart: np.ndarray  # MuJoCo's solver starts from it; dm_control's physics is given the same
     actions: np.ndarray  # in dm_control's action space (the ctrlrange)
     steps: Steps
+    episode: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # the task's `episode_info` per step
     reset_obs: np.ndarray | None = None  # each episode's first observation (`transitions`)
     reset_qpos: np.ndarray | None = None
     reset_qvel: np.ndarray | None = None
+    reset_episode: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
 
 
 def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: int = 160,
@@ -123,19 +127,32 @@ def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: i
             before = state.pipeline_state
             state = env.step(state, action)
             return state, (before.qpos, before.qvel, before.act, before.qacc_warmstart, state.obs, state.reward,
-                           1.0 - state.done)
+                           1.0 - state.done, episode_info(env, state))
 
         start = env.reset(reset_key)
         _, record = jax.lax.scan(step, start, actions)
-        return actions, record, (start.obs, start.pipeline_state.qpos, start.pipeline_state.qvel)
+        return actions, record, (start.obs, start.pipeline_state.qpos, start.pipeline_state.qvel,
+                                 episode_info(env, start))
 
     keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
     actions, record, resets = jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(keys))
     chosen = np.linspace(0, num_envs * num_steps - 1, keep).round().astype(int)
     pick = lambda x: x.reshape(num_envs * num_steps, *x.shape[2:])[chosen]
-    qpos, qvel, act, warmstart, obs, reward, discount = map(pick, record)
+    qpos, qvel, act, warmstart, obs, reward, discount, episode = jax.tree.map(pick, record)
     env_actions = np.stack([env.to_env_action(a) for a in pick(actions).astype(np.float64)])
-    return Transitions(qpos, qvel, act, warmstart, env_actions, Steps(obs, reward, discount), *resets)
+    reset_obs, reset_qpos, reset_qvel, reset_episode = resets
+    return Transitions(qpos, qvel, act, warmstart, env_actions, Steps(obs, reward, discount), episode, reset_obs,
+                       reset_qpos, reset_qvel, reset_episode)
+
+
+def episode_info(env: Env, state) -> dict:
+    """The `state.info` entries that hold a task's per-episode model edits (its `episode_info`:
+    reacher's target), which dm_control's physics must be given too (`put_episode`)."""
+    return {name: state.info[name] for name in getattr(env, "episode_info", ())}
+
+
+def _episode_at(episode: Mapping[str, np.ndarray], index: int) -> dict:
+    return {name: np.asarray(values[index], np.float64) for name, values in episode.items()}
 
 
 def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray) -> Transitions:
@@ -150,13 +167,14 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
         before = env.compute_derived(data)
         after = env.step(state.replace(pipeline_state=before), action)
-        return before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done
+        return before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state)
 
     keys = jax.random.split(jax.random.PRNGKey(0), len(qpos))
-    act, warmstart, obs, reward, discount = jax.tree.map(np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel,
-                                                                                               actions))
+    act, warmstart, obs, reward, discount, episode = jax.tree.map(
+        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, actions))
     env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
-    return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount))
+    return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
+                       episode)
 
 
 def put_state(physics, qpos, qvel, act=None, qacc_warmstart=None) -> None:
@@ -176,22 +194,28 @@ def dm_control_steps(env: Env, starts: Transitions, seed: int = 0) -> Steps:
     start state and stepped once with the same action."""
     theirs = load(env.domain, env.task, seed)
     obs, rewards, discounts = [], [], []
-    for qpos, qvel, act, warmstart, action in zip(starts.qpos, starts.qvel, starts.act, starts.qacc_warmstart,
-                                                  starts.actions):
+    for index, (qpos, qvel, act, warmstart, action) in enumerate(zip(starts.qpos, starts.qvel, starts.act,
+                                                                     starts.qacc_warmstart, starts.actions)):
         theirs.reset()
+        if starts.episode:
+            env.put_episode(theirs.physics, _episode_at(starts.episode, index))
         put_state(theirs.physics, qpos.astype(np.float64), qvel.astype(np.float64), act, warmstart)
         step = theirs.step(action)
         obs.append(flatten(step.observation)), rewards.append(step.reward), discounts.append(step.discount)
     return Steps(np.array(obs), np.array(rewards), np.array(discounts))
 
 
-def dm_control_observations(env: Env, qpos: np.ndarray, qvel: np.ndarray, seed: int = 0) -> np.ndarray:
-    """dm_control's observation of each state (qpos, qvel) after its reset's `mj_forward`: what our
-    reset observes must be dm_control's observation of the same state."""
+def dm_control_observations(env: Env, qpos: np.ndarray, qvel: np.ndarray, episode: Mapping | None = None,
+                            seed: int = 0) -> np.ndarray:
+    """dm_control's observation of each state (qpos, qvel; `episode`: the task's per-episode edits)
+    after its reset's `mj_forward`: what our reset observes must be dm_control's observation of the
+    same state."""
     theirs = load(env.domain, env.task, seed)
     found = []
-    for q, v in zip(qpos, qvel):
+    for index, (q, v) in enumerate(zip(qpos, qvel)):
         theirs.reset()
+        if episode:
+            env.put_episode(theirs.physics, _episode_at(episode, index))
         put_state(theirs.physics, q.astype(np.float64), v.astype(np.float64))
         found.append(flatten(theirs.task.get_observation(theirs.physics)))
     return np.array(found)

@@ -55,6 +55,8 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-hopper-stand-v0": ("dmc-hopper-stand", 1000),
     "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),
     "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
+    "dmc-reacher-easy-v0": ("dmc-reacher-easy", 1000),
+    "dmc-reacher-hard-v0": ("dmc-reacher-hard", 1000),
     "dmc-walker-stand-v0": ("dmc-walker-stand", 1000),
     "dmc-walker-walk-v0": ("dmc-walker-walk", 1000),
     "dmc-walker-run-v0": ("dmc-walker-run", 1000),

@@ -145,6 +145,9 @@ class DmControlEnv(MjxEnv):
     control_timestep: ClassVar[float | None] = None  # the domain's _CONTROL_TIMESTEP (None: one step)
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
+    # `state.info` entries holding per-episode model edits (reacher's target), which
+    # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
+    episode_info: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, xml: str | None = None):
         super().__init__(xml if xml is not None else dm_control_asset(f"{self.domain}.xml"))
@@ -190,6 +193,10 @@ class DmControlEnv(MjxEnv):
             raise ValueError(f"task {self.name}: observations() gave keys {tuple(values)}, "
                              f"observation_shapes names {tuple(k for k, _ in self.observation_shapes)}")
         return jnp.concatenate([jnp.ravel(value) for value in values.values()]).astype(data.qpos.dtype)
+
+    def put_episode(self, physics, info: dict) -> None:
+        """Make this episode's model edits (`info`: the `episode_info` entries) in dm_control's
+        `physics`; nothing for a task without any."""
 
     def terminated(self, data: mjx.Data) -> jax.Array:
         return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)
