@@ -155,14 +155,18 @@ def _episode_at(episode: Mapping[str, np.ndarray], index: int) -> dict:
     return {name: np.asarray(values[index], np.float64) for name, values in episode.items()}
 
 
-def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray) -> Transitions:
+def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray,
+               episode: Mapping[str, np.ndarray] | None = None) -> Transitions:
     """Our env stepped once from each given state (qpos, qvel; everything else as after a reset,
-    `mjx.forward` of it) with each action in [-1, 1] (one jitted vmap): for states that random
-    rollouts from resets rarely reach (a hopper standing, a cheetah running)."""
+    `mjx.forward` of it; `episode`: the task's `episode_info` entries, e.g. reacher's target, in place
+    of the reset's) with each action in [-1, 1] (one jitted vmap): for states that random rollouts
+    from resets rarely reach (a hopper standing, a cheetah running, a fingertip on its target)."""
     env = (make(env) if isinstance(env, str) else env).unwrapped
+    episode = {name: np.asarray(values) for name, values in (episode or {}).items()}
 
-    def step(key, q, v, action):
+    def step(key, q, v, action, given):
         state = env.reset(key)
+        state = state.replace(info={**state.info, **{k: value.astype(state.info[k].dtype) for k, value in given.items()}})
         data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
         before = env.compute_derived(data)
@@ -171,7 +175,7 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
 
     keys = jax.random.split(jax.random.PRNGKey(0), len(qpos))
     act, warmstart, obs, reward, discount, episode = jax.tree.map(
-        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, actions))
+        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, actions, episode))
     env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
     return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
                        episode)
