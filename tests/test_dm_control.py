@@ -205,6 +205,22 @@ def test_reacher_target_distribution_matches_dm_control():
     assert radius.min() >= 0.05 - 1e-6 and radius.max() <= 0.2 + 1e-6 and np.ptp(radius) > 0.14
 
 
+def test_reacher_target_moves_with_each_episode_under_auto_reset():
+    """The target lives in `state.info`: auto-reset draws a new one, it stays through an episode,
+    and the observation's to_target is measured from it."""
+    env = envs.wrap_for_training(envs.make("dmc-reacher-easy", episode_length=5), 4)
+    state, step = jax.jit(env.reset)(jax.random.PRNGKey(0)), jax.jit(env.step)
+    targets, seen = [], []
+    for _ in range(12):
+        state = step(state, jnp.full((4, 2), 0.5))
+        finger = np.asarray(state.pipeline_state.geom_xpos[:, env.unwrapped.mj_model.geom("finger").id, :2])
+        targets.append(np.asarray(state.info["target"])), seen.append(np.asarray(state.obs[:, 2:4]) + finger)
+    targets = np.array(targets)
+    np.testing.assert_allclose(np.array(seen), targets, atol=1e-6)
+    changed = np.abs(np.diff(targets, axis=0)).max(axis=(1, 2)) > 0
+    np.testing.assert_array_equal(changed, [(i + 1) % 5 == 4 for i in range(11)])
+
+
 @pytest.mark.slow
 def test_cheetah_reset_distribution_matches_dm_control():
     """Cheetah settles for 200 physics steps at reset: after them, the same distribution."""
