@@ -44,6 +44,7 @@ TASKS = (
     # MJX: the DeepMind Control Suite's tasks (dm_control 1.0.50's MJCF and rules; envs.interop.dm_control proves them)
     ("dmc-acrobot-swingup", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUp", 1000, ("DmcAcrobot",)),
     ("dmc-acrobot-swingup-sparse", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUpSparse", 1000, ()),
+    ("dmc-ball-in-cup-catch", "envs.tasks.dmc_ball_in_cup:DmcBallInCupCatch", 1000, ()),
     ("dmc-cartpole-balance", "envs.tasks.dmc_cartpole:DmcCartPoleBalance", 1000, ("DmcCartPole",)),
     ("dmc-cartpole-balance-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleBalanceSparse", 1000, ()),
     ("dmc-cartpole-swingup", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUp", 1000, ()),

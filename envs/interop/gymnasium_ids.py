@@ -46,6 +46,7 @@ IDS: dict[str, tuple[str, int]] = {
     "PendulumMjxDiscrete-v0": ("pendulum-mjx-discrete", 200),
     "dmc-acrobot-swingup-v0": ("dmc-acrobot-swingup", 1000),
     "dmc-acrobot-swingup-sparse-v0": ("dmc-acrobot-swingup-sparse", 1000),
+    "dmc-ball-in-cup-catch-v0": ("dmc-ball-in-cup-catch", 1000),
     "dmc-cartpole-balance-v0": ("dmc-cartpole-balance", 1000),
     "dmc-cartpole-balance-sparse-v0": ("dmc-cartpole-balance-sparse", 1000),
     "dmc-cartpole-swingup-v0": ("dmc-cartpole-swingup", 1000),
