@@ -222,6 +222,7 @@ def test_reacher_target_distribution_matches_dm_control():
     assert radius.min() >= 0.05 - 1e-6 and radius.max() <= 0.2 + 1e-6 and np.ptp(radius) > 0.14
 
 
+@pytest.mark.slow  # a compile of its own (the wrappers' reset and step)
 def test_reacher_target_moves_with_each_episode_under_auto_reset():
     """The target lives in `state.info`: auto-reset draws a new one, it stays through an episode,
     and the observation's to_target is measured from it."""
