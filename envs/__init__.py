@@ -41,6 +41,24 @@ TASKS = (
     ("ant", "envs.tasks.ant:Ant", 1000, ("AntParams",)),
     ("humanoid", "envs.tasks.humanoid:Humanoid", 1000, ("HumanoidParams",)),
     ("pusher", "envs.tasks.pusher:Pusher", 100, ("PusherParams",)),
+    # MJX: the DeepMind Control Suite's tasks (dm_control 1.0.50's MJCF and rules; envs.interop.dm_control proves them)
+    ("dmc-acrobot-swingup", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUp", 1000, ("DmcAcrobot",)),
+    ("dmc-acrobot-swingup-sparse", "envs.tasks.dmc_acrobot:DmcAcrobotSwingUpSparse", 1000, ()),
+    ("dmc-ball-in-cup-catch", "envs.tasks.dmc_ball_in_cup:DmcBallInCupCatch", 1000, ()),
+    ("dmc-cartpole-balance", "envs.tasks.dmc_cartpole:DmcCartPoleBalance", 1000, ("DmcCartPole",)),
+    ("dmc-cartpole-balance-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleBalanceSparse", 1000, ()),
+    ("dmc-cartpole-swingup", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUp", 1000, ()),
+    ("dmc-cartpole-swingup-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUpSparse", 1000, ()),
+    ("dmc-cheetah-run", "envs.tasks.dmc_cheetah:DmcCheetahRun", 1000, ()),
+    ("dmc-hopper-hop", "envs.tasks.dmc_hopper:DmcHopperHop", 1000, ("DmcHopper",)),
+    ("dmc-hopper-stand", "envs.tasks.dmc_hopper:DmcHopperStand", 1000, ()),
+    ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
+    ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
+    ("dmc-reacher-easy", "envs.tasks.dmc_reacher:DmcReacherEasy", 1000, ("DmcReacher",)),
+    ("dmc-reacher-hard", "envs.tasks.dmc_reacher:DmcReacherHard", 1000, ()),
+    ("dmc-walker-stand", "envs.tasks.dmc_walker:DmcWalkerStand", 1000, ("DmcWalker",)),
+    ("dmc-walker-walk", "envs.tasks.dmc_walker:DmcWalkerWalk", 1000, ()),
+    ("dmc-walker-run", "envs.tasks.dmc_walker:DmcWalkerRun", 1000, ()),
 )
 
 # Public names of the API imported on first use too: their modules load mujoco.mjx (which loads
@@ -48,6 +66,7 @@ TASKS = (
 _LAZY_API = {
     "MjxEnv": "envs.mjx_env",
     "GymnasiumMujocoEnv": "envs.tasks.gymnasium_mujoco",
+    "DmControlEnv": "envs.tasks.dm_control_suite",
     "BraxEnv": "envs.interop.brax",
     "to_brax": "envs.interop.brax",
 }

@@ -51,3 +51,19 @@ def load_model(name: str | os.PathLike) -> mujoco.MjModel:
         return mujoco.MjModel.from_xml_path(str(path))
     except ValueError as err:
         raise ValueError(f"MuJoCo could not load {path}: {err}") from err
+
+
+def dm_control_asset(file_name: str) -> Path:
+    """An MJCF file of dm_control's suite (`dm_control/suite/<file_name>`), read from the installed
+    `dm_control` package (never copied into this repo). Found without importing dm_control, which
+    needs its mujoco 4 shim (`envs.interop.dm_control`) before it loads a model: MuJoCo reads the
+    file and its `./common/*.xml` includes itself."""
+    spec = importlib.util.find_spec("dm_control")
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError(f"the DeepMind Control Suite tasks load {file_name} from the installed "
+                                  "dm_control package: pip install 'mjxsuite[dmc]' (dm-control==1.0.50)")
+    path = Path(spec.origin).parent / "suite" / file_name
+    if not path.is_file():
+        raise FileNotFoundError(f"{file_name} is not in the installed dm_control package ({path.parent}); "
+                                "mjxsuite is checked with dm-control==1.0.50")
+    return path

@@ -166,5 +166,6 @@ def test_one_task_table_gives_the_registrations_the_lazy_names_and_all():
         assert all(envs._LAZY[public] == module for public in (cls, *more)), name
     modules = {row[1].partition(":")[0] for row in envs.TASKS}
     files = {f"envs.tasks.{p.stem}" for p in (ROOT / "envs" / "tasks").glob("*.py") if p.stem != "__init__"}
-    assert files - modules <= {"envs.tasks.gymnasium_mujoco"}, "a task file without a row in envs.TASKS"
+    assert files - modules <= {"envs.tasks.gymnasium_mujoco", "envs.tasks.dm_control_suite"}, \
+        "a task file without a row in envs.TASKS (the two task bases aside)"
     assert all(hasattr(envs, public) for public in envs.__all__)

@@ -23,7 +23,8 @@ VECTOR_ENTRY_POINT = "envs.interop.gymnasium:make_vector_env"
 
 # Gymnasium id (within our namespace) -> (our registered name, max_episode_steps). The ten MuJoCo v5
 # tasks and the two classic-control ones carry Gymnasium's own ids and time limits (tests check them
-# against Gymnasium's registry and ours); the MJX-only tasks take v0.
+# against Gymnasium's registry and ours); the MJX-only tasks take v0, the
+# DeepMind Control Suite's their envs.make name and v0 (Shimmy's dm_control/cheetah-run-v0 is mjxsuite/dmc-cheetah-run-v0).
 IDS: dict[str, tuple[str, int]] = {
     "HalfCheetah-v5": ("half-cheetah", 1000),
     "Hopper-v5": ("hopper", 1000),
@@ -43,6 +44,23 @@ IDS: dict[str, tuple[str, int]] = {
     "CartPoleBalanceMjx-v0": ("cartpole-balance-mjx", 1000),
     "PendulumMjx-v0": ("pendulum-mjx", 200),
     "PendulumMjxDiscrete-v0": ("pendulum-mjx-discrete", 200),
+    "dmc-acrobot-swingup-v0": ("dmc-acrobot-swingup", 1000),
+    "dmc-acrobot-swingup-sparse-v0": ("dmc-acrobot-swingup-sparse", 1000),
+    "dmc-ball-in-cup-catch-v0": ("dmc-ball-in-cup-catch", 1000),
+    "dmc-cartpole-balance-v0": ("dmc-cartpole-balance", 1000),
+    "dmc-cartpole-balance-sparse-v0": ("dmc-cartpole-balance-sparse", 1000),
+    "dmc-cartpole-swingup-v0": ("dmc-cartpole-swingup", 1000),
+    "dmc-cartpole-swingup-sparse-v0": ("dmc-cartpole-swingup-sparse", 1000),
+    "dmc-cheetah-run-v0": ("dmc-cheetah-run", 1000),
+    "dmc-hopper-hop-v0": ("dmc-hopper-hop", 1000),
+    "dmc-hopper-stand-v0": ("dmc-hopper-stand", 1000),
+    "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),
+    "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
+    "dmc-reacher-easy-v0": ("dmc-reacher-easy", 1000),
+    "dmc-reacher-hard-v0": ("dmc-reacher-hard", 1000),
+    "dmc-walker-stand-v0": ("dmc-walker-stand", 1000),
+    "dmc-walker-walk-v0": ("dmc-walker-walk", 1000),
+    "dmc-walker-run-v0": ("dmc-walker-run", 1000),
 }
 
 

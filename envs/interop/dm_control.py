@@ -1,0 +1,283 @@
+"""Prove an MJX task equal to dm_control's own env of the same task, step for step, and its resets
+equal in distribution (the twin of `envs.interop.gymnasium_equality`).
+
+    from envs.interop.dm_control import compare_with_dm_control
+    report = compare_with_dm_control("dmc-cheetah-run")
+    print(report.worst())          # {"obs": 2e-4, "reward": 1e-6, "discount": 0.0}
+    report.assert_within({"obs": 1e-3, "reward": 1e-4})
+
+- `load(domain, task)`: dm_control's env (`dm_control.suite.load`), after `shim_mujoco_4`.
+- `transitions(env)`: our env (jit + vmap) from its resets under random actions; each kept step is
+  (the state before, the action, what our step returned).
+- `dm_control_steps(env, starts)`: dm_control's env reset, given the episode's model edits (the
+  task's `put_episode`, e.g. reacher's target), its physics put in each start state (qpos, qvel,
+  act, `mj_forward`, then MuJoCo's solver warm start) and stepped once with the action.
+- `steps_from(env, qpos, qvel, actions)`: our steps from given states (near a task's goal).
+- `Comparison`: both sides, with the error of each step's observation, reward and discount.
+- `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
+  distributions (their random numbers differ: numpy's RandomState there, JAX's here).
+
+dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
+(`load`, with MUJOCO_GL=disable unless the variable is set).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+from typing import Any, Mapping
+
+import jax
+import mujoco
+import numpy as np
+
+from envs.core import Env
+from envs.registry import make
+
+# The fields mujoco 4.0.0 dropped that dm_control 1.0.50's generated `sizes.array_sizes` (built
+# against MuJoCo 3.17's headers) still lists; no suite domain uses flex.
+MUJOCO_4_DROPPED = {
+    "mjmodel": {"flex_vertedge", "flex_vertedgeadr", "flex_vertedgenum", "flex_vertmetric",
+                "flexvert_J_colind", "flexvert_J_rowadr", "flexvert_J_rownnz"},
+    "mjdata": {"flexvert_J", "flexvert_length"},
+}
+
+
+def shim_mujoco_4() -> None:
+    """Let dm_control 1.0.50 run on mujoco 4.0.0 (idempotent). dm_control builds its named index
+    (`physics.named`) from `sizes.array_sizes`, a table generated from MuJoCo 3.17's headers; mujoco
+    4.0.0 removed nine flex fields from MjModel and MjData, so the first `suite.load` fails with
+    "'MjModel' object has no attribute 'flex_vertedge'". The fields the installed mujoco lacks are
+    removed from the table; any other missing field raises, naming it (a different break)."""
+    from dm_control.mujoco.wrapper.mjbindings import sizes
+
+    structs = {"mjmodel": mujoco.MjModel, "mjdata": mujoco.MjData}
+    for struct, cls in structs.items():
+        missing = {name for name in sizes.array_sizes[struct] if not hasattr(cls, name)}
+        unexpected = missing - MUJOCO_4_DROPPED[struct]
+        if unexpected:
+            raise RuntimeError(f"dm_control's {struct} fields {sorted(unexpected)} are missing from mujoco "
+                               f"{mujoco.__version__}: not the known mujoco 4 break (checked: dm-control==1.0.50)")
+        for name in missing:
+            del sizes.array_sizes[struct][name]
+
+
+def load(domain: str, task: str, seed: int = 0):
+    """dm_control's `suite.load(domain, task)` seeded with `seed`, on the installed mujoco. Where
+    dm_control is first imported here and `MUJOCO_GL` is unset, it is imported with
+    MUJOCO_GL=disable (nothing here renders; without it dm_control tries GLFW, which warns on a
+    machine without a display) and the variable is removed again: set MUJOCO_GL=egl before the
+    first import for dm_control's pixels in the same process."""
+    if "dm_control.suite" not in sys.modules and "MUJOCO_GL" not in os.environ:
+        os.environ["MUJOCO_GL"] = "disable"
+        try:
+            shim_mujoco_4()
+            import dm_control.suite  # noqa: F401  (dm_control reads MUJOCO_GL when first imported)
+        finally:
+            del os.environ["MUJOCO_GL"]
+    shim_mujoco_4()
+    from dm_control import suite
+
+    return suite.load(domain, task, task_kwargs={"random": seed})
+
+
+def flatten(observation: Mapping[str, Any]) -> np.ndarray:
+    """dm_control's OrderedDict observation as one vector, in its order (`flatten_observation`)."""
+    return np.concatenate([np.ravel(value) for value in observation.values()])
+
+
+@dataclasses.dataclass
+class Steps:
+    """A batch of env steps: what each returned (arrays with a leading batch axis)."""
+
+    obs: np.ndarray
+    reward: np.ndarray
+    discount: np.ndarray
+
+
+@dataclasses.dataclass
+class Transitions:
+    """Our env's steps and the states they started from."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+    act: np.ndarray
+    qacc_warmstart: np.ndarray  # MuJoCo's solver starts from it; dm_control's physics is given the same
+    actions: np.ndarray  # in dm_control's action space (the ctrlrange)
+    steps: Steps
+    episode: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)  # the task's `episode_info` per step
+    reset_obs: np.ndarray | None = None  # each episode's first observation (`transitions`)
+    reset_qpos: np.ndarray | None = None
+    reset_qvel: np.ndarray | None = None
+    reset_episode: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+
+
+def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: int = 160,
+                seed: int = 0) -> Transitions:
+    """`keep` steps of `num_envs` episodes of `num_steps` random actions each (uniform in [-1, 1],
+    one jitted scan over a vmapped env; no time limit), spread evenly over the episodes' steps."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+
+    def episode(key):
+        reset_key, action_key = jax.random.split(key)
+        actions = jax.random.uniform(action_key, (num_steps, env.action_size), minval=-1.0, maxval=1.0)
+
+        def step(state, action):
+            before = state.pipeline_state
+            state = env.step(state, action)
+            return state, (before.qpos, before.qvel, before.act, before.qacc_warmstart, state.obs, state.reward,
+                           1.0 - state.done, episode_info(env, state))
+
+        start = env.reset(reset_key)
+        _, record = jax.lax.scan(step, start, actions)
+        return actions, record, (start.obs, start.pipeline_state.qpos, start.pipeline_state.qvel,
+                                 episode_info(env, start))
+
+    keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
+    actions, record, resets = jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(keys))
+    chosen = np.linspace(0, num_envs * num_steps - 1, keep).round().astype(int)
+    pick = lambda x: x.reshape(num_envs * num_steps, *x.shape[2:])[chosen]
+    qpos, qvel, act, warmstart, obs, reward, discount, episode = jax.tree.map(pick, record)
+    env_actions = np.stack([env.to_env_action(a) for a in pick(actions).astype(np.float64)])
+    reset_obs, reset_qpos, reset_qvel, reset_episode = resets
+    return Transitions(qpos, qvel, act, warmstart, env_actions, Steps(obs, reward, discount), episode, reset_obs,
+                       reset_qpos, reset_qvel, reset_episode)
+
+
+def episode_info(env: Env, state) -> dict:
+    """The `state.info` entries that hold a task's per-episode model edits (its `episode_info`:
+    reacher's target), which dm_control's physics must be given too (`put_episode`)."""
+    return {name: state.info[name] for name in getattr(env, "episode_info", ())}
+
+
+def _episode_at(episode: Mapping[str, np.ndarray], index: int) -> dict:
+    return {name: np.asarray(values[index], np.float64) for name, values in episode.items()}
+
+
+def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray,
+               episode: Mapping[str, np.ndarray] | None = None) -> Transitions:
+    """Our env stepped once from each given state (qpos, qvel; everything else as after a reset,
+    `mjx.forward` of it; `episode`: the task's `episode_info` entries, e.g. reacher's target, in place
+    of the reset's) with each action in [-1, 1] (one jitted vmap): for states that random rollouts
+    from resets rarely reach (a hopper standing, a cheetah running, a fingertip on its target)."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+    episode = {name: np.asarray(values) for name, values in (episode or {}).items()}
+
+    def step(key, q, v, action, given):
+        state = env.reset(key)
+        state = state.replace(info={**state.info, **{k: value.astype(state.info[k].dtype) for k, value in given.items()}})
+        data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
+                                            qvel=v.astype(state.pipeline_state.qvel.dtype))
+        before = env.compute_derived(data)
+        after = env.step(state.replace(pipeline_state=before), action)
+        return before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state)
+
+    keys = jax.random.split(jax.random.PRNGKey(0), len(qpos))
+    act, warmstart, obs, reward, discount, episode = jax.tree.map(
+        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, actions, episode))
+    env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
+    return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
+                       episode)
+
+
+def put_state(physics, qpos, qvel, act=None, qacc_warmstart=None) -> None:
+    """dm_control's physics in the state (qpos, qvel, act) with everything derived from it
+    (`mj_forward`, as after dm_control's reset), then the solver's warm start."""
+    physics.data.qpos[:] = qpos
+    physics.data.qvel[:] = qvel
+    if act is not None and physics.model.na:
+        physics.data.act[:] = act
+    physics.forward()
+    if qacc_warmstart is not None:
+        physics.data.qacc_warmstart[:] = qacc_warmstart
+
+
+def dm_control_steps(env: Env, starts: Transitions, seed: int = 0) -> Steps:
+    """dm_control's env of `env`'s task, reset (the task's per-episode edits made), put in each
+    start state and stepped once with the same action."""
+    theirs = load(env.domain, env.task, seed)
+    obs, rewards, discounts = [], [], []
+    for index, (qpos, qvel, act, warmstart, action) in enumerate(zip(starts.qpos, starts.qvel, starts.act,
+                                                                     starts.qacc_warmstart, starts.actions)):
+        theirs.reset()
+        if starts.episode:
+            env.put_episode(theirs.physics, _episode_at(starts.episode, index))
+        put_state(theirs.physics, qpos.astype(np.float64), qvel.astype(np.float64), act, warmstart)
+        step = theirs.step(action)
+        obs.append(flatten(step.observation)), rewards.append(step.reward), discounts.append(step.discount)
+    return Steps(np.array(obs), np.array(rewards), np.array(discounts))
+
+
+def dm_control_observations(env: Env, qpos: np.ndarray, qvel: np.ndarray, episode: Mapping | None = None,
+                            seed: int = 0) -> np.ndarray:
+    """dm_control's observation of each state (qpos, qvel; `episode`: the task's per-episode edits)
+    after its reset's `mj_forward`: what our reset observes must be dm_control's observation of the
+    same state."""
+    theirs = load(env.domain, env.task, seed)
+    found = []
+    for index, (q, v) in enumerate(zip(qpos, qvel)):
+        theirs.reset()
+        if episode:
+            env.put_episode(theirs.physics, _episode_at(episode, index))
+        put_state(theirs.physics, q.astype(np.float64), v.astype(np.float64))
+        found.append(flatten(theirs.task.get_observation(theirs.physics)))
+    return np.array(found)
+
+
+@dataclasses.dataclass
+class Comparison:
+    """Our steps and dm_control's from the same states and actions, and the error of each step."""
+
+    ours: Steps
+    theirs: Steps
+
+    def errors(self) -> dict[str, np.ndarray]:
+        """Per step: the largest absolute difference of the observation ("obs"), of the reward and of
+        the discount. ValueError if the observations' shapes differ."""
+        if self.ours.obs.shape != self.theirs.obs.shape:
+            raise ValueError(f"observations of shape {self.ours.obs.shape[1:]} here, {self.theirs.obs.shape[1:]} "
+                             "in dm_control's env")
+        return {"obs": np.abs(self.ours.obs - self.theirs.obs).max(axis=-1),
+                "reward": np.abs(self.ours.reward - self.theirs.reward),
+                "discount": np.abs(self.ours.discount - self.theirs.discount)}
+
+    def worst(self) -> dict[str, float]:
+        return {name: float(error.max(initial=0.0)) for name, error in self.errors().items()}
+
+    def assert_within(self, atol: Mapping[str, float], rtol: float = 1e-4) -> None:
+        """Every observation element and the reward within `atol[name]` (+ `rtol` relative), the
+        discount equal."""
+        self.errors()
+        np.testing.assert_allclose(self.ours.obs, self.theirs.obs, atol=atol["obs"], rtol=rtol, err_msg="observation")
+        np.testing.assert_allclose(self.ours.reward, self.theirs.reward, atol=atol["reward"], rtol=rtol,
+                                   err_msg="reward")
+        np.testing.assert_array_equal(self.ours.discount, self.theirs.discount, err_msg="discount")
+
+
+def compare_with_dm_control(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: int = 160,
+                            seed: int = 0) -> Comparison:
+    """`env` (a `DmControlEnv` task or its registered name) and dm_control's env of the same task
+    stepped from the same `keep` states with the same actions (`transitions`, `dm_control_steps`)."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+    starts = transitions(env, num_envs, num_steps, keep, seed)
+    return Comparison(starts.steps, dm_control_steps(env, starts, seed))
+
+
+def reset_samples(env: Env | str, count: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """qpos, qvel and the observation of `count` resets of our env (one jitted vmap)."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(seed), count))
+    return tuple(np.asarray(x) for x in (states.pipeline_state.qpos, states.pipeline_state.qvel, states.obs))
+
+
+def dm_control_reset_samples(domain: str, task: str, count: int,
+                             seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """qpos, qvel and the flattened observation of `count` resets of dm_control's env (seeded once)."""
+    theirs = load(domain, task, seed)
+    qpos, qvel, obs = [], [], []
+    for _ in range(count):
+        step = theirs.reset()
+        qpos.append(theirs.physics.data.qpos.copy()), qvel.append(theirs.physics.data.qvel.copy())
+        obs.append(flatten(step.observation))
+    return np.array(qpos), np.array(qvel), np.array(obs)

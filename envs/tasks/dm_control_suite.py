@@ -1,0 +1,218 @@
+"""What the DeepMind Control Suite's tasks share, read from dm_control 1.0.50 (`rl/control.py`,
+`mujoco/engine.py`, `suite/base.py`, `utils/rewards.py`, `suite/utils/randomizers.py`), stepped by MJX.
+
+A task is dm_control's own MJCF (`dm_control/suite/<domain>.xml`, read from the installed package,
+never copied here) and its task's rules:
+- **Step**: the action is dm_control's (the actuators' ctrlrange: [-1, 1] for every domain here),
+  set as `ctrl`, then `n_sub_steps` physics steps, `control_timestep / timestep` as dm_control's
+  `control.compute_n_steps` has it (one where the domain names no control timestep).
+- **Legacy step**: dm_control's `Physics.step` (`legacy_step=True`) ends with `mj_step1`, so after an
+  env step the kinematics (`xpos`, `xmat`, `site_xpos`, `subtree_com`) and the position- and
+  velocity-stage sensors describe the *new* state; `mjx.step` leaves them one substep old. After
+  the substeps the task reruns MJX's position and velocity stages and their sensors (impl "jax"),
+  or `mjx.forward` keeping the step's acceleration-stage sensors (impl "warp", where MJX has no
+  separate stages). The next step recomputes everything from qpos and qvel: the physics is
+  unchanged, only what the observation and reward read is fresh.
+- **Reset**: dm_control's `reset_context`: `mj_resetData` (qpos0, zero velocity, ctrl 0), the task's
+  `initialize_episode` (`initial_qpos_qvel` here), then `mj_forward`.
+- **Episode**: 1,000 control steps (every domain's `time_limit / control_timestep`), never
+  terminated, `discount` 1 on every step (dm_control's `LAST` step included): `envs.make`'s
+  TimeLimit truncates.
+- **Observation**: dm_control's OrderedDict flattened in its order (`observations`, each value
+  raveled, as `control.flatten_observation`), in the physics' dtype (float32 unless x64).
+- **Reward**: in [0, 1], built from `tolerance`, dm_control's `rewards.tolerance` in JAX.
+
+One edit is made to dm_control's models, here and nowhere else: the `energy` flag (acrobot,
+cartpole, pendulum) is cleared, because MJX refuses it; it only fills `data.energy`, which no task
+reads. `envs.interop.dm_control.compare_with_dm_control` proves a task step for step against
+dm_control's own env.
+"""
+
+from __future__ import annotations
+
+import abc
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from envs.assets import dm_control_asset
+from envs.mjx_env import MjxEnv, mjx
+
+VALUE_AT_MARGIN = 0.1  # dm_control's rewards._DEFAULT_VALUE_AT_MARGIN
+
+
+def _sigmoid(d: jax.Array, value_at_1: float, sigmoid: str) -> jax.Array:
+    """dm_control's `rewards._sigmoids`: 1 at d = 0, `value_at_1` at d = 1."""
+    if sigmoid in ("cosine", "linear", "quadratic"):
+        if not 0 <= value_at_1 < 1:
+            raise ValueError(f"value_at_margin must be in [0, 1) for sigmoid {sigmoid!r}, got {value_at_1}")
+    elif not 0 < value_at_1 < 1:
+        raise ValueError(f"value_at_margin must be in (0, 1) for sigmoid {sigmoid!r}, got {value_at_1}")
+    if sigmoid == "gaussian":
+        scale = np.sqrt(-2 * np.log(value_at_1))
+        return jnp.exp(-0.5 * (d * scale) ** 2)
+    if sigmoid == "hyperbolic":
+        return 1 / jnp.cosh(d * np.arccosh(1 / value_at_1))
+    if sigmoid == "long_tail":
+        return 1 / ((d * np.sqrt(1 / value_at_1 - 1)) ** 2 + 1)
+    if sigmoid == "reciprocal":
+        return 1 / (jnp.abs(d) * (1 / value_at_1 - 1) + 1)
+    if sigmoid == "tanh_squared":
+        return 1 - jnp.tanh(d * np.arctanh(np.sqrt(1 - value_at_1))) ** 2
+    scaled = {"cosine": np.arccos(2 * value_at_1 - 1) / np.pi, "linear": 1 - value_at_1,
+              "quadratic": np.sqrt(1 - value_at_1)}.get(sigmoid)
+    if scaled is None:
+        raise ValueError(f"unknown sigmoid {sigmoid!r}")
+    x = d * scaled
+    # Outside |x| < 1 each of the three is 0 (cos would rise again, 1 - x go negative).
+    inside = {"cosine": lambda: (1 + jnp.cos(np.pi * x)) / 2, "linear": lambda: 1 - x,
+              "quadratic": lambda: 1 - x ** 2}[sigmoid]()
+    return jnp.where(jnp.abs(x) < 1, inside, 0.0)
+
+
+def tolerance(x: jax.Array, bounds: tuple[float, float] = (0.0, 0.0), margin: float = 0.0,
+              sigmoid: str = "gaussian", value_at_margin: float = VALUE_AT_MARGIN) -> jax.Array:
+    """dm_control's `rewards.tolerance`: 1 where `x` lies in `bounds` (inclusive, either end may be
+    infinite), else `sigmoid` of the distance to the nearer bound over `margin` (0 outside the
+    bounds when `margin` is 0), `value_at_margin` at one margin away. `bounds`, `margin`,
+    `sigmoid` and `value_at_margin` are Python values; `x` may be traced."""
+    lower, upper = bounds
+    if lower > upper:
+        raise ValueError(f"tolerance: lower bound {lower} > upper bound {upper}")
+    if margin < 0:
+        raise ValueError(f"tolerance: margin must be non-negative, got {margin}")
+    x = jnp.asarray(x)
+    in_bounds = (lower <= x) & (x <= upper)
+    if margin == 0:
+        return jnp.where(in_bounds, 1.0, 0.0).astype(x.dtype)
+    distance = jnp.where(x < lower, lower - x, x - upper) / margin
+    # Inside the bounds the distance is negative or infinite; the sigmoid's value there is unused.
+    distance = jnp.where(in_bounds, 0.0, distance)
+    return jnp.where(in_bounds, 1.0, _sigmoid(distance, value_at_margin, sigmoid)).astype(x.dtype)
+
+
+def randomize_joints(model: mujoco.MjModel, qpos: jax.Array, key: jax.Array) -> jax.Array:
+    """dm_control's `randomizers.randomize_limited_and_rotational_joints`: a limited hinge or slide
+    uniform in its range, an unlimited hinge U(-pi, pi), a limited ball a random axis turned by
+    U(0, range) (`random_limited_quaternion`), an unlimited ball a normalised N(0, 1)^4, a free
+    joint's quaternion a normalised U(0, 1)^4 (dm_control's `rand`, kept as it is: not uniform on
+    the sphere) with its position untouched; unlimited slides are left as they are."""
+    keys = jax.random.split(key, max(model.njnt, 1))
+    for joint in range(model.njnt):
+        # Python ints: a numpy int is never `in` a tuple of MuJoCo's enum values (== works, `in` does not).
+        kind, limited, adr = int(model.jnt_type[joint]), bool(model.jnt_limited[joint]), int(model.jnt_qposadr[joint])
+        low, high = model.jnt_range[joint]
+        if kind in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)) and limited:
+            qpos = qpos.at[adr].set(jax.random.uniform(keys[joint], minval=low, maxval=high))
+        elif kind == mujoco.mjtJoint.mjJNT_HINGE:
+            qpos = qpos.at[adr].set(jax.random.uniform(keys[joint], minval=-jnp.pi, maxval=jnp.pi))
+        elif kind == mujoco.mjtJoint.mjJNT_BALL and limited:
+            axis_key, angle_key = jax.random.split(keys[joint])
+            axis = jax.random.normal(axis_key, (3,))
+            angle = jax.random.uniform(angle_key) * high
+            quat = jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * axis / jnp.linalg.norm(axis)])
+            qpos = qpos.at[adr:adr + 4].set(quat)
+        elif kind == mujoco.mjtJoint.mjJNT_BALL:
+            quat = jax.random.normal(keys[joint], (4,))
+            qpos = qpos.at[adr:adr + 4].set(quat / jnp.linalg.norm(quat))
+        elif kind == mujoco.mjtJoint.mjJNT_FREE:
+            quat = jax.random.uniform(keys[joint], (4,))
+            qpos = qpos.at[adr + 3:adr + 7].set(quat / jnp.linalg.norm(quat))
+    return qpos
+
+
+def control_substeps(control_timestep: float | None, timestep: float, tolerance_: float = 1e-8) -> int:
+    """dm_control's `control.compute_n_steps`: physics steps per control step (1 without one)."""
+    if control_timestep is None:
+        return 1
+    ratio = control_timestep / timestep
+    if control_timestep < timestep or abs(ratio - round(ratio)) > tolerance_:
+        raise ValueError(f"control timestep {control_timestep} is not a multiple of the physics timestep {timestep}")
+    return int(round(ratio))
+
+
+class DmControlEnv(MjxEnv):
+    """A task of dm_control's suite (see the module docstring). Subclasses set `domain` (the MJCF
+    is `dm_control/suite/<domain>.xml`), `task`, `control_timestep` where dm_control's domain has
+    one, `observation_shapes` (dm_control's observation keys and sizes, in its order) and fill in
+    `initial_qpos_qvel`, `observations` and `reward`."""
+
+    domain: ClassVar[str]  # dm_control's domain, e.g. "cheetah"
+    task: ClassVar[str]  # dm_control's task of the domain, e.g. "run"
+    control_timestep: ClassVar[float | None] = None  # the domain's _CONTROL_TIMESTEP (None: one step)
+    observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
+    reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
+    # `state.info` entries holding per-episode model edits (reacher's target), which
+    # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
+    episode_info: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, xml: str | None = None):
+        super().__init__(xml if xml is not None else dm_control_asset(f"{self.domain}.xml"))
+        self.n_substeps = control_substeps(self.control_timestep, float(self.mj_model.opt.timestep))
+        stages = np.repeat(self.mj_model.sensor_needstage, self.mj_model.sensor_dim)
+        # Acceleration-stage sensor values (touch, force, ...): dm_control's are from the last substep.
+        self._acc_sensors = np.flatnonzero(stages == mujoco.mjtStage.mjSTAGE_ACC)
+
+    def _put_on_device(self, impl: str) -> None:
+        self.mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
+        super()._put_on_device(impl)
+
+    @property
+    def name(self) -> str:
+        return f"{self.domain}/{self.task}"
+
+    @property
+    def observation_size(self) -> int:
+        return sum(size for _, size in self.observation_shapes)
+
+    # ---- dm_control's legacy step ----------------------------------------------
+    def _physics(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        return self.refresh(model, super()._physics(model, data))
+
+    def refresh(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """What dm_control's `mj_step1` after the substeps recomputes: kinematics, the position and
+        velocity stages and their sensors; the acceleration-stage sensors stay the step's."""
+        if self.impl == "warp":
+            fresh = mjx.forward(model, data)
+            return fresh.replace(sensordata=fresh.sensordata.at[self._acc_sensors].set(
+                data.sensordata[self._acc_sensors]))
+        data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
+        return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
+
+    # ---- task hooks ----------------------------------------------------------------
+    @abc.abstractmethod
+    def observations(self, data: mjx.Data) -> dict[str, jax.Array]:
+        """dm_control's `get_observation`: each key of `observation_shapes`, in that order."""
+
+    def observation(self, data: mjx.Data) -> jax.Array:
+        values = self.observations(data)
+        if tuple(values) != tuple(key for key, _ in self.observation_shapes):
+            raise ValueError(f"task {self.name}: observations() gave keys {tuple(values)}, "
+                             f"observation_shapes names {tuple(k for k, _ in self.observation_shapes)}")
+        return jnp.concatenate([jnp.ravel(value) for value in values.values()]).astype(data.qpos.dtype)
+
+    def put_episode(self, physics, info: dict) -> None:
+        """Make this episode's model edits (`info`: the `episode_info` entries) in dm_control's
+        `physics`; nothing for a task without any."""
+
+    def terminated(self, data: mjx.Data) -> jax.Array:
+        return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)
+
+    # ---- what the domains read alike --------------------------------------------------
+    def body_xmat(self, data: mjx.Data, body: str) -> jax.Array:
+        """A body's orientation, (3, 3) row-major as dm_control's `named.data.xmat[body]` (xx, xy, ...)."""
+        return data.xmat[self.mj_model.body(body).id]
+
+    def sensor(self, data: mjx.Data, name: str) -> jax.Array:
+        """A sensor's values, as dm_control's `named.data.sensordata[name]`."""
+        sensor = self.mj_model.sensor(name)
+        return data.sensordata[sensor.adr[0]:sensor.adr[0] + sensor.dim[0]]
+
+    def joint_qpos(self, data: mjx.Data, joint: str) -> jax.Array:
+        return data.qpos[self.mj_model.joint(joint).qposadr[0]]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}()"

@@ -1,0 +1,50 @@
+"""The DeepMind Control Suite's cheetah run (dm_control/suite/cheetah.py), stepped by MJX:
+`envs.make("dmc-cheetah-run")`. A planar cheetah (9 joints, 6 motors; Euler at 0.01 s, one physics
+step per control step) runs forward. The MJCF is dm_control's `cheetah.xml`, read from the
+installed package.
+
+- Action: Box(-1, 1, (6,)): bthigh, bshin, bfoot, fthigh, fshin, ffoot.
+- Observation (17), dm_control's order: position = qpos[1:] (rootx left out), velocity = qvel.
+- Reward: tolerance(torso subtree linear velocity x, (10, inf), margin 10, value_at_margin 0,
+  linear): the speed over 10 m/s, capped at 1.
+- Reset: the limited joints (the six legs' hinges) uniform in their ranges, then 200 physics steps
+  at zero control to let it settle, the clock back at 0 (dm_control's `initialize_episode`). As in
+  dm_control, the first of those steps integrates the accelerations of `mj_resetData`'s state
+  (qpos0 at rest, whose `mj_forward` ran before the joints were drawn) from the drawn joints.
+- Episode: 1,000 steps (10 s simulated), never terminated.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs.mjx_env import mjx
+from envs.tasks.dm_control_suite import DmControlEnv, tolerance
+
+RUN_SPEED = 10.0  # dm_control's _RUN_SPEED (m/s)
+SETTLE_STEPS = 200  # physics steps at reset before the episode starts
+
+
+class DmcCheetahRun(DmControlEnv):
+    domain, task = "cheetah", "run"
+    observation_shapes = (("position", 8), ("velocity", 9))
+
+    def initial_qpos_qvel(self, key):
+        model, limited = self.mj_model, np.flatnonzero(self.mj_model.jnt_limited)
+        low, high = model.jnt_range[limited].T
+        drawn = jnp.asarray(model.qpos0).at[limited].set(jax.random.uniform(key, (len(limited),), minval=low,
+                                                                                maxval=high))
+        # dm_control's first settling step is mj_step2 on the forward pass of qpos0 at rest.
+        rest = mjx.forward(self.mjx_model, self._initial_data)
+        first = mjx.euler(self.mjx_model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
+        settled = jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(self.mjx_model, d), first)
+        return settled.qpos, settled.qvel
+
+    def observations(self, data):
+        return {"position": data.qpos[1:], "velocity": data.qvel}
+
+    def reward(self, data, action, prev):
+        speed = self.sensor(data, "torso_subtreelinvel")[0]
+        return tolerance(speed, (RUN_SPEED, float("inf")), margin=RUN_SPEED, value_at_margin=0, sigmoid="linear")
