@@ -604,6 +604,19 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     """The `mjxsuite` argument parser: train, eval and rollout, plus the subcommands in `more`."""
     parser = argparse.ArgumentParser(prog="mjxsuite", description="JAX RL environments on MuJoCo-MJX, with DQN, PPO and SAC.")
     sub = parser.add_subparsers(dest="command", required=True)
+    cached, tasks, spread = _parent_parsers()
+    train = _add_train(sub, cached, tasks, spread)
+    _add_sweep(sub, train, cached, tasks, spread)
+    _add_eval_and_rollout(sub, cached, tasks)
+    for command in (more or {}).values():
+        command.add_parser(sub)
+    return parser
+
+
+
+
+def _parent_parsers() -> tuple[argparse.ArgumentParser, ...]:
+    """The options several commands share: the compile cache, --import, and where agents run."""
     cached = argparse.ArgumentParser(add_help=False)
     cached.add_argument("--no-compile-cache", action="store_true",
                         help="do not use JAX's persistent compilation cache nor the cache of traced "
@@ -620,13 +633,17 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                         help="local devices to spread the agents over (default: all that split them evenly); "
                              "an MJX task's `train` on several GPUs runs one process per device (see --processes)")
     spread.add_argument("--deterministic", action="store_true",
-                        help="bit-for-bit repeatable runs: XLA's deterministic ops on a GPU (also "
-                             "MJXSUITE_DETERMINISTIC=1) and, without --judge-every, a judge after every chunk; "
-                             "MuJoCo Warp is not deterministic (docs/reliability.md)")
+                        help="bit-for-bit repeatable runs on a GPU: XLA's deterministic ops (also "
+                             "MJXSUITE_DETERMINISTIC=1); MuJoCo Warp is not deterministic (docs/reliability.md)")
     spread.add_argument("--distributed", action="store_true",
                         help="join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): "
                              "agents spread over every device of every process, process 0 writes (docs/scaling.md)")
 
+    return cached, tasks, spread
+
+
+def _add_train(sub, cached, tasks, spread) -> argparse.ArgumentParser:
+    """`mjxsuite train`'s options (a config's fields come as --FIELD VALUE, `config_from_args`)."""
     from agents import processes, registry
 
     train = sub.add_parser("train", help="train DQN, PPO or SAC (--agent), many seeds at once; any field of the "
@@ -661,9 +678,9 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                             "duration if longer (default %(default)s; 0: no limit)")
     train.add_argument("--judge-every", type=ranged(int, COUNT), metavar="CHUNKS",
                        help="judge the greedy policy (keep the best parameters, find the solve step) every CHUNKS "
-                            "chunks and after the last (default: from the config, every chunk where a judge's episodes "
-                            f"cost at most {100 * JUDGE_SHARE:g}%% of a chunk's env steps and updates; saved in "
-                            "config.json, docs/training.md)")
+                            "chunks and after the last (default: from the config, saved in config.json: PPO, SAC "
+                            f"and TD3 every chunk, DQN as often as keeps a judge within {100 * JUDGE_SHARE:g}%% of "
+                            "a chunk's env steps and updates; docs/training.md)")
     train.add_argument("--processes", type=ranged(int, COUNT), metavar="K",
                         help="train the seeds in K child processes, each an ordinary one-device run of its share "
                              "(one GPU each, in turn; on a CPU each uses the CPU), merged into --out (default: "
@@ -675,6 +692,13 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
                             "and an existing --rerun file")
     train.add_argument("--rerun-every", type=ranged(int, NON_NEGATIVE_COUNT), default=1, metavar="N",
                        help="chunks (PPO/SAC: evaluations) between logged evaluation rollouts (0: none)")
+
+    return train
+
+
+def _add_sweep(sub, train, cached, tasks, spread) -> None:
+    """`mjxsuite sweep`: train's run options, and comma-separated values for the swept fields."""
+    from agents import registry
 
     sweep = sub.add_parser("sweep", parents=[cached, tasks, spread],
                            help="train a grid of configs x seeds as one program; swept fields take comma-separated "
@@ -696,6 +720,10 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
         sweep.add_argument(f"--{name}", *([f"--{name.replace('_', '-')}"] if "_" in name else []), dest=name,
                            type=float_list, metavar="V1,V2,...", help="values to sweep")
 
+
+
+def _add_eval_and_rollout(sub, cached, tasks) -> None:
+    """`mjxsuite eval` and `mjxsuite rollout` of a saved run."""
     evaluate = sub.add_parser("eval", help="evaluate a saved run's policies, every seed", parents=[cached, tasks])
     evaluate.add_argument("--checkpoint", required=True, help="a directory written by `mjxsuite train --out`")
     evaluate.add_argument("--episodes", type=ranged(int, COUNT),
@@ -718,10 +746,6 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     rollout.add_argument("--rerun", required=True, metavar="FILE.rrd", help="the Rerun file to write")
     rollout.add_argument("--overwrite", action="store_true", help="replace an existing file")
     env_options.add_arguments(rollout)  # with --checkpoint, they change the saved env options
-
-    for command in (more or {}).values():
-        command.add_parser(sub)
-    return parser
 
 
 def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = None) -> int:

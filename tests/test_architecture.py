@@ -169,3 +169,25 @@ def test_one_task_table_gives_the_registrations_the_lazy_names_and_all():
     assert files - modules <= {"envs.tasks.gymnasium_mujoco", "envs.tasks.dm_control_suite"}, \
         "a task file without a row in envs.TASKS (the two task bases aside)"
     assert all(hasattr(envs, public) for public in envs.__all__)
+
+
+# ---- the size of the parts -------------------------------------------------------------------
+LONGEST_FUNCTION = 80  # lines, in agents/ and envs/
+LONGEST_TRAIN_RUN = 60  # agents.run.train_run: the run's steps, each a method of agents.run._Run
+
+
+def _functions(path: Path):
+    tree = ast.parse(path.read_text())
+    return [node for node in ast.walk(tree) if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))]
+
+
+def test_no_function_in_the_library_is_over_80_lines():
+    long = [f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)"
+            for package in ("agents", "envs") for path in sorted((ROOT / package).rglob("*.py"))
+            for node in _functions(path) if node.end_lineno - node.lineno + 1 > LONGEST_FUNCTION]
+    assert not long, f"split these into named steps: {long}"
+
+
+def test_train_run_reads_as_its_steps():
+    [train_run] = [node for node in _functions(ROOT / "agents" / "run.py") if node.name == "train_run"]
+    assert train_run.end_lineno - train_run.lineno + 1 <= LONGEST_TRAIN_RUN

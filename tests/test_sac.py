@@ -251,6 +251,7 @@ def test_the_accelerator_program_trains_the_same_on_the_cpu():
     assert_trees_equal(run_chunks(gpu, jax.jit(gpu.init)(key), 2)[0], run_chunks(cpu, jax.jit(cpu.init)(key), 2)[0])
 
 
+@pytest.mark.slow  # its kill -9 twin is slow too; PPO's resume and the DQN lifecycle tests run by default
 def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
     """The whole state of a seed, the replay buffer included, is the train state: copied to numpy
     (as a checkpoint holds it) after a chunk and back, the run continues bit for bit."""

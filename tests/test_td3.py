@@ -213,6 +213,7 @@ def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
     assert all(np.isfinite(np.asarray(history[-1][k])).all() for k in ("critic_loss", "actor_loss", "eval_return"))
 
 
+@pytest.mark.slow  # its kill -9 twin is slow too; PPO's resume and the DQN lifecycle tests run by default
 def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
     """The whole state of a seed (replay, noise scales, the n-step window and envs included) is the
     train state: copied to numpy after a chunk and back, the run continues bit for bit."""
