@@ -169,6 +169,22 @@ def _say_rounding(config) -> None:
         print(f"note: {said}", file=sys.stderr)
 
 
+# A run of more env steps than this (all seeds together) is a GPU's work: on a CPU it takes hours.
+GPU_SIZED_STEPS = 10_000_000
+
+
+def _say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]) -> None:
+    """Say, before anything compiles, when a run on a machine without a GPU is sized for one (the
+    GPU recipes of agents/brax_defaults.py), and how to train a CPU-sized one."""
+    steps = config.total_steps * seeds
+    if gpus or steps <= GPU_SIZED_STEPS:
+        return
+    print(f"note: this {agent} run of {env_name} trains {config.total_steps:,} env steps per seed ({seeds} seed"
+          f"{'s' if seeds > 1 else ''}), a recipe sized for a GPU: on this CPU it takes hours. --steps N trains "
+          "fewer (e.g. --steps 200000 to see it learn), and Ctrl-C stops it after the current chunk, saved",
+          file=sys.stderr)
+
+
 def _require_registered(env_name: str) -> None:
     import envs
 
@@ -208,6 +224,7 @@ def cmd_train(args, extra: list[str]) -> int:
     config = _agent_config(args.env, agent, args.preset, extra, args.steps, args.replay,
                            observation=options.get("observation", "state"))
     _say_rounding(config)
+    _say_gpu_sized(args.env, agent, config, args.seeds, gpus)
     if count > 1:
         run = checkpoint.SavedRun(args.env, args.seeds, config, options, args.seed, None, agent, args.judge_every)
         result = _train_in_processes(args, run, fresh=True, count=count, gpus=gpus)
@@ -481,9 +498,14 @@ def _refuse_fixed_field_lists(pairs: list[str], agent: str, sweepable: tuple[str
 def float_list(text: str) -> list[float]:
     """Comma-separated numbers, e.g. 5e-4,1e-3 (an argparse `type`)."""
     try:
-        return [float(v) for v in text.split(",") if v.strip()]
+        values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}")
+    repeated = sorted({v for v in values if values.count(v) > 1})
+    if repeated:  # each config trains once: a repeat would train the same agents twice
+        raise argparse.ArgumentTypeError(f"{text!r} lists {', '.join(f'{v:g}' for v in repeated)} more than once; "
+                                         "give each value once")
+    return values
 
 
 def cmd_eval(args, extra: list[str]) -> int:

@@ -105,6 +105,15 @@ class DQNConfig:
     def num_chunks(self) -> int:
         return max(1, math.ceil(self.total_steps / self.eval_every))
 
+    def rounding(self) -> str:
+        """How `total_steps` became the run's env steps, whole chunks of `eval_every` ("" when it
+        needed no rounding); the command line says it before anything compiles."""
+        steps = self.num_chunks * self.eval_every
+        if steps == self.total_steps:
+            return ""
+        return (f"total_steps {self.total_steps:,} rounded up to {steps:,} env steps: {self.num_chunks} chunks of "
+                f"eval_every {self.eval_every:,}")
+
     @property
     def chunk_work(self) -> tuple[int, int]:
         """(batched env steps, gradient updates) of one chunk, run one after another: the judge

@@ -53,6 +53,10 @@ def sweepable(name: str) -> tuple[str, ...]:
     return tuple(getattr(module(name), "SWEEPABLE", ()))
 
 
+# One setting under two agents' names: DQN's gamma is Brax's (PPO's, SAC's, TD3's) discounting.
+SAME_FIELD = {"gamma": "discounting", "discounting": "gamma"}
+
+
 def sweep_configs(base: Any, sweep: dict[str, list[float]] | None) -> list[Any]:
     """Every combination of `sweep`'s values over `base` (the last field varying fastest);
     `[base]` without a sweep. ValueError for a field outside the agent's `SWEEPABLE` or a value
@@ -61,6 +65,13 @@ def sweep_configs(base: Any, sweep: dict[str, list[float]] | None) -> list[Any]:
         return [base]
     name = name_of(base)
     valid = sweepable(name)
+    fields = {f.name for f in dataclasses.fields(base)}
+    foreign = [field for field in sweep if field not in fields]
+    if foreign:  # another agent's field (DQN's gamma is PPO's and SAC's discounting)
+        hints = [f"{field} is {SAME_FIELD[field]} here" for field in foreign if SAME_FIELD.get(field) in fields]
+        raise ValueError(f"{type(base).__name__} has no field {', '.join(foreign)}"
+                         + (f" ({'; '.join(hints)})" if hints else "")
+                         + f"; sweepable fields of --agent {name}: {', '.join(valid) or 'none'}")
     fixed = [field for field in sweep if field not in valid]
     if fixed:
         if not valid:

@@ -143,6 +143,15 @@ class SACConfig:
         """Env steps per seed of the whole run: the first fill and every chunk."""
         return self.prefill_steps + self.num_chunks * self.eval_every
 
+    def rounding(self) -> str:
+        """How `num_timesteps` became `total_steps` ("" when it needed no rounding); the command line
+        says it before anything compiles."""
+        if self.total_steps == self.num_timesteps:
+            return ""
+        return (f"num_timesteps {self.num_timesteps:,} rounded up to {self.total_steps:,} env steps: a first fill of "
+                f"{self.prefill_steps:,} (min_replay_size over {self.num_envs} envs), then {self.num_chunks} chunks of "
+                f"{self.iterations_per_chunk:,} steps of every env")
+
     @property
     def steps_per_epoch(self) -> int:  # Brax's name for it
         return self.eval_every

@@ -162,6 +162,7 @@ class TD3Config:
     num_chunks = SACConfig.num_chunks
     eval_episodes = SACConfig.eval_episodes
     total_steps = SACConfig.total_steps
+    rounding = SACConfig.rounding
 
     @property
     def actor_updates_per_chunk(self) -> int:

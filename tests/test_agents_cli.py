@@ -255,3 +255,37 @@ def test_training_and_judging_a_ppo_run_need_no_rerun(tmp_path):
         assert done.returncode == 0, done.stderr[-2000:]
 
 
+
+
+def test_sweeps_name_another_agents_field_and_refuse_repeated_values(capsys):
+    """`--gamma` on PPO is DQN's name for PPO's `discounting`; a value listed twice would train the
+    same agents twice. Both refused before anything compiles, naming the fix."""
+    with pytest.raises(UsageError, match=r"PPOConfig has no field gamma \(gamma is discounting here\)"):
+        cli_main(["sweep", "--env", "pendulum-mjx", "--agent", "ppo", "--gamma", "0.9,0.99"])
+    with pytest.raises(SystemExit):
+        cli_main(["sweep", "--env", "cartpole", "--learning_rate", "1e-3,5e-4,1e-3"])
+    assert "lists 0.001 more than once; give each value once" in capsys.readouterr().err
+
+
+def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts(capsys):
+    from agents import cli
+
+    hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))
+    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
+    said = capsys.readouterr().err
+    assert f"trains {hopper.total_steps:,} env steps per seed" in said and "--steps" in said
+    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
+    cli._say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
+    assert capsys.readouterr().err == ""
+
+
+def test_every_agent_says_how_it_rounded_the_steps():
+    from agents import DQNConfig
+    from agents.td3 import TD3Config
+
+    assert DQNConfig(total_steps=2_500).rounding() == ("total_steps 2,500 rounded up to 3,000 env steps: 3 chunks "
+                                                       "of eval_every 1,000")
+    assert DQNConfig(total_steps=3_000).rounding() == ""
+    for config in (SACConfig(num_timesteps=30_001), TD3Config(num_timesteps=30_001)):
+        assert config.rounding().startswith(f"num_timesteps 30,001 rounded up to {config.total_steps:,} env steps")
+    assert SACConfig(num_timesteps=SACConfig().total_steps).rounding() == ""
