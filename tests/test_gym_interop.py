@@ -450,3 +450,34 @@ def test_render_without_gl_is_a_clear_error():
     env.reset(seed=0)
     with pytest.raises(RuntimeError, match="env 'cartpole': render_mode='rgb_array' needs an OpenGL context.*MUJOCO_GL=egl"):
         env.render()
+
+
+@pytest.mark.slow  # compiles the camera's render three times (one env, a batch, make_vec)
+def test_camera_tasks_are_gymnasium_envs_of_uint8_images():
+    """observation="pixels" through Gymnasium: uint8 frames in a Box(0, 255) of the image's shape,
+    from `to_gymnasium` (one env and a batch, final frames included) and `make_vec`, and check_env."""
+    from gymnasium.utils.env_checker import check_env
+
+    options = dict(observation="pixels", width=8, height=8, opt={"integrator": "Euler"})
+    env = envs.to_gymnasium("cartpole-balance-mjx", episode_length=6, **options)
+    assert env.observation_space == gymnasium.spaces.Box(0, 255, (8, 8, 3), np.uint8)
+    obs, _ = env.reset(seed=0)
+    assert obs.dtype == np.uint8 and obs in env.observation_space
+    for _ in range(6):
+        obs, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+        assert obs in env.observation_space and isinstance(reward, float)
+    assert truncated
+    check_env(env, skip_render_check=True)
+    vector = envs.to_gymnasium("cartpole-balance-mjx", num_envs=3, episode_length=6, **options)
+    assert vector.reset(seed=0)[0].shape == (3, 8, 8, 3)
+    finals = []
+    for _ in range(6):
+        obs, _, _, _, info = vector.step(vector.action_space.sample())
+        assert obs in vector.observation_space
+        finals += [info["final_obs"][i] for i in np.flatnonzero(info.get("_final_obs", []))]
+    assert len(finals) == 3 and all(f.dtype == np.uint8 and f.shape == (8, 8, 3) for f in finals)
+    made = gymnasium.make_vec("mjxsuite/CartPoleBalanceMjx-v0", num_envs=2, **options)
+    assert made.single_observation_space == env.observation_space
+    obs, _ = made.reset(seed=0)
+    assert obs.shape == (2, 8, 8, 3) and obs.dtype == np.uint8
+    assert made.step(made.action_space.sample())[0] in made.observation_space

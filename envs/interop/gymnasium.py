@@ -130,8 +130,41 @@ def _time_limited(name: str | Env, overrides: dict) -> tuple[str, Env, bool]:
 
 
 # ---- spaces and action checks, shared by the single and the vector env ----------
+def _image_shape(env: Env) -> tuple[int, ...] | None:
+    """The (height, width, channels) of a task that observes camera images (`observation="pixels"`:
+    uint8 frames, kept as they are), else None (a float32 vector)."""
+    shape = getattr(env, "observation_shape", None)
+    return None if shape is None else tuple(shape)
+
+
+def _observed(env: Env, obs: jax.Array) -> jax.Array:
+    """An observation as Gymnasium gets it: camera frames as uint8 images, vectors as float32."""
+    return obs if _image_shape(env) is not None else obs.astype(jnp.float32)
+
+
+def _pack(env: Env, obs: jax.Array, *rest: jax.Array):
+    """A step's arrays in one float32 row per env, one transfer to the host; camera frames stay
+    uint8 beside the row (`_unpack`)."""
+    if _image_shape(env) is not None:
+        return obs, jnp.concatenate([r.astype(jnp.float32) for r in rest], axis=-1)
+    return jnp.concatenate([obs.astype(jnp.float32), *[r.astype(jnp.float32) for r in rest]], axis=-1)
+
+
+def _unpack(env: Env, packed, sizes: tuple[int, ...]) -> list[np.ndarray]:
+    """`_pack`'s arrays back, on the host: the observation, then the row's parts of `sizes`."""
+    if isinstance(packed, tuple):
+        obs, row = np.array(packed[0]), np.array(packed[1])
+        parts = [obs]
+    else:
+        row, parts = np.array(packed), []
+    edges = np.cumsum((0,) + sizes)
+    return parts + [row[..., a:b] for a, b in zip(edges[:-1], edges[1:])] + [row[..., edges[-1]:]]
+
+
 def _single_spaces(env: Env) -> tuple[spaces.Box, spaces.Space]:
-    observation_space = spaces.Box(-np.inf, np.inf, (env.observation_size,), np.float32)
+    image = _image_shape(env)
+    observation_space = (spaces.Box(0, 255, image, np.uint8) if image is not None
+                         else spaces.Box(-np.inf, np.inf, (env.observation_size,), np.float32))
     if env.num_actions is not None:
         action_space = spaces.Discrete(env.num_actions)
     else:
@@ -231,12 +264,11 @@ class GymnasiumEnv(gymnasium.Env):
 
     def _reset_and_observe(self, seed: jax.Array) -> tuple[State, jax.Array]:
         state = self.env.reset(jax.random.PRNGKey(seed))
-        return state, state.obs.astype(jnp.float32)
+        return state, _observed(self.env, state.obs)
 
     def _step_and_pack(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
         stepped = self.env.step(state, action)
-        outputs = _step_outputs(state, stepped, self.episode_length)
-        return stepped, jnp.concatenate([stepped.obs.astype(jnp.float32), outputs])
+        return stepped, _pack(self.env, stepped.obs, _step_outputs(state, stepped, self.episode_length))
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
@@ -258,9 +290,8 @@ class GymnasiumEnv(gymnasium.Env):
             )
             self._warned_episode_over = True
         self.state, packed = self._step(self.state, action)
-        packed = np.array(packed)  # the one transfer to the host
-        size = self.env.observation_size
-        obs, scalars = packed[:size], packed[size:]
+        sizes = () if _image_shape(self.env) is not None else (self.env.observation_size,)
+        obs, scalars = _unpack(self.env, packed, sizes)[-2:]  # the one transfer to the host
         terminated, truncated = bool(scalars[_TERMINATED]), bool(scalars[_TRUNCATED])
         self._episode_over = terminated or truncated
         info = {"nan": True} if scalars[_NAN] else {}
@@ -328,13 +359,14 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
 
     def _reset_and_observe(self, seed: jax.Array) -> tuple[State, jax.Array]:
         state = self._batched.reset(jax.random.PRNGKey(seed))
-        return state, state.obs.astype(jnp.float32)
+        return state, _observed(self.env, state.obs)
 
     def _step_and_pack(self, state: State, actions: jax.Array) -> tuple[State, jax.Array]:
         stepped = self._batched.step(state, actions)
         outputs = jax.vmap(lambda before, after: _step_outputs(before, after, self.episode_length))(state, stepped)
-        final_obs = stepped.info["final_obs"].astype(jnp.float32)
-        return stepped, jnp.concatenate([stepped.obs.astype(jnp.float32), final_obs, outputs], axis=1)
+        if _image_shape(self.env) is not None:  # the frames and the final frames side by side, uint8
+            return stepped, (jnp.stack([stepped.obs, stepped.info["final_obs"]]), outputs)
+        return stepped, _pack(self.env, stepped.obs, stepped.info["final_obs"], outputs)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         if seed is not None and not isinstance(seed, (int, np.integer)):
@@ -350,9 +382,12 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
             raise gymnasium.error.ResetNeeded(f"env {self.name!r}: call reset() before step()")
         actions = _checked_action(self.name, self.env, self.action_space, actions, (self.num_envs,))
         self.state, packed = self._step(self.state, actions)
-        packed = np.array(packed)  # the one transfer to the host
-        size = self.env.observation_size
-        obs, final_obs, scalars = packed[:, :size], packed[:, size : 2 * size], packed[:, 2 * size :]
+        if _image_shape(self.env) is not None:
+            frames, scalars = _unpack(self.env, packed, ())
+            obs, final_obs = frames
+        else:
+            size = self.env.observation_size
+            obs, final_obs, scalars = _unpack(self.env, packed, (size, size))  # the one transfer to the host
         rewards = scalars[:, _REWARD].astype(np.float64)  # float64, as SyncVectorEnv returns
         terminated, truncated = scalars[:, _TERMINATED] > 0, scalars[:, _TRUNCATED] > 0
         return obs.copy(), rewards, terminated, truncated, self._infos(final_obs, terminated | truncated, scalars[:, _NAN] > 0)
@@ -390,6 +425,8 @@ def _suite_options(task: str, max_episode_steps: int | None, kwargs: dict[str, A
 def observation_space(task: str, env: Env) -> spaces.Box:
     """Gymnasium's observation space of the task, as float32: CartPole-v1's and Acrobot-v1's bounds
     (from our rules, equal to Gymnasium's at the defaults), unbounded for every other task."""
+    if _image_shape(env) is not None:
+        return spaces.Box(0, 255, _image_shape(env), np.uint8)
     size = env.observation_size
     low, high = np.full(size, -np.inf, np.float32), np.full(size, np.inf, np.float32)
     rules = getattr(env.unwrapped, "rules", None)
@@ -475,7 +512,7 @@ class JaxVectorEnv(VectorEnv):
     def _reset_all(self, seed: jax.Array) -> tuple[State, jax.Array]:
         keys = jax.random.split(jax.random.PRNGKey(seed), self.num_envs)
         state = jax.vmap(self._auto_reset.reset)(keys)
-        return state, state.obs.astype(jnp.float32)
+        return state, _observed(self.env, state.obs)
 
     def _env_actions(self, actions: jax.Array) -> jax.Array:
         if self.env.num_actions is not None:
@@ -510,15 +547,16 @@ class JaxVectorEnv(VectorEnv):
                       for k in TRANSITION_INFO if k in stepped.info}
         merged = merged.replace(reward=jnp.where(restart, zero, stepped.reward),
                                 done=jnp.where(restart, zero, stepped.done), info={**merged.info, **transition})
-        return merged, (merged.obs.astype(jnp.float32), merged.reward.astype(jnp.float32), terminated, truncated, {})
+        return merged, (_observed(self.env, merged.obs), merged.reward.astype(jnp.float32), terminated, truncated, {})
 
     def _step_same(self, state: State, actions: jax.Array):
         stepped = jax.vmap(self._auto_reset.step)(state, self._env_actions(actions))
         terminated, truncated = self._ends(state, stepped)
         ended = terminated | truncated
-        final_obs = jnp.where(ended[:, None], stepped.info["final_obs"].astype(jnp.float32), 0.0)
+        final = _observed(self.env, stepped.info["final_obs"])
+        final_obs = jnp.where(ended.reshape(ended.shape + (1,) * (final.ndim - 1)), final, jnp.zeros_like(final))
         info = {"final_obs": final_obs, "_final_obs": ended, "final_info": {}, "_final_info": ended}
-        return stepped, (stepped.obs.astype(jnp.float32), stepped.reward.astype(jnp.float32), terminated, truncated,
+        return stepped, (_observed(self.env, stepped.obs), stepped.reward.astype(jnp.float32), terminated, truncated,
                          info)
 
     # ---- Gymnasium's API ---------------------------------------------------------
