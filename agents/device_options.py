@@ -143,9 +143,8 @@ def training_compiler_options(platform: str | None = None, env: Any = None) -> d
     (`CPU_COMPILER_OPTIONS`); nothing elsewhere.
 
     An env that renders camera frames with MuJoCo Warp (`env.warp_renders`, `envs.pixels`) keeps
-    XLA's default CUDA graphs, a precaution: PPO from pixels stopped with CUDA error 906 under these
-    graphs and, with XLA's defaults, again; the cause was compiling beside a running Warp kernel
-    (`envs.mjx_warp.runs_warp`). Whether Warp's renderer runs inside WHILE graphs is not yet tried.
+    XLA's default CUDA graphs, a precaution (docs/mjx.md, "MuJoCo Warp and CUDA graphs"). Whether
+    Warp's renderer runs inside WHILE graphs is not yet tried.
 
     GEMM autotuning stays on: turning it off (`xla_gpu_autotune_level` 0) halved the chunk's
     compile but cost a large part of the training speed (docs/results.md, "DQN on the GPU: what

@@ -122,11 +122,9 @@ def _in_background(work: Callable[[], Any], name: str, after: threading.Event | 
     run's start. The programs and options are those that compiling them here would give: the
     same results, bit for bit.
 
-    Runs of MuJoCo Warp envs compile beside nothing that runs: a Warp kernel launched while another
-    thread's XLA autotuner captured a CUDA graph failed (CUDA error 906, the legacy stream made to
-    depend on a capturing stream), which stopped PPO from pixels in its first chunk while its final
-    evaluation's convolutions compiled beside it. Their compiles wait (`after`) until every program
-    is traced, since tracing loads Warp's modules onto the GPU, and the run waits for them all."""
+    Runs of MuJoCo Warp envs compile beside nothing that runs: their compiles wait (`after`, from
+    `envs.mjx_warp.CompileRules.tracing`) until every program is traced, and the run waits for them
+    all (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
     def waited():
         if after is not None:
             after.wait()
@@ -693,11 +691,9 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
     used by nothing after it (the final evaluation reads them, nothing donates them): on one
     device its copy to the host is made on the writing thread too (arrays split over devices are
-    copied here: never fetched by two threads at once), unless `copy_beside` is False: an env on
-    MuJoCo Warp, whose kernels capture a CUDA graph when the final evaluation first runs them, and
-    a copy from another thread then breaks the capture (CUDA error 904, "capturing stream has
-    unjoined work") and never ends, so the process neither finishes nor exits. A `finished` run's
-    replay buffers are neither copied nor written (`checkpoint.without_replay`)."""
+    copied here: never fetched by two threads at once), unless `copy_beside` is False (an env on
+    MuJoCo Warp: `envs.mjx_warp.CompileRules`, docs/mjx.md "MuJoCo Warp and CUDA graphs"). A
+    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`)."""
     if finished:
         ts = checkpoint.without_replay(ts)
     if final and copy_beside and placement.mesh is None and jax.process_count() == 1:
