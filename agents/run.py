@@ -215,12 +215,15 @@ def train_run(
     with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
         run = _Run(stop, env_name, config, seeds, seed, out_dir, resume, env_options, sweep, judge_every, seed_slice,
                    devices, overwrite, run_steps.SaveClock(checkpoint_every, checkpoint_seconds))
-        if run.placement.same_on_every_process(stop.requested is not None):  # a signal while the command started
-            return run.not_started()
-        run.compile_programs(progress, record_episode=on_chunk is not None, seed_axis=seed_axis,
-                             evaluates=stop_after_chunks is None or stop_after_chunks >= config.num_chunks)
-        run.train_chunks(progress, on_chunk, stop_after_chunks, stop_when_solved)
-        return run.finish()
+        try:
+            if run.placement.same_on_every_process(stop.requested is not None):  # a signal while the command started
+                return run.not_started()
+            run.compile_programs(progress, record_episode=on_chunk is not None, seed_axis=seed_axis,
+                                 evaluates=stop_after_chunks is None or stop_after_chunks >= config.num_chunks)
+            run.train_chunks(progress, on_chunk, stop_after_chunks, stop_when_solved)
+            return run.finish()
+        finally:
+            run.lock.release()
 
 
 class _Run:
@@ -257,6 +260,7 @@ class _Run:
         self.saved_run = checkpoint.SavedRun(env_name, seeds, config, env_options or {}, seed, self.sweep, self.agent,
                                              judge_every, None if seed_slice is None else tuple(seed_slice))
         self.out = run_steps.open_run_dir(out_dir, self.saved_run, resume, self.writer, overwrite)
+        self.lock = run_steps.RunDirLock(self.out if self.writer else None)
         self.saves = checkpoint.BackgroundSaves()
 
     def not_started(self) -> RunResult:

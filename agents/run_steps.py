@@ -80,6 +80,39 @@ def open_run_dir(out_dir, run: checkpoint.SavedRun, resume: bool, writer: bool =
     return out
 
 
+LOCK_FILE = ".lock"
+
+
+class RunDirLock:
+    """An exclusive lock on a run directory while a run trains in it (`fcntl.flock` on its
+    LOCK_FILE, released when the run returns or its process ends): a second `mjxsuite train
+    --out DIR` or `--resume` of the same directory is refused, naming the process that holds it,
+    instead of both appending to one metrics.jsonl and overwriting each other's checkpoints."""
+
+    def __init__(self, out: Path | None):
+        self.file = None
+        if out is None:
+            return
+        import fcntl
+        import os
+
+        self.file = open(out / LOCK_FILE, "a+")
+        try:
+            fcntl.flock(self.file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self.file.seek(0)
+            holder = self.file.read().strip() or "another process"
+            self.file.close()
+            raise ValueError(f"--out {out} is in use by a run training there ({holder}); wait for it to end, "
+                             "or choose another --out") from None
+        self.file.seek(0), self.file.truncate(), self.file.write(f"pid {os.getpid()}"), self.file.flush()
+
+    def release(self) -> None:
+        if self.file is not None:
+            self.file.close()  # closing the file releases the lock
+            self.file = None
+
+
 class SaveClock:
     """When the next periodic save is due: `every` units (chunks or evaluations) after the last,
     and at least `seconds` later, or SAVE_COST_FACTOR x the last save's duration if longer

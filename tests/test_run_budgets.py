@@ -222,3 +222,16 @@ def test_a_diverged_seed_is_reported_and_never_sinks_the_others(capsys):
     assert diverged == [1]
     said = capsys.readouterr().out
     assert said.count("seed 1 diverged in chunk 3") == 1 and "chunk 4" not in said
+
+
+def test_a_run_directory_trains_one_run_at_a_time(tmp_path):
+    """A second run in a directory a run trains in (two `--resume`s of one run) is refused, naming
+    the process that holds it, before anything compiles; once the first ends, the directory is free."""
+    out = tmp_path / "run"
+    out.mkdir()
+    held = run_steps.RunDirLock(out)
+    with pytest.raises(ValueError, match=rf"--out {out} is in use by a run training there \(pid {os.getpid()}\)"):
+        train_run("cartpole", SMALL, out_dir=out, progress=False)
+    held.release()
+    train_run("cartpole", SMALL, out_dir=out, progress=False, stop_after_chunks=1)
+    run_steps.RunDirLock(out).release()  # the run released it when it returned
