@@ -449,6 +449,8 @@ def check_resumable(out_dir: Path, run: SavedRun) -> None:
     saved = load_config(out_dir)
     asked = run._replace(env_options=json.loads(json.dumps(run.env_options or {})),  # as JSON stores them
                          sweep=json.loads(json.dumps(run.sweep)) if run.sweep else None)
+    if saved.judge_every is None:  # saved before its cadence was resolved (a run of several processes, an older
+        asked = asked._replace(judge_every=None)  # mjxsuite): the config's own cadence, `run_steps.judge_every`
     differ = [f"{name} {getattr(saved, name)!r} (given {getattr(asked, name)!r})"
               for name in SavedRun._fields if name != "config" and getattr(saved, name) != getattr(asked, name)]
     if saved.agent == asked.agent:

@@ -254,7 +254,7 @@ def test_the_console_scripts_fast_exit_leaves_a_whole_rerun_file(tmp_path):
     (`agents.console.exit_now`) leaves holds every chunk's rows and passes `rerun rrd verify`."""
     out, train_file = tmp_path / "run", tmp_path / "train.rrd"
     done = subprocess.run([*processes.MJXSUITE, "train", "--env", "cartpole", "--out", str(out),
-                           "--rerun", str(train_file), "--rerun-every", "1", *TINY],
+                           "--rerun", str(train_file), "--rerun-every", "1", "--judge-every", "1", *TINY],
                           capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     contents = Contents(train_file)

@@ -207,7 +207,8 @@ def test_two_processes_with_jax_distributed_train_and_write_one_output_directory
     out = tmp_path / "run"
     port = free_port()
     command = [sys.executable, "-m", "agents.cli", "train", "--distributed", "--env", "cartpole", "--seeds", str(SEEDS),
-               "--out", str(out), "--rerun", str(tmp_path / "train.rrd"), "--rerun-every", "1", *SMALL_FLAGS]
+               "--out", str(out), "--rerun", str(tmp_path / "train.rrd"), "--rerun-every", "1", "--judge-every", "1",
+               *SMALL_FLAGS]
     processes = [subprocess.Popen(command, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                   env={**environment(2), "JAX_COORDINATOR_ADDRESS": f"127.0.0.1:{port}",
                                        "JAX_NUM_PROCESSES": "2", "JAX_PROCESS_ID": str(index)})
