@@ -105,7 +105,10 @@ class RunDirLock:
             self.file.close()
             raise ValueError(f"--out {out} is in use by a run training there ({holder}); wait for it to end, "
                              "or choose another --out") from None
-        self.file.seek(0), self.file.truncate(), self.file.write(f"pid {os.getpid()}"), self.file.flush()
+        self.file.seek(0)
+        self.file.truncate()
+        self.file.write(f"pid {os.getpid()}")
+        self.file.flush()
 
     def release(self) -> None:
         if self.file is not None:
@@ -179,7 +182,6 @@ class JudgeClock:
         COUNT.check("judge_every", every)
         self.every, self.last_chunk = every, last_chunk
         self.judge_s = 0.0  # every judge's seconds so far (reported, never read to decide)
-        self.judges = 0
 
     def due(self, index: int) -> bool:
         """Whether chunk `index` (0-based) is judged."""
@@ -188,7 +190,6 @@ class JudgeClock:
     def judged(self, seconds: float) -> None:
         """Record a judge that took `seconds`."""
         self.judge_s += seconds
-        self.judges += 1
 
 
 def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> tqdm:
