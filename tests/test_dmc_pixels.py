@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import envs
+from agents.env_options import parse_option
 from envs.pixels import camera_rays
 
 pytest.importorskip("dm_control")
@@ -23,6 +24,7 @@ def test_pixels_default_to_drqv2s_protocol():
     assert env.observation_shape == (84, 84, 9) and env.cam == 0
     assert env.action_repeat == 2 and env.episode_length == 500
     assert envs.options("dmc-cheetah-run")["width"] == 84
+    assert parse_option("dmc-cheetah-run", "camera", "back") == "back" and parse_option("dmc-cheetah-run", "camera", "1") == 1
 
     given = envs.make("dmc-cheetah-run", observation="pixels", width=32, height=24, frame_stack=1,
                       action_repeat=1, camera="back")
