@@ -105,6 +105,8 @@ def parse_option(name: str, option: str, text: str) -> Any:
     if option not in valid:
         raise ValueError(f"unknown option {option!r} for env {name!r}; valid options: {sorted(valid)}")
     default = valid[option]
+    if option == "camera":  # a camera's index or name, whatever the task's default camera is
+        return int(text) if text.lstrip("-").isdigit() else text
     if option in ("randomize", "opt") or dataclasses.is_dataclass(default):
         fix = {"randomize": "use --randomize FIELD:ELEMENT=LOW:HIGH",
                "opt": "set its fields one by one: --env-opt opt.iterations=4"}.get(option, "set its fields one by one")

@@ -53,11 +53,12 @@ def rollout_fn(task: str, num_envs: int, steps: int, options: dict):
     return run
 
 
-def measure(tasks, sizes, impl: str, steps: int, repeats: int, size: int, depth: bool, frame_stack: int) -> list[dict]:
+def measure(tasks, sizes, impl: str, steps: int, repeats: int, size: int, depth: bool, frame_stack: int,
+            action_repeat: int = 1) -> list[dict]:
     device = jax.devices()[0].device_kind
     records = []
     pixel_options = {"observation": "pixels", "width": size, "height": size, "depth": depth,
-                     "frame_stack": frame_stack}
+                     "frame_stack": frame_stack, "action_repeat": action_repeat}  # 1: the renderer's cost alone
     for task in tasks:
         for num_envs in sizes:
             runs, found = {}, {}
@@ -97,10 +98,11 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=64, help="image width and height")
     parser.add_argument("--depth", action="store_true")
     parser.add_argument("--frame-stack", type=int, default=1)
+    parser.add_argument("--action-repeat", type=int, default=1, help="task steps per pixel env step")
     parser.add_argument("--json", help="write the records here")
     args = parser.parse_args(argv)
     records = measure(args.tasks, args.sizes, args.impl, args.steps, args.repeats, args.size, args.depth,
-                      args.frame_stack)
+                      args.frame_stack, args.action_repeat)
     if args.json:
         with open(args.json, "w") as out:
             json.dump(records, out, indent=1)

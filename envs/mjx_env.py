@@ -267,6 +267,11 @@ class MjxEnv(Env):
         scaled = 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
         return jnp.where(limited, scaled, action)
 
+    def episode_model(self, info: dict) -> mjx.Model:
+        """The model an episode steps with, from its `state.info`: the task's own, or its
+        per-episode edit (dm_control's reacher moves its target); a camera draws this one."""
+        return self.mjx_model
+
     # ---- the env API --------------------------------------------------------
     def reset(self, key: jax.Array) -> State:
         return self.reset_with_model(key, self.mjx_model)

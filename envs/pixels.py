@@ -57,14 +57,15 @@ GEOM_GROUPS = (0, 1, 2)  # the geom groups drawn (MuJoCo Warp's default `enabled
 AMBIENT = 0.3  # RayRenderer's shading: AMBIENT + (1 - AMBIENT) * |cos(normal, ray)|
 
 
-def check_pixel_options(options: dict[str, Any], env_name: str) -> dict[str, Any]:
-    """The pixel options of `envs.make` checked, each error naming the option, its value and the fix."""
+def check_pixel_options(options: dict[str, Any], env_name: str, defaults: dict[str, Any] = PIXEL_OPTIONS) -> dict[str, Any]:
+    """The pixel options of `envs.make` checked, each error naming the option, its value and the fix
+    (`defaults`: the task's, which options left as they are do not count as set)."""
     where = f"env {env_name!r}"
     observation = options["observation"]
     if observation not in OBSERVATIONS:
         raise ValueError(f"{where}: observation={observation!r}; choose one of {OBSERVATIONS}")
     if observation == "state":
-        changed = {k: v for k, v in options.items() if k != "observation" and v != PIXEL_OPTIONS[k]}
+        changed = {k: v for k, v in options.items() if k != "observation" and v != defaults[k]}
         if changed:
             raise ValueError(f"{where}: {changed} set(s) camera observations, but observation='state'; "
                              "add observation='pixels' (--env-opt observation=pixels)")
@@ -179,9 +180,11 @@ class RayRenderer:
         self.cylinders = np.nonzero((m.geom_type == mujoco.mjtGeom.mjGEOM_CYLINDER) & drawn)[0]
         self.colors = jnp.asarray(np.clip(rgba[:, :3], 0, 1), jnp.float32)
 
-    def render(self, data) -> tuple[jax.Array, jax.Array]:
-        """(rgb in [0, 1], (H, W, 3); planar depth, (H, W), 0 where no geom is hit) of `data`'s positions."""
-        mjx, model = self.mjx, self.task.mjx_model
+    def render(self, data, model=None) -> tuple[jax.Array, jax.Array]:
+        """(rgb in [0, 1], (H, W, 3); planar depth, (H, W), 0 where no geom is hit) of `data`'s positions,
+        drawn with `model` (the episode's: `MjxEnv.episode_model`; None: the task's own)."""
+        mjx = self.mjx
+        model = self.task.mjx_model if model is None else model
         # The positions of data.qpos (a step leaves the previous step's); com_pos for tracking cameras.
         data = mjx.camlight(model, mjx.com_pos(model, mjx.kinematics(model, data)))
         origin, frame = data.cam_xpos[self.cam], data.cam_xmat[self.cam]
@@ -284,7 +287,7 @@ class WarpRenderer:
                 use_shadows=False, enabled_geom_groups=list(GEOM_GROUPS))
         return self.contexts[worlds]
 
-    def render(self, data) -> tuple[jax.Array, jax.Array]:
+    def render(self, data, model=None) -> tuple[jax.Array, jax.Array]:
         mjx, task = self.mjx, self.task
 
         def render_worlds(data):  # every leaf has a leading world axis
@@ -321,8 +324,9 @@ class WarpRenderer:
                                 data, in_batched[0])
             return render_batch(data), (True, True)
 
-        # The camera and geoms where data.qpos puts them (a step leaves the previous step's positions).
-        return render_one(task.compute_derived(data))
+        # The camera and geoms where data.qpos puts them (a step leaves the previous step's positions),
+        # with the episode's model: its edits (reacher's target) move geoms.
+        return render_one(task.compute_derived(data, model))
 
 
 class Pixels(Wrapper):
@@ -353,13 +357,14 @@ class Pixels(Wrapper):
     def observation_size(self) -> int:
         return int(np.prod(self.observation_shape))
 
-    def render(self, data) -> tuple[jax.Array, jax.Array]:
+    def render(self, data, info: dict | None = None) -> tuple[jax.Array, jax.Array]:
         """The camera's float images of one env's `pipeline_state`: rgb in [0, 1] (H, W, 3) and
-        planar depth in metres (H, W), 0 where nothing is hit."""
-        return self.renderer.render(data)
+        planar depth in metres (H, W), 0 where nothing is hit. `info`: the episode's `state.info`,
+        whose per-episode model edits (`MjxEnv.episode_model`: reacher's target) are drawn."""
+        return self.renderer.render(data, None if info is None else self.unwrapped.episode_model(info))
 
-    def frame(self, data) -> jax.Array:
-        rgb, depth = self.render(data)
+    def frame(self, state: State) -> jax.Array:
+        rgb, depth = self.render(state.pipeline_state, state.info)
         channels = [rgb]
         if self.depth:
             channels.append(jnp.clip(depth / self.depth_range, 0.0, 1.0)[..., None])
@@ -367,14 +372,14 @@ class Pixels(Wrapper):
 
     def reset(self, key: jax.Array) -> State:
         state = self.env.reset(key)
-        frames = jnp.tile(self.frame(state.pipeline_state), (1, 1, self.frame_stack))
+        frames = jnp.tile(self.frame(state), (1, 1, self.frame_stack))
         return state.replace(obs=frames, info={**state.info, "state_obs": state.obs})
 
     def step(self, state: State, action: jax.Array) -> State:
         stepped = self.repeated_step(state.replace(obs=state.info["state_obs"]), action)
         # A step that was not physics (NaN, Warp's overflow) ends the episode with the last frame again.
         valid = (stepped.info["nan"] == 0) & (stepped.info["overflow"] == 0)
-        frame = jnp.where(valid, self.frame(stepped.pipeline_state), state.obs[..., -self.channels:])
+        frame = jnp.where(valid, self.frame(stepped), state.obs[..., -self.channels:])
         frames = jnp.concatenate([state.obs[..., self.channels:], frame], -1)
         return stepped.replace(obs=frames, info={**stepped.info, "state_obs": stepped.obs})
 

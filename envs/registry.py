@@ -48,7 +48,9 @@ def names() -> list[str]:
 def options(name: str) -> dict[str, Any]:
     """Every override `make(name, ...)` accepts, with its default."""
     factory, episode_length = _lookup(name)
-    found: dict[str, Any] = {"episode_length": episode_length, **(MJX_OPTIONS if _makes_mjx_env(factory) else {})}
+    found: dict[str, Any] = {"episode_length": episode_length}
+    if _makes_mjx_env(factory):  # a task may set its own camera defaults (the DeepMind Control Suite's 84x84)
+        found.update(MJX_OPTIONS, **pixel_defaults(factory))
     for param in inspect.signature(factory).parameters.values():
         if param.default is inspect.Parameter.empty:
             continue
@@ -125,7 +127,7 @@ def _checked(name: str, overrides: dict[str, Any]) -> tuple[Callable[..., Env], 
     if unknown:
         raise ValueError(f"unknown option(s) {unknown} for env {name!r}; valid options: {sorted(valid)}")
     given_length = overrides.pop("episode_length", None)
-    mjx_options = {k: overrides.pop(k, default) for k, default in MJX_OPTIONS.items() if k in valid}
+    mjx_options = {k: overrides.pop(k, valid[k]) for k in MJX_OPTIONS if k in valid}
     kwargs: dict[str, Any] = {}
     for param in inspect.signature(factory).parameters.values():
         if param.name in overrides:
@@ -140,10 +142,10 @@ def _checked(name: str, overrides: dict[str, Any]) -> tuple[Callable[..., Env], 
     if mjx_options:
         check_opt(mjx_options["opt"], f"env {name!r}")
         check_buffer_sizes(mjx_options, f"env {name!r}")
-        check_pixel_options({k: mjx_options[k] for k in PIXEL_OPTIONS}, name)
+        check_pixel_options({k: mjx_options[k] for k in PIXEL_OPTIONS}, name, {k: valid[k] for k in PIXEL_OPTIONS})
     # A task's episode lasts its own seconds: an env step of `action_repeat=k` is k task steps, so
     # the default limit is the task's over k (a given `episode_length` counts env steps).
-    repeat = mjx_options.get("action_repeat", 1) if mjx_options else 1
+    repeat = mjx_options["action_repeat"] if mjx_options and mjx_options["observation"] == "pixels" else 1
     episode_length = COUNT.check("episode_length",
                                  max(1, valid["episode_length"] // repeat) if given_length is None else given_length)
     return factory, kwargs, mjx_options, episode_length
@@ -159,6 +161,15 @@ def makes_mjx_task(name: str) -> bool:
     """Whether `make(name)` builds an MJX task, known without building it: making an MJX task puts
     its model on a device, which starts JAX's backend (`agents.processes` asks before it may)."""
     return _makes_mjx_env(_lookup(name)[0])
+
+
+def pixel_defaults(factory: Callable[..., Env]) -> dict[str, Any]:
+    """The camera options a task class sets over `PIXEL_OPTIONS`' (its `pixel_defaults`)."""
+    defaults = getattr(getattr(factory, "func", factory), "pixel_defaults", {})
+    unknown = set(defaults) - set(PIXEL_OPTIONS)
+    if unknown:
+        raise ValueError(f"{factory}: pixel_defaults names {sorted(unknown)}; camera options are {sorted(PIXEL_OPTIONS)}")
+    return dict(defaults)
 
 
 def _makes_mjx_env(factory: Callable[..., Env]) -> bool:

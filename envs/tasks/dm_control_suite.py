@@ -148,6 +148,10 @@ class DmControlEnv(MjxEnv):
     # `state.info` entries holding per-episode model edits (reacher's target), which
     # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
     episode_info: ClassVar[tuple[str, ...]] = ()
+    # observation="pixels" as DrQ-v2 benchmarks dm_control's suite: 84x84 RGB from camera 0 (the default
+    # camera: the MJCF's first), three frames stacked, each action held for two control steps (an episode
+    # is then 500 env steps). A domain filmed by another camera (quadruped: 2) adds "camera" here.
+    pixel_defaults: ClassVar[dict] = {"width": 84, "height": 84, "frame_stack": 3, "action_repeat": 2}
 
     def __init__(self, xml: str | None = None):
         super().__init__(xml if xml is not None else dm_control_asset(f"{self.domain}.xml"))
