@@ -41,15 +41,14 @@ def project_by_hat(probs, reward, discount, support):
     return jnp.einsum("bj,bji->bi", probs, weights)
 
 
-def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int, parts=("act", "learn", "chunk"),
-            hat_projection: bool = False) -> dict:
-    """Acting alone, learning alone and a whole chunk of `iterations` iterations, seeds vmapped."""
+def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
+            parts=("act", "learn", "learn_hat", "chunk")) -> dict:
+    """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
+    contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state."""
     import envs
-    from agents import brax_defaults, td3 as td3_module
+    from agents import brax_defaults
+    from agents import td3 as td3_module
     from agents.td3 import TD3, TD3Config
-
-    if hat_projection:
-        td3_module.project = project_by_hat
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3"), **overrides})
     td3 = TD3(config, envs.make(env_name))
@@ -63,27 +62,38 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     def act(ts):
         return jax.vmap(lambda t, k: jax.lax.scan(td3.collect, t, k)[0])(ts, steps)
 
-    @jax.jit
     def learn(ts):
         def body(t, inputs):
             return td3.update(t, *inputs)[0], None
         return jax.vmap(lambda t, k: jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0])(ts, steps)
 
+    def learn_hat(ts):
+        projection = td3_module.project
+        td3_module.project = project_by_hat  # read when the program is traced
+        try:
+            return learn(ts)
+        finally:
+            td3_module.project = projection
+
     @jax.jit
     def chunk(ts):
         return jax.vmap(lambda t: td3.train_steps(t)[:2])(ts)
 
-    programs = {"act": act, "learn": learn, "chunk": chunk}
-    timed = {part: _timed(programs[part], ts, repeats=repeats) for part in parts}
+    programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk}
+    timed = {}
+    for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
+        timed[part] = _timed(programs[part], ts, repeats=repeats)
+        print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
     record = {"kind": "td3-speed", "env": env_name, "seeds": seeds, "overrides": overrides,
-              "projection": "hat" if hat_projection else "scatter", "jax": jax.__version__,
+              "projection": td3_module.project.__name__, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
               "compile_and_first_s": {part: first for part, (first, _) in timed.items()},
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
-    if "learn" in timed:
-        record["learn_updates_per_s_per_seed"] = iterations * config.num_updates / timed["learn"][1]
+    for part in ("learn", "learn_hat"):
+        if part in timed:
+            record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
     if "chunk" in timed:
         chunk_s = timed["chunk"][1]
         record.update(chunk_iterations=config.iterations_per_chunk,
@@ -108,12 +118,12 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TD3Config field over the task's recipe; repeatable")
-    parser.add_argument("--parts", default="act,learn,chunk", help="which programs to time, comma-separated")
-    parser.add_argument("--hat-projection", action="store_true", help="C51's projection as a dense contraction")
+    parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
+                        help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     tuple(args.parts.split(",")), args.hat_projection)
+                     tuple(args.parts.split(",")))
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         from pathlib import Path
