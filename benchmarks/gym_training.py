@@ -7,8 +7,11 @@ then drives Gymnasium's own env of the task (`gymnasium.make(gymnasium_id)`: C M
 its `max_episode_steps`) for `--episodes` episodes with deterministic actions, reset with seeds
 0, 1, ...; the record holds that mean return beside the run's own final evaluation (eval.json),
 on our env, and the run's evaluation curve (env steps, evaluation return per seed, env-steps/s);
-with several seeds every seed is judged on Gymnasium. A run still training after `--timeout` seconds gets Ctrl-C, so it saves its
-checkpoint; its saved policy is judged all the same and the record says "interrupted". Records are JSON (`--json FILE`, kind "gym-training"), written run by run.
+with several seeds every seed is judged on Gymnasium, and the record holds their median,
+interquartile mean and worst seed (`benchmarks.reliability`) beside the whole process's wall time.
+A run still training after `--timeout` seconds gets Ctrl-C, so it saves its checkpoint; its saved
+policy is judged all the same and the record says "interrupted". Records are JSON (`--json FILE`,
+kind "gym-training"), written run by run.
 
     python -m benchmarks.gym_training --run "--env inverted-pendulum --agent ppo" \\
         [--run "--env half-cheetah --agent ppo --impl warp --steps 20000000" ...]
@@ -27,6 +30,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks import reliability
 
 
 def gymnasium_returns(out_dir: Path, env_name: str, episodes: int, seed_index: int | None = None) -> list[float] | None:
@@ -104,8 +109,10 @@ def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float 
     per_seed = [gymnasium_returns(out_dir, saved.env, episodes, i) for i in range(saved.seeds)]
     if per_seed[0] is not None:
         means = [float(np.mean(returns)) for returns in per_seed]
+        spread = reliability.over_seeds(means)
         record.update(gymnasium_returns=per_seed[best], return_on_gymnasium=means[best], best_seed=best,
-                      seeds_on_gymnasium=means, median_on_gymnasium=float(np.median(means)))
+                      seeds_on_gymnasium=means, median_on_gymnasium=spread["median"],
+                      iqm_on_gymnasium=spread["iqm"], worst_on_gymnasium=spread["worst"])
         if record["return_here"]:
             record["gymnasium_over_here"] = means[best] / record["return_here"]
     return record
@@ -119,6 +126,7 @@ def line(r: dict) -> str:
     stopped = f" [{r['interrupted']}]" if "interrupted" in r else ""
     overflow = f"  {r['overflowed_steps']:,} training steps overflowed" if r.get("overflowed_steps") else ""
     seeds = (f"  seeds on Gymnasium {', '.join(f'{m:.0f}' for m in r['seeds_on_gymnasium'])}"
+             f" (median {r['median_on_gymnasium']:.0f}, IQM {r['iqm_on_gymnasium']:.0f}, worst {r['worst_on_gymnasium']:.0f})"
              if len(r.get("seeds_on_gymnasium", [])) > 1 else "")
     return (f"{r['env']:<26} {r['agent']:<4} {r['wall_s']:7.0f} s  return here {here:>9}  "
             f"on Gymnasium {gym:>9}{seeds}{overflow}   ({r['command']}){stopped}")

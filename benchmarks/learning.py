@@ -1,6 +1,7 @@
 """`mjxsuite bench --sections learning`: every training to a threshold the suite claims, as a user
 runs it (`agents.train_run`, one program for all seeds), with the solve rate, the steps and
-seconds to solve, every seed's final return, the median and the worst seed, and the machine.
+seconds to solve, every seed's final return, the median, the interquartile mean and the worst seed
+(`benchmarks.reliability`), and the machine.
 
 Trainings to a threshold are benchmarks, not tests: on a 2-core CPU they took most of CI's time,
 and a learning result is a distribution over seeds that one machine's run samples. The tests keep
@@ -22,7 +23,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import statistics
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -99,10 +99,17 @@ def run_case(case: Case, tiny: bool = False, work: Path | None = None) -> dict:
     device = jax.devices()[0]
     return {"kind": "learning", "case": case.name, "env": case.env, "agent": case.agent, "seeds": case.seeds,
             "steps": config.total_steps, "goal": case.goal, "must_solve": case.must_solve, "solved": solved,
-            "met": solved >= case.must_solve, "final_returns": returns, "median": statistics.median(returns),
-            "worst": min(returns), "solve_steps": solve_steps, "wall_s": wall, "judge": case.judge,
+            "met": solved >= case.must_solve, "final_returns": returns, **_spread(returns), "solve_steps": solve_steps, "wall_s": wall, "judge": case.judge,
             "device": device.device_kind, "platform": device.platform, "precision": "float32",
             "tiny": tiny, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+
+
+def _spread(returns: list[float]) -> dict[str, float]:
+    """The median, IQM and worst seed of the final returns (`benchmarks.reliability`)."""
+    from benchmarks import reliability
+
+    found = reliability.over_seeds(returns)
+    return {name: found[name] for name in ("median", "iqm", "worst")}
 
 
 def _ours(case: Case, config: Any, tiny: bool, work: Path | None) -> tuple[list[float], list]:
@@ -157,7 +164,7 @@ def section(cases: list[str] | None = None, tiny: bool = False) -> list[dict]:
 def line(r: dict) -> str:
     steps = ", ".join("-" if s is None else f"{s:,}" for s in r["solve_steps"])
     return (f"{r['case']:<28} {r['solved']}/{r['seeds']} reached {r['goal']:g} (need {r['must_solve']}): "
-            f"median {r['median']:.1f}, worst {r['worst']:.1f}, {r['wall_s']:.0f} s; solve steps {steps}")
+            f"median {r['median']:.1f}, IQM {r['iqm']:.1f}, worst {r['worst']:.1f}, {r['wall_s']:.0f} s; solve steps {steps}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -149,6 +149,9 @@ class MjxEnv(Env):
         else:
             self.warp_buffers = None
             data = mjx.make_data(mjx_model, impl=impl)
+        # The task's own options come before the Warp worlds take the model: they step this one
+        # model and refuse any other (`WarpWorlds.run`).
+        mjx_model = self.device_model(mjx_model)
         self.mjx_model = mjx_model
         # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
         # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
@@ -156,6 +159,12 @@ class MjxEnv(Env):
         # Under impl="warp", the batch of worlds every step and forward runs on (None: impl="jax").
         self._warp: WarpWorlds | None = WarpWorlds(mjx_model, data, self.warp_buffers, self.name) \
             if impl == "warp" else None
+
+    def device_model(self, mjx_model: mjx.Model) -> mjx.Model:
+        """The MJX model this task steps with, from MJX's `put_model` for the task's impl (`self.impl`):
+        a task that needs an MJX option MuJoCo's model does not hold sets it here. The default
+        changes nothing."""
+        return mjx_model
 
     def _opt_note(self) -> str:
         return f" with opt={self.opt}" if self.opt else ""

@@ -73,8 +73,11 @@ class GymnasiumMujocoEnv(MjxEnv):
         if self.mj_model.opt.solver == mujoco.mjtSolver.mjSOL_PGS and "solver" not in self.opt:
             self.mj_model.opt.solver = MODEL_SOLVER
         super()._put_on_device(impl)
-        if impl == "warp" and self.reads_contact_forces:
-            self.mjx_model = self.mjx_model.tree_replace({"opt._impl.run_rne_postconstraint": True})
+
+    def device_model(self, mjx_model: mjx.Model) -> mjx.Model:
+        if self.impl == "warp" and self.reads_contact_forces:
+            return mjx_model.tree_replace({"opt._impl.run_rne_postconstraint": True})
+        return mjx_model
 
     @property
     def needs_cfrc_ext(self) -> bool:

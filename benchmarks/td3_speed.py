@@ -1,0 +1,137 @@
+"""Where a TD3 chunk's time goes: env-steps/s of acting alone, updates/s of learning alone, and the
+whole chunk, for a task's TD3 recipe (`agents/brax_defaults.py`) with `--seeds` seeds vmapped as
+`mjxsuite train --seeds N` runs them. Compile time is kept apart; each program is timed after a
+warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole output.
+
+    python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def _timed(program, *args, repeats: int) -> tuple[float, float]:
+    """(compile + first run seconds, median seconds of `repeats` further runs)."""
+    start = time.perf_counter()
+    jax.block_until_ready(program(*args))
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(program(*args))
+        times.append(time.perf_counter() - start)
+    return first, float(np.median(times))
+
+
+def project_by_hat(probs, reward, discount, support):
+    """C51's projection as a dense contraction: each atom i takes sum_j p_j * max(0, 1 - |b_j - i|),
+    b_j the shifted atom j's position in atom units (the scatter-free form, for comparison)."""
+    v_min, v_max, atoms = support[0], support[-1], support.shape[0]
+    shifted = jnp.clip(reward[:, None] + discount[:, None] * support[None, :], v_min, v_max)
+    position = (shifted - v_min) / ((v_max - v_min) / (atoms - 1))
+    weights = jnp.clip(1.0 - jnp.abs(position[:, :, None] - jnp.arange(atoms, dtype=position.dtype)), 0.0, 1.0)
+    return jnp.einsum("bj,bji->bi", probs, weights)
+
+
+def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
+            parts=("act", "learn", "learn_hat", "chunk")) -> dict:
+    """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
+    contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state."""
+    import envs
+    from agents import brax_defaults
+    from agents import td3 as td3_module
+    from agents.td3 import TD3, TD3Config
+
+    config = TD3Config(**{**brax_defaults.settings(env_name, "td3"), **overrides})
+    td3 = TD3(config, envs.make(env_name))
+    keys = jax.random.split(jax.random.PRNGKey(0), seeds)
+    start = time.perf_counter()
+    ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys))
+    init_s = time.perf_counter() - start
+    steps = jax.random.split(jax.random.PRNGKey(1), (seeds, iterations))
+
+    @jax.jit
+    def act(ts):
+        return jax.vmap(lambda t, k: jax.lax.scan(td3.collect, t, k)[0])(ts, steps)
+
+    def learn(ts):
+        def body(t, inputs):
+            return td3.update(t, *inputs)[0], None
+        return jax.vmap(lambda t, k: jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0])(ts, steps)
+
+    def learn_hat(ts):
+        projection = td3_module.project
+        td3_module.project = project_by_hat  # read when the program is traced
+        try:
+            return learn(ts)
+        finally:
+            td3_module.project = projection
+
+    @jax.jit
+    def chunk(ts):
+        return jax.vmap(lambda t: td3.train_steps(t)[:2])(ts)
+
+    programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk}
+    timed = {}
+    for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
+        timed[part] = _timed(programs[part], ts, repeats=repeats)
+        print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
+    record = {"kind": "td3-speed", "env": env_name, "seeds": seeds, "overrides": overrides,
+              "projection": td3_module.project.__name__, "jax": jax.__version__,
+              "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
+              "compile_and_first_s": {part: first for part, (first, _) in timed.items()},
+              "seconds": {part: seconds for part, (_, seconds) in timed.items()}}
+    if "act" in timed:
+        record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
+    for part in ("learn", "learn_hat"):
+        if part in timed:
+            record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
+    if "chunk" in timed:
+        chunk_s = timed["chunk"][1]
+        record.update(chunk_iterations=config.iterations_per_chunk,
+                      chunk_env_steps_per_s_per_seed=config.iterations_per_chunk * config.num_envs / chunk_s,
+                      chunk_updates_per_s_per_seed=config.iterations_per_chunk * config.num_updates / chunk_s)
+    return record
+
+
+def _parse_set(text: str) -> tuple[str, object]:
+    name, _, value = text.partition("=")
+    try:
+        return name, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return name, value
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.td3_speed", description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="hopper")
+    parser.add_argument("--seeds", type=int, default=1)
+    parser.add_argument("--iterations", type=int, default=50, help="iterations of acting alone and learning alone")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a TD3Config field over the task's recipe; repeatable")
+    parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
+                        help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction)")
+    parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
+    args = parser.parse_args(argv)
+    record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
+                     tuple(args.parts.split(",")))
+    print(json.dumps(record, indent=1), flush=True)
+    if args.json:
+        from pathlib import Path
+
+        path = Path(args.json)
+        found = json.loads(path.read_text()) if path.exists() else []
+        path.write_text(json.dumps([*found, record], indent=1))
+
+
+if __name__ == "__main__":
+    main()

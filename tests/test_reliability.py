@@ -1,0 +1,40 @@
+"""Reliability over seeds (`benchmarks.reliability`): the median, the interquartile mean and the
+worst seed, checked against cases computed by hand, and the two benchmark reports that print them."""
+
+import pytest
+
+from benchmarks import gym_training, learning, reliability
+
+
+def test_eight_seeds_by_hand():
+    # sorted: 1 2 3 4 5 6 7 100; the IQM keeps the middle four (3, 4, 5, 6): one far seed moves nothing
+    assert reliability.over_seeds([100, 1, 7, 3, 5, 2, 6, 4]) == {"seeds": 8, "median": 4.5, "iqm": 4.5, "worst": 1.0}
+
+
+def test_five_seeds_by_hand():
+    # sorted: 0 2 4 10 1000; int(0.25 * 5) = 1 seed cut from each end, so the IQM is (2 + 4 + 10) / 3
+    found = reliability.over_seeds([10, 0, 4, 2, 1000])
+    assert found["median"] == 4.0 and found["worst"] == 0.0
+    assert found["iqm"] == pytest.approx(16 / 3)
+
+
+def test_one_seed_is_its_own_median_iqm_and_worst():
+    assert reliability.over_seeds([3.5]) == {"seeds": 1, "median": 3.5, "iqm": 3.5, "worst": 3.5}
+
+
+@pytest.mark.parametrize("returns", [[], [[1.0, 2.0]]])
+def test_anything_but_one_return_per_seed_is_refused(returns):
+    with pytest.raises(ValueError, match="one return per seed"):
+        reliability.over_seeds(returns)
+
+
+def test_the_reports_print_the_iqm():
+    seeds = [3100.0, 2900.0, 3300.0, 3500.0]
+    trained = {"command": "mjxsuite train --env hopper --agent td3 --seeds 4", "env": "Hopper-v5", "agent": "td3",
+               "wall_s": 500.0, "return_here": 3400.0, "return_on_gymnasium": 3500.0, "seeds_on_gymnasium": seeds,
+               "median_on_gymnasium": 3200.0, "iqm_on_gymnasium": 3200.0, "worst_on_gymnasium": 2900.0}
+    assert "(median 3200, IQM 3200, worst 2900)" in gym_training.line(trained)
+    case = {"case": "td3-hopper", "solved": 3, "seeds": 4, "goal": 3000.0, "must_solve": 4, "median": 3200.0,
+            "iqm": 3200.0, "worst": 2900.0, "wall_s": 500.0, "solve_steps": [None] * 4}
+    assert "median 3200.0, IQM 3200.0, worst 2900.0" in learning.line(case)
+    assert learning._spread(seeds) == {"median": 3200.0, "iqm": 3200.0, "worst": 2900.0}

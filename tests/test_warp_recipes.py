@@ -1,0 +1,86 @@
+"""Every (task, agent) pair of the recipes table (`agents/brax_defaults.py`) starts under
+impl="warp": the agent builds with its recipe on the Warp env, and the training env's reset and
+step trace through `WarpWorlds.run`, which steps the task's own model and refuses any other. Issue 65: Humanoid and Ant set their contact-force option on the model after
+the Warp worlds had taken theirs, so `--impl warp` refused them.
+
+This checks the check, not Warp: the CPU suite runs without MuJoCo Warp, so MJX's Warp pieces are
+replaced here by its JAX ones under a model whose options have Warp's fields."""
+
+import dataclasses
+
+import jax
+import pytest
+
+import envs
+from agents import brax_defaults, registry
+from envs import mjx_env, mjx_warp, wrap_for_training
+from envs.mjx_env import mjx
+
+PAIRS = [(task, agent) for task, rows in brax_defaults.SETTINGS.items() if task in envs.names()
+         for agent in rows]
+
+
+@pytest.fixture
+def warp_faked(monkeypatch):
+    """`impl="warp"` on a CPU without MuJoCo Warp: MJX's JAX model with an option of Warp's
+    fields (the ones our code sets), JAX's data, no buffers shared by the worlds, the physics run
+    by JAX. `WarpWorlds.run`, with its check, is the real one."""
+    from mujoco.mjx._src.types import OptionJAX
+
+    class WarpShapedOption(OptionJAX):
+        warn_overflow: int = 1
+        run_rne_postconstraint: bool = False
+
+    put_model = mjx.put_model
+
+    def put_model_faked(mj_model, impl=None, **kwargs):
+        model = put_model(mj_model, impl="jax" if impl == "warp" else impl, **kwargs)
+        if impl != "warp":
+            return model
+        fields = {field.name: getattr(model.opt._impl, field.name) for field in dataclasses.fields(OptionJAX)}
+        return model.replace(opt=model.opt.replace(_impl=WarpShapedOption(**fields)))
+
+    def put_model_and_data_faked(mj_model, mjx_model, buffers):
+        return mjx_model.tree_replace({"opt._impl.warn_overflow": 0}), mjx.make_data(mj_model, impl="jax")
+
+    monkeypatch.setattr(mjx_env, "require_warp", lambda: None)
+    monkeypatch.setattr(mjx, "put_model", put_model_faked)
+    monkeypatch.setattr(mjx_env, "put_model_and_data", put_model_and_data_faked)
+    monkeypatch.setattr(mjx_warp, "shared_buffers", lambda data: {})
+    monkeypatch.setattr(mjx_warp.WarpWorlds, "_step_worlds",  # MJX's Warp step takes a leading world axis
+                        lambda self, physics, data: jax.vmap(lambda world: physics(self.mjx_model, world))(data))
+    monkeypatch.setattr(mjx_warp.WarpWorlds, "overflow", staticmethod(lambda data: jax.numpy.zeros(())))
+
+
+TASKS = sorted({task for task, _ in PAIRS})
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_the_warp_worlds_step_the_model_the_task_steps(warp_faked, task):
+    """What `WarpWorlds.run` checks, for every task of the table: the model its worlds hold is the
+    task's own, the task's own options (Humanoid's and Ant's contact forces) set on both."""
+    env = envs.make(task, impl="warp").unwrapped
+    assert env.impl == "warp" and env._warp.mjx_model is env.mjx_model
+
+
+@pytest.mark.slow  # traces every task's physics
+@pytest.mark.parametrize("task", TASKS)
+def test_every_recipe_starts_under_warp(warp_faked, task):
+    """Each agent the table offers for `task` builds on the Warp env with its recipe, and the env
+    its training steps (`wrap_for_training`, as every agent wraps it) resets and steps."""
+    env = envs.make(task, impl="warp")
+    for agent in brax_defaults.SETTINGS[task]:
+        registry.make(registry.config_class(agent)(**brax_defaults.settings(task, agent)), env)
+    batch = wrap_for_training(env, 2)
+    state = jax.eval_shape(batch.reset, jax.random.PRNGKey(0))
+    jax.eval_shape(batch.step, state, jax.ShapeDtypeStruct((2, env.action_size), jax.numpy.float32))
+
+
+def test_the_check_refuses_another_model(warp_faked):
+    """The check both tests above rely on: per-env model values (`envs.randomize`) are refused."""
+    env = envs.make("inverted-pendulum", impl="warp").unwrapped
+    other = env.mjx_model.tree_replace({"opt.timestep": env.mjx_model.opt.timestep * 2})
+    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    action = jax.ShapeDtypeStruct((env.action_size,), jax.numpy.float32)
+    with pytest.raises(ValueError, match="steps the task's own model"):
+        jax.eval_shape(lambda s, a: env.step_with_model(s, a, other), state, action)
