@@ -40,7 +40,7 @@ TINY_SAC = SACConfig(num_timesteps=640, num_envs=8, min_replay_size=128, max_rep
 @pytest.mark.parametrize("argv, message", [
     (["--env", "pendulum-mjx", "--agent", "dqn"], "choose --agent ppo or sac"),
     (["--env", "cartpole", "--agent", "ppo"], "choose --agent dqn"),
-    (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envz", "8"], "unknown option --num_envz; PPOConfig fields"),
+    (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envz", "8"], "unknown option --num_envz for `mjxsuite train`; did you mean --num_envs"),
     (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envs", "0"], "PPOConfig.num_envs must be an integer >= 1"),
     (["--env", "pendulum-mjx", "--agent", "ppo", "--learning_rate", "fast"], "bad value for --learning_rate"),
     (["--env", "pendulum-mjx", "--num_envs", "48"], "must divide batch_size * num_minibatches"),
@@ -71,7 +71,7 @@ def test_the_table_holds_valid_recipes_for_tasks_registered_or_not():
 def test_default_agent_follows_the_action_space_and_steps_are_per_seed(monkeypatch, capsys):
     seen = {}
     monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config, **k))
-    monkeypatch.setattr("agents.cli._report", lambda *a: 0)
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
     assert cli_main(["train", "--env", "pendulum-mjx", "--learning_rate", "3e-4", "--seeds", "3"]) == 0
     assert seen["config"] == PPOConfig(**{**brax_defaults.settings("pendulum-mjx", "ppo"), "learning_rate": 3e-4})
     assert seen["seeds"] == 3
@@ -268,14 +268,14 @@ def test_sweeps_name_another_agents_field_and_refuse_repeated_values(capsys):
 
 
 def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts(capsys):
-    from agents import cli
+    from agents import commands
 
     hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))
-    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
+    commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
     said = capsys.readouterr().err
     assert f"trains {hopper.total_steps:,} env steps per seed" in said and "--steps" in said
-    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
-    cli._say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
+    commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
+    commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
 
 

@@ -16,7 +16,9 @@ import pytest
 
 import envs
 from agents import brax_defaults
-from agents.cli import UsageError, _agent_config, _choose_agent
+from agents.commands import UsageError
+from agents.commands import agent_config as _agent_config
+from agents.commands import choose_agent as _choose_agent
 from agents.ppo import PPO, PPOConfig, image_shape
 from agents.run import load_policy, train_run
 
@@ -94,7 +96,7 @@ def test_pixel_runs_stack_frames_as_playground():
     pixel options."""
     import argparse
 
-    from agents.cli import _train_env_options
+    from agents.commands import train_env_options as _train_env_options
 
     def options(*pairs):
         return _train_env_options(argparse.Namespace(env=TASK, env_opts=list(pairs), impl=None, randomize=[],

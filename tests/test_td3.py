@@ -77,7 +77,7 @@ def test_the_command_line_takes_the_task_recipe_and_every_field(monkeypatch):
 
     seen = {}
     monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config, **k))
-    monkeypatch.setattr("agents.cli._report", lambda *a: 0)
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
     argv = ["train", "--env", "hopper", "--agent", "td3", "--compute_dtype", "float32", "--actor_hidden", "64,64",
             "--use_cdq", "false", "--seeds", "4"]
     assert cli_main(argv) == 0
