@@ -22,7 +22,6 @@ import argparse
 import dataclasses
 import difflib
 import inspect
-import os
 import re
 import sys
 import typing
@@ -36,19 +35,17 @@ from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 @dataclasses.dataclass(kw_only=True)
 class Common:
-    # do not use JAX's persistent compilation cache nor the cache of traced programs inside it (default: on,
-    # in $XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, a path moves it)
+    # do not use JAX's persistent compilation cache nor its traced programs (default: on, in
+    # $XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, a path moves it)
     no_compile_cache: bool = False
-    # import a module (a name importable from the current directory, or a .py file) that registers your own
-    # tasks; repeatable
-    imports: list[str] = field(default_factory=list)
+    imports: list[str] = field(default_factory=list)  # a module or .py file that registers your tasks; repeatable
 
 
 @dataclasses.dataclass(kw_only=True)
 class RunOptions(Common):
     env: str | None = None  # registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)
-    # dqn for discrete tasks, ppo, sac or td3 for continuous ones (default: dqn for a discrete task; for a
-    # continuous one, ppo or the task's choice in agents/brax_defaults.py: sac for half-cheetah and walker2d)
+    # dqn for discrete tasks, ppo, sac or td3 for continuous ones (default: dqn, or for a continuous task ppo
+    # or its choice in agents/brax_defaults.py: sac for half-cheetah and walker2d)
     agent: typing.Literal["dqn", "ppo", "sac", "td3"] | None = None
     seeds: int | None = None  # agents trained at once (default 1)
     seed: int | None = None  # random seed (default 0)
@@ -56,27 +53,20 @@ class RunOptions(Common):
     # whole training steps per chunk, as the run says before it compiles
     steps: int | None = None
     replay: typing.Literal["uniform", "prioritized"] | None = None  # DQN's replay (DQNConfig.replay)
-    # a named config (default: default) that --FIELD options then change. DQN: the presets of agents/dqn.py
-    # (many-envs is for GPUs: 32 envs per agent, batch 512, 4 updates per iteration; docs/training.md);
-    # PPO/SAC/TD3: the task's recipes in agents/brax_defaults.py
+    # a named config that --FIELD options then change (default: default). DQN: default, or many-envs for GPUs
+    # (docs/training.md); PPO/SAC/TD3: the task's recipes in agents/brax_defaults.py
     preset: str | None = None
     out: str | None = None  # directory for config.json, metrics.jsonl, checkpoint and eval.json
-    # continue the run saved in --out from its last checkpoint (env, seeds and config from there)
-    resume: bool = False
-    checkpoint_every: int = CHECKPOINT_EVERY  # chunks (of eval_every steps) between checkpoints in --out (default %(default)s)...
+    resume: bool = False  # continue the run saved in --out from its last checkpoint, with its env, seeds, config
+    checkpoint_every: int = CHECKPOINT_EVERY  # chunks between checkpoints in --out (default %(default)s)...
     # ...and at least this many seconds between them, or a multiple of the last save's duration if longer
-    # (default %(default)s; 0: no limit)
     checkpoint_seconds: float = CHECKPOINT_SECONDS
-    # judge the greedy policy (keep the best parameters, find the solve step) every this many chunks and after
-    # the last (default: from the config, saved in config.json: PPO, SAC and TD3 every chunk, DQN as often as
-    # keeps a judge a small share of a chunk's env steps and updates; docs/training.md)
+    # judge the policy (keep the best parameters, find the solve step) every this many chunks and after the last
+    # (default: PPO, SAC and TD3 every chunk, DQN by a cost model; saved in config.json; docs/training.md)
     judge_every: int | None = None
     rerun: str | None = None  # a Rerun file (FILE.rrd) to log training curves and greedy rollouts to
-    # replace the run that --out holds (else refused: --resume continues it) and an existing --rerun file
-    overwrite: bool = False
-    # local devices to spread the agents over (default: all that split them evenly); an MJX task's `train` on
-    # several GPUs runs one process per device (see --processes)
-    devices: int | None = None
+    overwrite: bool = False  # replace the run --out holds (else refused: --resume continues it) and --rerun's file
+    devices: int | None = None  # local devices to spread the agents over (default: all that split them evenly)
     # bit-for-bit repeatable runs on a GPU: XLA's deterministic ops (also MJXSUITE_DETERMINISTIC=1); MuJoCo
     # Warp is not deterministic (docs/reliability.md)
     deterministic: bool = False
@@ -87,9 +77,8 @@ class RunOptions(Common):
 
 @dataclasses.dataclass(kw_only=True)
 class TrainOptions(RunOptions):
-    # train the seeds in this many child processes, each an ordinary one-device run of its share (one GPU each,
-    # in turn; on a CPU each uses the CPU), merged into --out (default: for an MJX task on a host with several
-    # GPUs, as many as --devices says; else 1; also MJXSUITE_PROCESSES=K; docs/scaling.md)
+    # train the seeds in this many child processes, one device each, merged into --out (default: for an MJX task
+    # on several GPUs, one per --devices; else 1; also MJXSUITE_PROCESSES=K; docs/scaling.md)
     processes: int | None = None
     rerun_every: int = 1  # chunks (PPO/SAC: evaluations) between logged evaluation rollouts (0: none)
 
@@ -148,14 +137,12 @@ def ranged(kind: type, valid: Range):
     """An argparse `type` that also checks the value's range (argparse names the option)."""
 
     def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            value = text
+        value = kind(text)  # argparse names the option of a ValueError's text
         if value not in valid:
             raise argparse.ArgumentTypeError(f"must be {valid}, got {text}")
         return value
 
+    parse.__name__ = kind.__name__
     return parse
 
 
@@ -165,8 +152,7 @@ def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
     helps = field_help(cls)
     for spec in dataclasses.fields(cls):
         kind = typing.get_type_hints(cls)[spec.name]
-        kind = next((k for k in typing.get_args(kind) if k is not type(None)), kind) if typing.get_args(kind) \
-            and type(None) in typing.get_args(kind) else kind
+        kind = typing.get_args(kind)[0] if type(None) in typing.get_args(kind) else kind  # X | None: X
         options = {"help": helps.get(spec.name, ""), "dest": spec.name}
         if spec.default is dataclasses.MISSING and spec.default_factory is dataclasses.MISSING:
             options["required"] = True
@@ -190,23 +176,23 @@ def add_config_fields(parser: argparse.ArgumentParser, agents=AGENTS, sweep: boo
     from agents import registry
 
     taken = {option for action in parser._actions for option in action.option_strings}
-    fields: dict[str, tuple[list[str], str]] = {}
+    fields: dict[str, list[tuple[str, str]]] = {}  # name -> (agent, help) of each agent that has it
     for agent in agents:
         helps = field_help(registry.config_class(agent))
         for spec in dataclasses.fields(registry.config_class(agent)):
-            owners, text = fields.setdefault(spec.name, ([], helps.get(spec.name, "")))
-            owners.append(agent)
-            fields[spec.name] = (owners, text or helps.get(spec.name, ""))
+            fields.setdefault(spec.name, []).append((agent, helps.get(spec.name, "")))
     group = parser.add_argument_group("agent config fields", "defaults: the agent's config class or "
                                       "preset; PPO/SAC/TD3 recipes per task: agents/brax_defaults.py")
     swept = {name for agent in agents for name in registry.sweepable(agent)} if sweep else set()
-    for name, (owners, text) in fields.items():
-        flags = [f"--{name}"] + ([f"--{name.replace('_', '-')}"] if "_" in name else [])
-        if f"--{name}" in taken:
-            continue
-        values = "; comma-separated values to sweep" if name in swept else ""
-        group.add_argument(*flags, dest=CONFIG + name, metavar="V1,V2,..." if values else "VALUE",
-                           help=f"{text}{values} ({', '.join(owners)})".lstrip())
+    for name, owners in fields.items():
+        if f"--{name}" not in taken:  # DQN's --replay is a run option
+            first, texts = next((text for _, text in owners if text), ""), {}
+            for agent, text in owners:  # the agents that say the same, or nothing, together
+                texts.setdefault(text or first, []).append(agent)
+            text = "; ".join(f"{text} ({', '.join(agents)})".lstrip() for text, agents in texts.items())
+            values = "; comma-separated values to sweep" if name in swept else ""
+            group.add_argument(*dict.fromkeys([f"--{name}", f"--{name.replace('_', '-')}"]), dest=CONFIG + name,
+                               metavar="V1,V2,..." if values else "VALUE", help=text.replace("%", "%%") + values)
 
 
 def build_parser(more: Mapping[str, Command] | None = None) -> argparse.ArgumentParser:
@@ -258,8 +244,6 @@ def _use_compile_cache(args) -> None:
 
 def _refuse_unknown(parser: argparse.ArgumentParser, command: str, extra: list[str]) -> None:
     """An unknown option, with the nearest known one."""
-    if not extra:
-        return
     known = [option for action in parser._subparsers._group_actions[0].choices[command]._actions
              for option in action.option_strings]
     near = difflib.get_close_matches(extra[0].partition("=")[0], known, n=1)
@@ -286,23 +270,13 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     if args.command not in ("train", "sweep"):
         signals.release_early()  # only a training run stops at a signal of its own accord
     try:
-        if args.command not in more:
+        if extra and args.command not in more:
             _refuse_unknown(parser, args.command, extra)
-        if args.command in ("train", "sweep") and (args.deterministic or os.environ.get("MJXSUITE_DETERMINISTIC") == "1"):
-            from agents.device_options import make_deterministic
-
-            make_deterministic()  # before any JAX computation
-            if getattr(args, "impl", None) == "warp":
-                print("note: --deterministic makes XLA's ops deterministic; MuJoCo Warp's physics is not "
-                      "(docs/reliability.md): runs with --impl warp still differ from run to run", file=sys.stderr)
         if args.command in ("train", "sweep", "eval", "rollout"):
             _use_compile_cache(args)
             commands.import_tasks(args.imports)
         if args.command in ("train", "sweep"):
-            from agents import sharding
-
-            if sharding.distributed_requested(args.distributed):  # before any JAX computation
-                sharding.initialize_distributed()
+            commands.before_any_jax(args)
         return handlers[args.command](args, extra)
     except UsageError as err:
         print(f"mjxsuite: {err}", file=sys.stderr)

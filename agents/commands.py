@@ -142,6 +142,21 @@ def say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]
           file=sys.stderr)
 
 
+def before_any_jax(args) -> None:
+    """What a training run sets before any JAX computation: deterministic ops, a multi-host runtime."""
+    from agents import sharding
+
+    if args.deterministic or os.environ.get("MJXSUITE_DETERMINISTIC") == "1":
+        from agents.device_options import make_deterministic
+
+        make_deterministic()
+        if getattr(args, "impl", None) == "warp":
+            print("note: --deterministic makes XLA's ops deterministic; MuJoCo Warp's physics is not "
+                  "(docs/reliability.md): runs with --impl warp still differ from run to run", file=sys.stderr)
+    if sharding.distributed_requested(args.distributed):
+        sharding.initialize_distributed()
+
+
 def require_registered(env_name: str) -> None:
     import envs
 
@@ -469,6 +484,12 @@ def cmd_sweep(args, extra: list[str]) -> int:
     return 0
 
 
+def agent_label(index: int, seeds: int, sweep: dict | None) -> str:
+    """Agent `index` of a run as `--seeds` counts: a seed, or in a sweep config `index // seeds` with
+    seed `index % seeds` (eval.json's lists and `load_policy(seed_index=...)` count agents)."""
+    return f"agent {index} (config {index // seeds}, seed {index % seeds})" if sweep else f"seed {index}"
+
+
 def cmd_eval(args, extra: list[str]) -> int:
     """Every seed's policy (DQN's greedy one, PPO's and SAC's deterministic one) over fresh episodes."""
     import jax
@@ -487,9 +508,9 @@ def cmd_eval(args, extra: list[str]) -> int:
     evaluate = lower_evaluation_cached(agent, params, keys, env_name, options, episodes).compile()
     returns = evaluate(params, keys)
     means = np.asarray(returns.mean(axis=-1))
-    for i, mean in enumerate(means):  # a sweep's agent i is config i // seeds with seed i % seeds
-        agent = f"agent {i} (config {i // saved.seeds}, seed {i % saved.seeds})" if saved.sweep else f"seed {i}"
-        print(f"{agent}: {POLICY_NAMES[saved.agent]} policy's mean return {mean:.1f} over {episodes} episodes")
+    for i, mean in enumerate(means):
+        print(f"{agent_label(i, saved.seeds, saved.sweep)}: {POLICY_NAMES[saved.agent]} policy's mean return "
+              f"{mean:.1f} over {episodes} episodes")
     print(json.dumps({"env": env_name, "env_options": options, "episodes": episodes,
                       "mean_return": means.tolist()}))
     return 0

@@ -37,31 +37,26 @@ class DQNConfig:
     learning_starts: int = 1_000  # random-action steps that fill the buffer before learning
     train_every: int = 1  # env steps (per env) between gradient phases
     gradient_steps: int = 1  # updates per gradient phase
-    # Network and optimizer
-    hidden: tuple[int, ...] = (64, 64)
-    dueling: bool = False
-    learning_rate: float = 2e-3
-    max_grad_norm: float | None = 10.0  # None: no clipping
-    # Q-learning
-    gamma: float = 0.99
-    double_dqn: bool = True
+    hidden: tuple[int, ...] = (64, 64)  # the Q-network's layer widths, e.g. 64,64
+    dueling: bool = False  # a dueling head (value + advantages)
+    learning_rate: float = 2e-3  # Adam's
+    max_grad_norm: float | None = 10.0  # gradients clipped to this global norm; None: no clipping
+    gamma: float = 0.99  # the discount factor
+    double_dqn: bool = True  # the online network picks the next action, the target network values it
     loss: str = "mse"  # "mse" or "huber"
     target_update: str = "polyak"  # "polyak" (every update) or "hard" (copy every target_period updates)
-    polyak_tau: float = 0.01
-    target_period: int = 500
-    # Exploration
-    epsilon_start: float = 1.0
-    epsilon_end: float = 0.05
+    polyak_tau: float = 0.01  # the target network's Polyak step
+    target_period: int = 500  # updates between hard target copies
+    epsilon_start: float = 1.0  # epsilon-greedy exploration's first epsilon...
+    epsilon_end: float = 0.05  # ...and its last
     exploration_steps: int = 5_000  # steps after learning_starts over which epsilon decays
-    # Replay
     replay: str = "uniform"  # "uniform" or "prioritized"
-    buffer_size: int = 50_000
-    batch_size: int = 64
-    priority_alpha: float = 0.6
-    priority_beta_start: float = 0.4  # annealed linearly to 1 over the run
-    # Evaluation
+    buffer_size: int = 50_000  # transitions per seed
+    batch_size: int = 64  # transitions per update
+    priority_alpha: float = 0.6  # prioritized replay's exponent of the TD errors
+    priority_beta_start: float = 0.4  # importance-sampling exponent, annealed linearly to 1 over the run
     eval_every: int = 1_000  # env steps between greedy evaluations (a training "chunk")
-    eval_episodes: int = 64
+    eval_episodes: int = 64  # episodes per evaluation
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
     # The one validation of a config (`__post_init__`): every run, resumed ones included,

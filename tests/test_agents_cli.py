@@ -289,3 +289,23 @@ def test_every_agent_says_how_it_rounded_the_steps():
     for config in (SACConfig(num_timesteps=30_001), TD3Config(num_timesteps=30_001)):
         assert config.rounding().startswith(f"num_timesteps 30,001 rounded up to {config.total_steps:,} env steps")
     assert SACConfig(num_timesteps=SACConfig().total_steps).rounding() == ""
+
+
+def test_sweep_wording_names_the_real_reason_and_takes_negative_lists(monkeypatch):
+    """Issue 63, cases 17, 7 and 22: an agent that cannot be swept says so first (not a field's range);
+    a value list that starts with a negative number is read as values; a sweep's agents are named as
+    config and seed, as --seeds counts them."""
+    from agents import commands
+
+    with pytest.raises(UsageError, match="--agent sac runs cannot be swept"):
+        cli_main(["sweep", "--env", "pendulum-mjx", "--agent", "sac", "--learning_rate", "1e-3,3e-4", "--steps", "9"])
+    with pytest.raises(UsageError, match="DQNConfig.learning_rate must be"):  # read as values, then refused
+        cli_main(["sweep", "--env", "cartpole", "--learning_rate", "-1e-3,1e-3"])
+    seen = {}
+    monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config))
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
+    assert cli_main(["train", "--env", "pendulum-mjx", "--agent", "td3", "--v_min", "-1e2", "--v-max", "1e2"]) == 0
+    assert (seen["config"].v_min, seen["config"].v_max) == (-100.0, 100.0)
+    assert [commands.agent_label(i, 2, {"gamma": [0.9, 0.99]}) for i in (0, 3)] == \
+        ["agent 0 (config 0, seed 0)", "agent 3 (config 1, seed 1)"]
+    assert commands.agent_label(3, 4, None) == "seed 3"
