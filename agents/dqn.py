@@ -502,21 +502,8 @@ class DQN:
             ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample, self.unroll)
             return ts, {**jax.tree.map(jnp.sum, collected), **jax.tree.map(jnp.mean, learned), "epsilon": epsilon}
 
-        def add_up(carry, noise: StepNoise):
-            # Running totals in the loop's carry, not a stacked row per iteration: on a GPU each
-            # stacked metric was a kernel of its own in every iteration.
-            ts, totals = carry
-            ts, stats = iteration(ts, noise)
-            if stats.keys() != totals.keys():
-                raise KeyError(f"DQN.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
-            totals = {name: (stats[name] if name == "epsilon" else totals[name] + stats[name]).astype(total.dtype)
-                      for name, total in totals.items()}
-            return (ts, totals), None
-
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
-        ts = ts.replace(key=key)
-        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
-        (ts, totals), _ = jax.lax.scan(add_up, (ts, totals), self.draw_noise(noise_key))
+        ts, totals = add_up(self, iteration, ts.replace(key=key), self.draw_noise(noise_key), last=("epsilon",))
         iterations = cfg.iterations_per_chunk
         metrics = {
             "loss": totals["loss"] / iterations,
@@ -532,6 +519,25 @@ class DQN:
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
             return self.with_hyperparams(ts.hyperparams).evaluate_and_keep_best(ts, eval_key, record)
         return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+
+def add_up(agent, iteration, ts, xs, last: tuple[str, ...] = ()):
+    """`iteration: (ts, x) -> (ts, stats)` once per row of `xs`, its stats added up over the loop
+    (those named in `last`: the last iteration's) into `agent.CHUNK_TOTALS`' names and types: a
+    chunk's training. Running totals in the loop's carry, not a stacked row per iteration: on a GPU
+    each stacked metric was a kernel of its own in every iteration."""
+
+    def step(carry, x):
+        ts, totals = carry
+        ts, stats = iteration(ts, x)
+        if stats.keys() != totals.keys():
+            raise KeyError(f"{type(agent).__name__}.CHUNK_TOTALS {sorted(totals)} must name every iteration stat "
+                           f"{sorted(stats)}")
+        return (ts, {name: (stats[name] if name in last else total + stats[name]).astype(total.dtype)
+                     for name, total in totals.items()}), None
+
+    totals = {name: jnp.zeros((), dtype) for name, dtype in agent.CHUNK_TOTALS.items()}
+    return jax.lax.scan(step, (ts, totals), xs)[0]
+
 
 def repeat(step, ts, xs, unroll: bool = False):
     """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one
