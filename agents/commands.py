@@ -264,10 +264,10 @@ def _train_in_processes(args, run, fresh: bool, count: int = 0, gpus: list[str] 
         return processes.train(out, run, run.config.num_chunks, options, gpus)
 
 
-def _saved_run(args, sweep: bool, swept: tuple[str, ...] = ()):
+def _saved_run(args, sweep: bool):
     """The run in --out that `--resume` continues (a sweep or not, as `sweep` says); its env,
     seeds, seed and config come from there (train_run refuses any given that differ), so
-    config options (fields, --steps, ..., and the `swept` fields) are refused."""
+    config options (its fields, swept or not, --steps, ...) are refused."""
     from agents import checkpoint
 
     saved = checkpoint.load_config(args.out)
@@ -277,7 +277,7 @@ def _saved_run(args, sweep: bool, swept: tuple[str, ...] = ()):
                          f"`mjxsuite {command} --out {args.out} --resume`")
     own = ("steps", "replay", "preset", "agent", "impl", "randomize_per", "env_opts", "randomize")
     given = [f"--{name.replace('_', '-')}" for name in own if getattr(args, name, None)]
-    given += [f"--{name}" for name in (*config_fields(args), *swept)]
+    given += [f"--{name}" for name in config_fields(args)]
     if given:
         raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
                          f"drop {' '.join(given)} or start a new --out")
@@ -359,18 +359,14 @@ def _report_stop(args, result, command: str = "train") -> int:
     from agents.signals import exit_status
 
     name, resume = result.stop_signal or "SIGINT", f"`mjxsuite {command} --out {args.out} --resume`"
-    if not sharding.is_writer():
-        pass
-    elif not args.out:
-        print(f"stopped by {name}; nothing saved (no --out)")
-    elif result.saved_chunks:
-        print(f"stopped by {name}; checkpoint saved in {args.out} ({result.saved_chunks} of "
-              f"{result.total_chunks} {result.chunk_unit} done); continue with {resume}")
-    elif result.started:
-        print(f"stopped by {name} before the first checkpoint: nothing trained is saved in {args.out}; "
-              f"{resume} starts the run from the beginning")
-    else:  # stopped while the command started: the directory holds what it held before
-        print(f"stopped by {name} before the run started: nothing was written to {args.out}")
+    if sharding.is_writer():
+        print(f"stopped by {name}" + (
+            "; nothing saved (no --out)" if not args.out else
+            f"; checkpoint saved in {args.out} ({result.saved_chunks} of {result.total_chunks} {result.chunk_unit} "
+            f"done); continue with {resume}" if result.saved_chunks else
+            f" before the first checkpoint: nothing trained is saved in {args.out}; {resume} starts the run from "
+            "the beginning" if result.started else  # else stopped while the command started: nothing written
+            f" before the run started: nothing was written to {args.out}"))
     return exit_status(getattr(signal, name))
 
 

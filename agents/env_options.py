@@ -40,10 +40,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="draw again at every episode (default) or once per env")
 
 
-def given(args: argparse.Namespace) -> bool:
-    return bool(args.env_opts or args.impl or args.randomize or args.randomize_per)
-
-
 def from_args(env_name: str, args: argparse.Namespace) -> dict:
     """The overrides the options give, as `envs.make` keywords (JSON-ready: ranges are lists)."""
     overrides = {}

@@ -152,21 +152,20 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.slow  # two compiling subprocesses; tests/test_ppo.py and tests/test_sac.py resume exactly in the default run
-@pytest.mark.parametrize("agent, config", [("ppo", TINY_PPO), ("sac", TINY_SAC)], ids=["ppo", "sac"])
-def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config):
-    """SIGKILL once a checkpoint exists (saves slowed down, so the kill lands mid-run), then
-    `mjxsuite train --out D --resume`: the uninterrupted run's train state, SAC's buffer included."""
-    config = dataclasses.replace(config, num_evals=7)
-    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False)
+def kill_9_then_resume(tmp_path, agent: str, config, judge_every: int | None = None) -> None:
+    """SIGKILL of `mjxsuite train --agent AGENT` once a checkpoint exists (saves slowed down, so the
+    kill lands mid-run), then `mjxsuite train --out D --resume`: the uninterrupted run's train state,
+    replay buffers included, and its eval.json."""
+    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False, judge_every=judge_every)
     args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
             for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
+    args += [] if judge_every is None else ["--judge-every", str(judge_every)]
     out = tmp_path / "killed"
     process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", agent,
                                 "--out", str(out), "--checkpoint-seconds", "0", *args], env=_env(),
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 180
         while checkpoint.chunks_saved(out) < 1 and time.monotonic() < deadline and process.poll() is None:
             time.sleep(0.01)
     finally:
@@ -179,6 +178,12 @@ def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config)
     ours, theirs = (json.loads((d / "eval.json").read_text()) for d in (out, tmp_path / "whole"))
     for key in ("mean_return", "solve_step", "best_seed", "judged_chunks", "chunks"):
         assert ours[key] == theirs[key], key
+
+
+@pytest.mark.slow  # two compiling subprocesses; tests/test_ppo.py and tests/test_sac.py resume exactly in the default run
+@pytest.mark.parametrize("agent, config", [("ppo", TINY_PPO), ("sac", TINY_SAC)], ids=["ppo", "sac"])
+def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config):
+    kill_9_then_resume(tmp_path, agent, dataclasses.replace(config, num_evals=7))
 
 
 @pytest.mark.slow  # ~20 s: the DQN signal tests (test_faults.py) cover the same lifecycle in the default run
