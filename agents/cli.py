@@ -53,8 +53,8 @@ class RunOptions(Common):
     # whole training steps per chunk, as the run says before it compiles
     steps: int | None = None
     replay: typing.Literal["uniform", "prioritized"] | None = None  # DQN's replay (DQNConfig.replay)
-    # a named config that --FIELD options then change (default: default). DQN: default, or many-envs for GPUs
-    # (docs/training.md); PPO/SAC/TD3: the task's recipes in agents/brax_defaults.py
+    # a named config that --FIELD options then change (default: default). DQN: default, quick (one seed on a
+    # CPU) or many-envs (GPUs; docs/training.md); PPO/SAC/TD3: the task's recipes in agents/brax_defaults.py
     preset: str | None = None
     out: str | None = None  # directory for config.json, metrics.jsonl, checkpoint and eval.json
     resume: bool = False  # continue the run saved in --out from its last checkpoint, with its env, seeds, config

@@ -27,6 +27,7 @@ import optax
 from flax import struct
 
 from agents import evaluation
+from agents.dqn import DQN
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
@@ -460,12 +461,7 @@ class PPO:
             hyperparams=hyperparams,
         )
 
-    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of collecting and learning (`train_steps`), then a deterministic
-        evaluation (`evaluate_and_keep_best`)."""
-        ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
-        return ts, {**judged, **trained}
+    chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
         """A chunk's `training_steps_per_chunk` training steps: the train state, its training
