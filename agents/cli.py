@@ -3,12 +3,8 @@
 Every option is generated from a dataclass: a command's own settings (`TrainOptions`, ...) and
 every field of the agents' configs (DQNConfig, PPOConfig, SACConfig, TD3Config) as `--FIELD VALUE`
 (or `--FIELD-NAME`), each with the help its class's source gives it (the comment on or above the
-field). `agents.commands` runs the commands.
-
-train, eval and rollout use JAX's persistent compilation cache (see
-`agents.jax_compile_cache`): a second run loads its compiled programs from disk, and
-`train` its traced training chunk too (`agents.traced_programs`).
-`--no-compile-cache` or `MJXSUITE_COMPILE_CACHE=0` turns it off.
+field). `agents.commands` runs the commands, with JAX's persistent compilation cache
+(`agents.jax_compile_cache`, `agents.traced_programs`) unless `--no-compile-cache`.
 
 Exit status: 0 done, 2 a command that cannot run as given (bad option or value, unknown
 env, unusable --out, nothing or something else to --resume), 1 a failure while running
@@ -28,7 +24,7 @@ import typing
 from collections.abc import Mapping
 from dataclasses import field
 
-from agents import commands, env_options
+from agents import commands
 from agents.commands import AGENTS, CONFIG, Command, UsageError, config_from_args, config_fields  # noqa: F401
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
 from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
@@ -39,6 +35,20 @@ class Common:
     # $XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, a path moves it)
     no_compile_cache: bool = False
     imports: list[str] = field(default_factory=list)  # a module or .py file that registers your tasks; repeatable
+
+
+@dataclasses.dataclass(kw_only=True)
+class EnvOverrides:  # given to eval or rollout, they change the saved env's options
+    # an envs.make override, e.g. integrator=semi_implicit or episode_length=200 (envs.options(NAME) lists them);
+    # an MJX task's solver option as opt.FIELD=VALUE (opt.solver=CG), MuJoCo Warp's buffers as nconmax=N,
+    # naconmax=N, njmax=N; repeatable
+    env_opts: list[str] = field(default_factory=list)
+    # an MJX task's implementation: jax (default) or warp (MuJoCo Warp, NVIDIA GPU, pip install 'mjxsuite[warp]')
+    impl: typing.Literal["jax", "warp"] | None = None
+    # draw an mjx.Model value per env: body_mass:pole=0.05:0.2 (uniform), body_mass:pole=x0.8:1.2 (scale of the
+    # compiled value), dof_damping:slider=0.05 (fixed); repeatable (docs/randomization.md)
+    randomize: list[str] = field(default_factory=list)
+    randomize_per: typing.Literal["episode", "env"] | None = None  # draw again every episode (default) or once per env
 
 
 @dataclasses.dataclass(kw_only=True)
@@ -76,7 +86,7 @@ class RunOptions(Common):
 
 
 @dataclasses.dataclass(kw_only=True)
-class TrainOptions(RunOptions):
+class TrainOptions(EnvOverrides, RunOptions):
     # train the seeds in this many child processes, one device each, merged into --out (default: for an MJX task
     # on several GPUs, one per --devices; else 1; also MJXSUITE_PROCESSES=K; docs/scaling.md)
     processes: int | None = None
@@ -90,14 +100,14 @@ class SweepOptions(RunOptions):
 
 
 @dataclasses.dataclass(kw_only=True)
-class EvalOptions(Common):
+class EvalOptions(EnvOverrides, Common):
     checkpoint: str  # a directory written by `mjxsuite train --out`
     episodes: int | None = None  # fresh episodes per seed (default: the run's own evaluation's, its eval_episodes)
     seed: int = 123  # the evaluation's random seed
 
 
 @dataclasses.dataclass(kw_only=True)
-class RolloutOptions(Common):
+class RolloutOptions(EnvOverrides, Common):
     env: str | None = None  # registered env name (default: the checkpoint's)
     checkpoint: str | None = None  # a directory written by `mjxsuite train --out`; random actions without
     episodes: int | None = None  # stop once every env finished this many episodes (default 1)
@@ -110,7 +120,8 @@ class RolloutOptions(Common):
     overwrite: bool = False  # replace an existing file
 
 
-FLAGS = {"imports": "--import"}  # where a flag is not the field's name
+FLAGS = {"imports": "--import", "env_opts": "--env-opt"}  # where a flag is not the field's name
+METAVARS = {"imports": "MODULE", "env_opts": "KEY=VALUE", "randomize": "FIELD:ELEMENT=RANGE"}
 RANGES = {"seeds": COUNT, "steps": COUNT, "checkpoint_every": COUNT, "checkpoint_seconds": NON_NEGATIVE,
           "judge_every": COUNT, "processes": COUNT, "rerun_every": NON_NEGATIVE_COUNT, "devices": COUNT,
           "episodes": COUNT, "num_envs": COUNT, "scene_envs": NON_NEGATIVE_COUNT, "plot_envs": NON_NEGATIVE_COUNT}
@@ -161,7 +172,7 @@ def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
         if kind is bool:
             options["action"] = "store_true"
         elif typing.get_origin(kind) is list:
-            options.update(action="append", metavar="MODULE")
+            options.update(action="append", metavar=METAVARS[spec.name])
         elif typing.get_origin(kind) is typing.Literal:
             options["choices"] = typing.get_args(kind)
         else:
@@ -211,8 +222,6 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
     for name, (options, text) in commands_.items():
         command = sub.add_parser(name, help=text, description=text)
         add_options(command, options)
-        if name != "sweep":  # given to eval or rollout, they change the saved env options
-            env_options.add_arguments(command)
         if name in ("train", "sweep"):
             add_config_fields(command, sweep=name == "sweep")
     for command in (more or {}).values():
@@ -236,10 +245,7 @@ def joined_negative_values(argv: list[str]) -> list[str]:
 def _use_compile_cache(args) -> None:
     from agents import jax_compile_cache
 
-    if getattr(args, "no_compile_cache", False):
-        jax_compile_cache.disable()
-    else:
-        jax_compile_cache.enable()
+    jax_compile_cache.disable() if args.no_compile_cache else jax_compile_cache.enable()
 
 
 def _refuse_unknown(parser: argparse.ArgumentParser, command: str, extra: list[str]) -> None:
@@ -281,11 +287,8 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
     except UsageError as err:
         print(f"mjxsuite: {err}", file=sys.stderr)
         raise
-    except (ValueError, FileNotFoundError) as err:  # the envs and agents APIs refuse bad input with these
-        print(f"mjxsuite: {err}", file=sys.stderr)
-        return 2
-    except WarpUnavailable as err:
-        print(f"mjxsuite: --impl warp: {err}", file=sys.stderr)
+    except (ValueError, FileNotFoundError, WarpUnavailable) as err:  # the envs and agents APIs refuse bad input so
+        print(f"mjxsuite: {'--impl warp: ' * isinstance(err, WarpUnavailable)}{err}", file=sys.stderr)
         return 2
     except (CheckpointError, OSError, ProcessFailed) as err:
         print(f"mjxsuite: {err}", file=sys.stderr)
