@@ -205,8 +205,9 @@ def cmd_train(args, extra: list[str]) -> int:
             return 0
         parts = checkpoint.process_dirs(args.out)
         if args.processes not in (None, len(parts or [None])):
-            raise UsageError(f"--processes {args.processes}: {args.out} holds a run of {len(parts or [None])} "
-                             "process(es); resume it without --processes")
+            held = len(parts or [None])
+            raise UsageError(f"--processes {args.processes}: {args.out} holds a run of {held} process"
+                             f"{'es' * (held > 1)}; resume it without --processes")
         if parts is None:
             result = _train(args, saved.config, resume=True, env_options=saved.env_options, seed_slice=saved.seed_slice)
         else:
@@ -277,7 +278,7 @@ def _saved_run(args, sweep: bool):
                          f"`mjxsuite {command} --out {args.out} --resume`")
     own = ("steps", "replay", "preset", "agent", "impl", "randomize_per", "env_opts", "randomize")
     given = [f"--{name.replace('_', '-')}" for name in own if getattr(args, name, None)]
-    given += [f"--{name}" for name in config_fields(args)]
+    given += [f"--{name} {text}" for name, text in config_fields(args).items()]
     if given:
         raise UsageError(f"--resume continues the run saved in {args.out} with its own config; "
                          f"drop {' '.join(given)} or start a new --out")

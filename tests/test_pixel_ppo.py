@@ -81,9 +81,9 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
     for task in (TASK, "cartpole-swingup-mjx"):
         assert brax_defaults.default_preset(task, "ppo", "pixels") == "pixels"
         assert brax_defaults.default_preset(task, "ppo") == "default"
-    config = _agent_config(TASK, "ppo", None, [], None, None, observation="pixels")
+    config = _agent_config(TASK, "ppo", None, {}, None, None, observation="pixels")
     assert (config.num_envs, config.batch_size, config.cnn_kernel_size) == (256, 256, (8, 4, 3))
-    assert _agent_config(TASK, "ppo", None, [], None, None) == PPOConfig()  # state: the base recipe
+    assert _agent_config(TASK, "ppo", None, {}, None, None) == PPOConfig()  # state: the base recipe
     assert _choose_agent(TASK, None, PIXELS) == "ppo"
     with pytest.raises(UsageError, match="--agent sac has no network for camera images"):
         _choose_agent(TASK, "sac", PIXELS)
