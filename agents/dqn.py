@@ -37,31 +37,26 @@ class DQNConfig:
     learning_starts: int = 1_000  # random-action steps that fill the buffer before learning
     train_every: int = 1  # env steps (per env) between gradient phases
     gradient_steps: int = 1  # updates per gradient phase
-    # Network and optimizer
-    hidden: tuple[int, ...] = (64, 64)
-    dueling: bool = False
-    learning_rate: float = 2e-3
-    max_grad_norm: float | None = 10.0  # None: no clipping
-    # Q-learning
-    gamma: float = 0.99
-    double_dqn: bool = True
+    hidden: tuple[int, ...] = (64, 64)  # the Q-network's layer widths, e.g. 64,64
+    dueling: bool = False  # a dueling head (value + advantages)
+    learning_rate: float = 2e-3  # Adam's
+    max_grad_norm: float | None = 10.0  # gradients clipped to this global norm; None: no clipping
+    gamma: float = 0.99  # the discount factor
+    double_dqn: bool = True  # the online network picks the next action, the target network values it
     loss: str = "mse"  # "mse" or "huber"
     target_update: str = "polyak"  # "polyak" (every update) or "hard" (copy every target_period updates)
-    polyak_tau: float = 0.01
-    target_period: int = 500
-    # Exploration
-    epsilon_start: float = 1.0
-    epsilon_end: float = 0.05
+    polyak_tau: float = 0.01  # the target network's Polyak step
+    target_period: int = 500  # updates between hard target copies
+    epsilon_start: float = 1.0  # epsilon-greedy exploration's first epsilon...
+    epsilon_end: float = 0.05  # ...and its last
     exploration_steps: int = 5_000  # steps after learning_starts over which epsilon decays
-    # Replay
     replay: str = "uniform"  # "uniform" or "prioritized"
-    buffer_size: int = 50_000
-    batch_size: int = 64
-    priority_alpha: float = 0.6
-    priority_beta_start: float = 0.4  # annealed linearly to 1 over the run
-    # Evaluation
+    buffer_size: int = 50_000  # transitions per seed
+    batch_size: int = 64  # transitions per update
+    priority_alpha: float = 0.6  # prioritized replay's exponent of the TD errors
+    priority_beta_start: float = 0.4  # importance-sampling exponent, annealed linearly to 1 over the run
     eval_every: int = 1_000  # env steps between greedy evaluations (a training "chunk")
-    eval_episodes: int = 64
+    eval_episodes: int = 64  # episodes per evaluation
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
     # The one validation of a config (`__post_init__`): every run, resumed ones included,
@@ -507,21 +502,8 @@ class DQN:
             ts, learned = repeat(lambda ts, bits: self.update(ts, learning, bits), ts, noise.sample, self.unroll)
             return ts, {**jax.tree.map(jnp.sum, collected), **jax.tree.map(jnp.mean, learned), "epsilon": epsilon}
 
-        def add_up(carry, noise: StepNoise):
-            # Running totals in the loop's carry, not a stacked row per iteration: on a GPU each
-            # stacked metric was a kernel of its own in every iteration.
-            ts, totals = carry
-            ts, stats = iteration(ts, noise)
-            if stats.keys() != totals.keys():
-                raise KeyError(f"DQN.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
-            totals = {name: (stats[name] if name == "epsilon" else totals[name] + stats[name]).astype(total.dtype)
-                      for name, total in totals.items()}
-            return (ts, totals), None
-
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
-        ts = ts.replace(key=key)
-        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
-        (ts, totals), _ = jax.lax.scan(add_up, (ts, totals), self.draw_noise(noise_key))
+        ts, totals = add_up(self, iteration, ts.replace(key=key), self.draw_noise(noise_key), last=("epsilon",))
         iterations = cfg.iterations_per_chunk
         metrics = {
             "loss": totals["loss"] / iterations,
@@ -537,6 +519,25 @@ class DQN:
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
             return self.with_hyperparams(ts.hyperparams).evaluate_and_keep_best(ts, eval_key, record)
         return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+
+def add_up(agent, iteration, ts, xs, last: tuple[str, ...] = ()):
+    """`iteration: (ts, x) -> (ts, stats)` once per row of `xs`, its stats added up over the loop
+    (those named in `last`: the last iteration's) into `agent.CHUNK_TOTALS`' names and types: a
+    chunk's training. Running totals in the loop's carry, not a stacked row per iteration: on a GPU
+    each stacked metric was a kernel of its own in every iteration."""
+
+    def step(carry, x):
+        ts, totals = carry
+        ts, stats = iteration(ts, x)
+        if stats.keys() != totals.keys():
+            raise KeyError(f"{type(agent).__name__}.CHUNK_TOTALS {sorted(totals)} must name every iteration stat "
+                           f"{sorted(stats)}")
+        return (ts, {name: (stats[name] if name in last else total + stats[name]).astype(total.dtype)
+                     for name, total in totals.items()}), None
+
+    totals = {name: jnp.zeros((), dtype) for name, dtype in agent.CHUNK_TOTALS.items()}
+    return jax.lax.scan(step, (ts, totals), xs)[0]
+
 
 def repeat(step, ts, xs, unroll: bool = False):
     """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one

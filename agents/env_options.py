@@ -1,4 +1,5 @@
-"""The command line's env overrides: `--env-opt KEY=VALUE`, `--impl`, `--randomize`, `--randomize-per`;
+"""The command line's env overrides (`agents.cli.EnvOverrides`): `--env-opt KEY=VALUE`, `--impl`, `--randomize`,
+`--randomize-per`;
 their text read as `envs.make` values (`parse_option`), and the overflow report that names them.
 
 They become the `envs.make` overrides a run saves in config.json (`env_options`; the
@@ -18,30 +19,7 @@ import numpy as np
 
 from envs.mjx_options import ENUMS, opt_defaults, opt_fields
 from envs.mjx_warp import WarpBuffers
-from envs.randomize import PER
 from envs.registry import options
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """The env-override options, on a train, eval or rollout parser."""
-    parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
-                        help="an envs.make override, e.g. integrator=semi_implicit or episode_length=200 "
-                             "(envs.options(NAME) lists them); an MJX task's MuJoCo solver option as "
-                             "opt.FIELD=VALUE (opt.iterations=4, opt.solver=CG), MuJoCo Warp's buffers as "
-                             "nconmax=N, naconmax=N, njmax=N; repeatable")
-    parser.add_argument("--impl", choices=["jax", "warp"],
-                        help="MJX implementation of an MJX task: jax (default) or warp (MuJoCo Warp, NVIDIA GPU, "
-                             "pip install 'mjxsuite[warp]')")
-    parser.add_argument("--randomize", action="append", default=[], metavar="FIELD:ELEMENT=RANGE",
-                        help="draw an mjx.Model value per env: body_mass:pole=0.05:0.2 (uniform), "
-                             "body_mass:pole=x0.8:1.2 (scale of the compiled value), dof_damping:slider=0.05 "
-                             "(fixed); repeatable (docs/randomization.md)")
-    parser.add_argument("--randomize-per", choices=PER,
-                        help="draw again at every episode (default) or once per env")
-
-
-def given(args: argparse.Namespace) -> bool:
-    return bool(args.env_opts or args.impl or args.randomize or args.randomize_per)
 
 
 def from_args(env_name: str, args: argparse.Namespace) -> dict:

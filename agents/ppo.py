@@ -27,6 +27,7 @@ import optax
 from flax import struct
 
 from agents import evaluation
+from agents.dqn import DQN
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
@@ -49,29 +50,29 @@ class PPOConfig:
     (`make_vision_networks`)."""
 
     num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
-    num_envs: int = 64
-    unroll_length: int = 16
+    num_envs: int = 64  # envs stepped in parallel by each agent
+    unroll_length: int = 16  # env steps per unroll
     batch_size: int = 64  # unrolls per minibatch
-    num_minibatches: int = 16
+    num_minibatches: int = 16  # minibatches per collected batch
     num_updates_per_batch: int = 4  # passes over each collected batch
-    learning_rate: float = 1e-3
-    entropy_cost: float = 1e-3
-    discounting: float = 0.97
-    gae_lambda: float = 0.95
-    clipping_epsilon: float = 0.3
+    learning_rate: float = 1e-3  # Adam's
+    entropy_cost: float = 1e-3  # the entropy bonus's weight in the loss
+    discounting: float = 0.97  # the discount factor
+    gae_lambda: float = 0.95  # GAE's lambda
+    clipping_epsilon: float = 0.3  # the policy ratio's clip
     max_grad_norm: float | None = None  # None: no clipping
-    reward_scaling: float = 1.0
+    reward_scaling: float = 1.0  # rewards are multiplied by this in the loss
     normalize_observations: bool = True  # state vectors only: camera images are scaled to [0, 1] instead
     num_evals: int = 11  # Brax's count, its evaluation of the untrained policy included
     num_eval_envs: int = 64  # episodes per evaluation
-    policy_hidden: tuple[int, ...] = (64, 64)
-    value_hidden: tuple[int, ...] = (64, 64)
+    policy_hidden: tuple[int, ...] = (64, 64)  # the policy network's layer widths, e.g. 64,64
+    value_hidden: tuple[int, ...] = (64, 64)  # the value network's layer widths
     # The convolutional torso in front of each MLP when the observation is a camera image
     # (`envs.make(task, observation="pixels")`), one entry per layer, in Brax's `networks_vision`
     # names; the default is the Nature DQN network's, sized for 64x64 images.
-    cnn_output_channels: tuple[int, ...] = (32, 64, 64)
-    cnn_kernel_size: tuple[int, ...] = (8, 4, 3)
-    cnn_stride: tuple[int, ...] = (4, 2, 1)
+    cnn_output_channels: tuple[int, ...] = (32, 64, 64)  # camera images: each convolution's channels
+    cnn_kernel_size: tuple[int, ...] = (8, 4, 3)  # ...kernel size
+    cnn_stride: tuple[int, ...] = (4, 2, 1)  # ...and stride
     solve_return: float | None = None  # a deterministic mean return that counts as solved; not Brax's
 
     RANGES: ClassVar[dict[str, Range]] = {
@@ -460,12 +461,7 @@ class PPO:
             hyperparams=hyperparams,
         )
 
-    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of collecting and learning (`train_steps`), then a deterministic
-        evaluation (`evaluate_and_keep_best`)."""
-        ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
-        return ts, {**judged, **trained}
+    chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
         """A chunk's `training_steps_per_chunk` training steps: the train state, its training

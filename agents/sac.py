@@ -44,6 +44,7 @@ from flax import struct
 
 from agents import device_options
 from agents import evaluation
+from agents.dqn import DQN, add_up
 from agents.replay import UniformReplay
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
@@ -364,12 +365,7 @@ class SAC:
         # The first evaluation compares against these: the untrained policy after the fill.
         return ts.replace(best_params=ts.params)
 
-    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of acting and learning (`train_steps`), then an evaluation
-        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
-        ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
-        return ts, {**judged, **trained}
+    chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
     # What a chunk adds up over its iterations (`train_steps`), with their types.
     CHUNK_TOTALS = {
@@ -383,23 +379,14 @@ class SAC:
         training metrics and the key of the evaluation that follows."""
         cfg = self.config
 
-        def iteration(carry, key):
-            # Running totals in the loop's carry, not a stacked row per iteration (see DQN.train_steps).
-            ts, totals = carry
+        def iteration(ts, key):
             act_key, learn_key = jax.random.split(key)
             ts, collected = self.collect(ts, act_key)
             ts, learned = self.update(ts, learn_key)
-            stats = {**collected, **learned}
-            if stats.keys() != totals.keys():
-                raise KeyError(f"SAC.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
-            totals = {name: (total + stats[name]).astype(total.dtype) for name, total in totals.items()}
-            return (ts, totals), None
+            return ts, {**collected, **learned}
 
         key, loop_key, eval_key = jax.random.split(ts.key, 3)
-        ts = ts.replace(key=key)
-        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
-        keys = jax.random.split(loop_key, cfg.iterations_per_chunk)
-        (ts, totals), _ = jax.lax.scan(iteration, (ts, totals), keys)
+        ts, totals = add_up(self, iteration, ts.replace(key=key), jax.random.split(loop_key, cfg.iterations_per_chunk))
         iterations = cfg.iterations_per_chunk
         metrics = {
             **{name: totals[name] / iterations for name in ("critic_loss", "actor_loss", "alpha_loss", "alpha")},

@@ -54,6 +54,7 @@ from flax import struct
 
 from agents import device_options
 from agents import evaluation
+from agents.dqn import DQN, add_up
 from agents.ppo import scale_by_adam
 from agents.replay import UniformReplay
 from agents.sac import SACConfig, Transition, pack, unpack
@@ -459,12 +460,7 @@ class TD3:
         # The first evaluation compares against these: the untrained actor after the fill.
         return ts.replace(best_params=ts.params)
 
-    def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of acting and learning (`train_steps`), then an evaluation
-        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode, else None."""
-        ts, trained, eval_key = self.train_steps(ts)
-        ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
-        return ts, {**judged, **trained}
+    chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
     # What a chunk adds up over its iterations (`train_steps`), with their types.
     CHUNK_TOTALS = {
@@ -478,25 +474,17 @@ class TD3:
         training metrics and the key of the evaluation that follows."""
         cfg = self.config
 
-        def iteration(carry, inputs):
-            # Running totals in the loop's carry, not a stacked row per iteration (see DQN.train_steps).
-            ts, totals = carry
+        def iteration(ts, inputs):
             key, index = inputs
             act_key, learn_key = jax.random.split(key)
             ts, collected = self.collect(ts, act_key)
             ts, learned = self.update(ts, learn_key, index)
-            stats = {**collected, **learned}
-            if stats.keys() != totals.keys():
-                raise KeyError(f"TD3.CHUNK_TOTALS {sorted(totals)} must name every iteration stat {sorted(stats)}")
-            totals = {name: (total + stats[name]).astype(total.dtype) for name, total in totals.items()}
-            return (ts, totals), None
+            return ts, {**collected, **learned}
 
         key, loop_key, eval_key = jax.random.split(ts.key, 3)
-        ts = ts.replace(key=key)
-        totals = {name: jnp.zeros((), dtype) for name, dtype in self.CHUNK_TOTALS.items()}
         iterations = cfg.iterations_per_chunk
         inputs = (jax.random.split(loop_key, iterations), jnp.arange(iterations))
-        (ts, totals), _ = jax.lax.scan(iteration, (ts, totals), inputs)
+        ts, totals = add_up(self, iteration, ts.replace(key=key), inputs)
         metrics = {
             "critic_loss": totals["critic_loss"] / iterations, "target_q": totals["target_q"] / iterations,
             "actor_loss": totals["actor_loss"] / max(cfg.actor_updates_per_chunk, 1),

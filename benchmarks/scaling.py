@@ -48,7 +48,7 @@ import jax
 import numpy as np
 
 from agents import checkpoint, processes
-from agents.cli import config_from_args
+from agents.cli import add_config_fields, config_fields, config_from_args
 from agents.dqn import DQNConfig
 from agents.run import train_run
 from benchmarks.end_to_end import _environment, _run, wall_parts
@@ -162,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shares", action="store_true",
                         help="--whole-process: also time one device training each count's share of --seeds alone, "
                              "the best that count can give")
-    args, extra = parser.parse_known_args(argv)
+    add_config_fields(parser, agents=("dqn",))  # --FIELD VALUE, as mjxsuite train takes them
+    args = parser.parse_args(argv)
     if args.whole_process:
         counts = [int(k) for k in args.devices.split(",")] if args.devices else [1, jax.local_device_count()]
         if counts[0] != 1:
@@ -171,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.json:
             Path(args.json).write_text(json.dumps(records, indent=2))
         return 0
-    config = config_from_args(DQNConfig(), extra)  # --FIELD VALUE, as mjxsuite train takes them
+    config = config_from_args(DQNConfig(), config_fields(args))
     counts = [int(k) for k in args.devices.split(",")] if args.devices else sorted({1, jax.local_device_count()})
     workloads = [("seeds", args.seeds, None), ("sweep", args.sweep_seeds, sweep_grid(args.sweep_configs))]
     records = []

@@ -40,7 +40,7 @@ TINY_SAC = SACConfig(num_timesteps=640, num_envs=8, min_replay_size=128, max_rep
 @pytest.mark.parametrize("argv, message", [
     (["--env", "pendulum-mjx", "--agent", "dqn"], "choose --agent ppo or sac"),
     (["--env", "cartpole", "--agent", "ppo"], "choose --agent dqn"),
-    (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envz", "8"], "unknown option --num_envz; PPOConfig fields"),
+    (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envz", "8"], "unknown option --num_envz for `mjxsuite train`; did you mean --num_envs"),
     (["--env", "pendulum-mjx", "--agent", "ppo", "--num_envs", "0"], "PPOConfig.num_envs must be an integer >= 1"),
     (["--env", "pendulum-mjx", "--agent", "ppo", "--learning_rate", "fast"], "bad value for --learning_rate"),
     (["--env", "pendulum-mjx", "--num_envs", "48"], "must divide batch_size * num_minibatches"),
@@ -71,7 +71,7 @@ def test_the_table_holds_valid_recipes_for_tasks_registered_or_not():
 def test_default_agent_follows_the_action_space_and_steps_are_per_seed(monkeypatch, capsys):
     seen = {}
     monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config, **k))
-    monkeypatch.setattr("agents.cli._report", lambda *a: 0)
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
     assert cli_main(["train", "--env", "pendulum-mjx", "--learning_rate", "3e-4", "--seeds", "3"]) == 0
     assert seen["config"] == PPOConfig(**{**brax_defaults.settings("pendulum-mjx", "ppo"), "learning_rate": 3e-4})
     assert seen["seeds"] == 3
@@ -152,21 +152,20 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
-@pytest.mark.slow  # two compiling subprocesses; tests/test_ppo.py and tests/test_sac.py resume exactly in the default run
-@pytest.mark.parametrize("agent, config", [("ppo", TINY_PPO), ("sac", TINY_SAC)], ids=["ppo", "sac"])
-def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config):
-    """SIGKILL once a checkpoint exists (saves slowed down, so the kill lands mid-run), then
-    `mjxsuite train --out D --resume`: the uninterrupted run's train state, SAC's buffer included."""
-    config = dataclasses.replace(config, num_evals=7)
-    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False)
+def kill_9_then_resume(tmp_path, agent: str, config, judge_every: int | None = None) -> None:
+    """SIGKILL of `mjxsuite train --agent AGENT` once a checkpoint exists (saves slowed down, so the
+    kill lands mid-run), then `mjxsuite train --out D --resume`: the uninterrupted run's train state,
+    replay buffers included, and its eval.json."""
+    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False, judge_every=judge_every)
     args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
             for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
+    args += [] if judge_every is None else ["--judge-every", str(judge_every)]
     out = tmp_path / "killed"
     process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", agent,
                                 "--out", str(out), "--checkpoint-seconds", "0", *args], env=_env(),
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 180
         while checkpoint.chunks_saved(out) < 1 and time.monotonic() < deadline and process.poll() is None:
             time.sleep(0.01)
     finally:
@@ -179,6 +178,12 @@ def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config)
     ours, theirs = (json.loads((d / "eval.json").read_text()) for d in (out, tmp_path / "whole"))
     for key in ("mean_return", "solve_step", "best_seed", "judged_chunks", "chunks"):
         assert ours[key] == theirs[key], key
+
+
+@pytest.mark.slow  # two compiling subprocesses; tests/test_ppo.py and tests/test_sac.py resume exactly in the default run
+@pytest.mark.parametrize("agent, config", [("ppo", TINY_PPO), ("sac", TINY_SAC)], ids=["ppo", "sac"])
+def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config):
+    kill_9_then_resume(tmp_path, agent, dataclasses.replace(config, num_evals=7))
 
 
 @pytest.mark.slow  # ~20 s: the DQN signal tests (test_faults.py) cover the same lifecycle in the default run
@@ -268,14 +273,14 @@ def test_sweeps_name_another_agents_field_and_refuse_repeated_values(capsys):
 
 
 def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts(capsys):
-    from agents import cli
+    from agents import commands
 
     hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))
-    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
+    commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
     said = capsys.readouterr().err
     assert f"trains {hopper.total_steps:,} env steps per seed" in said and "--steps" in said
-    cli._say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
-    cli._say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
+    commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
+    commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
 
 
@@ -289,3 +294,23 @@ def test_every_agent_says_how_it_rounded_the_steps():
     for config in (SACConfig(num_timesteps=30_001), TD3Config(num_timesteps=30_001)):
         assert config.rounding().startswith(f"num_timesteps 30,001 rounded up to {config.total_steps:,} env steps")
     assert SACConfig(num_timesteps=SACConfig().total_steps).rounding() == ""
+
+
+def test_sweep_wording_names_the_real_reason_and_takes_negative_lists(monkeypatch):
+    """Issue 63, cases 17, 7 and 22: an agent that cannot be swept says so first (not a field's range);
+    a value list that starts with a negative number is read as values; a sweep's agents are named as
+    config and seed, as --seeds counts them."""
+    from agents import commands
+
+    with pytest.raises(UsageError, match="--agent sac runs cannot be swept"):
+        cli_main(["sweep", "--env", "pendulum-mjx", "--agent", "sac", "--learning_rate", "1e-3,3e-4", "--steps", "9"])
+    with pytest.raises(UsageError, match="DQNConfig.learning_rate must be"):  # read as values, then refused
+        cli_main(["sweep", "--env", "cartpole", "--learning_rate", "-1e-3,1e-3"])
+    seen = {}
+    monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config))
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
+    assert cli_main(["train", "--env", "pendulum-mjx", "--agent", "td3", "--v_min", "-1e2", "--v-max", "1e2"]) == 0
+    assert (seen["config"].v_min, seen["config"].v_max) == (-100.0, 100.0)
+    assert [commands.agent_label(i, 2, {"gamma": [0.9, 0.99]}) for i in (0, 3)] == \
+        ["agent 0 (config 0, seed 0)", "agent 3 (config 1, seed 1)"]
+    assert commands.agent_label(3, 4, None) == "seed 3"

@@ -16,7 +16,9 @@ import pytest
 
 import envs
 from agents import brax_defaults
-from agents.cli import UsageError, _agent_config, _choose_agent
+from agents.commands import UsageError
+from agents.commands import agent_config as _agent_config
+from agents.commands import choose_agent as _choose_agent
 from agents.ppo import PPO, PPOConfig, image_shape
 from agents.run import load_policy, train_run
 
@@ -79,9 +81,9 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
     for task in (TASK, "cartpole-swingup-mjx"):
         assert brax_defaults.default_preset(task, "ppo", "pixels") == "pixels"
         assert brax_defaults.default_preset(task, "ppo") == "default"
-    config = _agent_config(TASK, "ppo", None, [], None, None, observation="pixels")
+    config = _agent_config(TASK, "ppo", None, {}, None, None, observation="pixels")
     assert (config.num_envs, config.batch_size, config.cnn_kernel_size) == (256, 256, (8, 4, 3))
-    assert _agent_config(TASK, "ppo", None, [], None, None) == PPOConfig()  # state: the base recipe
+    assert _agent_config(TASK, "ppo", None, {}, None, None) == PPOConfig()  # state: the base recipe
     assert _choose_agent(TASK, None, PIXELS) == "ppo"
     with pytest.raises(UsageError, match="--agent sac has no network for camera images"):
         _choose_agent(TASK, "sac", PIXELS)
@@ -94,7 +96,7 @@ def test_pixel_runs_stack_frames_as_playground():
     pixel options."""
     import argparse
 
-    from agents.cli import _train_env_options
+    from agents.commands import train_env_options as _train_env_options
 
     def options(*pairs):
         return _train_env_options(argparse.Namespace(env=TASK, env_opts=list(pairs), impl=None, randomize=[],

@@ -98,7 +98,7 @@ def command_lines(program: str) -> list[tuple[Path, str]]:
 def test_every_documented_mjxsuite_command_line_parses():
     """Subcommand, options and config fields are all accepted (nothing runs)."""
     from agents import registry
-    from agents.cli import config_from_args
+    from agents.cli import config_fields, config_from_args
     from benchmarks.cli import build_parser
 
     commands = command_lines("mjxsuite")
@@ -106,11 +106,9 @@ def test_every_documented_mjxsuite_command_line_parses():
     for page, command in commands:
         where = f"{page.relative_to(ROOT)}: {command}"
         try:
-            args, extra = build_parser().parse_known_args(shlex.split(command)[1:])
-            if args.command in ("train", "sweep"):
-                config_from_args(registry.config_class(getattr(args, "agent", None) or "dqn")(), extra)
-            else:
-                assert not extra, f"{where}: unknown arguments {extra}"
+            args = build_parser().parse_args(shlex.split(command)[1:])
+            if args.command == "train":
+                config_from_args(registry.config_class(args.agent or "dqn")(), config_fields(args))
         except SystemExit as err:  # argparse's and config_from_args's way to refuse
             pytest.fail(f"{where}: refused ({err})")
 

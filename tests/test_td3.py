@@ -77,7 +77,7 @@ def test_the_command_line_takes_the_task_recipe_and_every_field(monkeypatch):
 
     seen = {}
     monkeypatch.setattr("agents.run.train_run", lambda env, config, **k: seen.update(config=config, **k))
-    monkeypatch.setattr("agents.cli._report", lambda *a: 0)
+    monkeypatch.setattr("agents.commands._report", lambda *a: 0)
     argv = ["train", "--env", "hopper", "--agent", "td3", "--compute_dtype", "float32", "--actor_hidden", "64,64",
             "--use_cdq", "false", "--seeds", "4"]
     assert cli_main(argv) == 0
@@ -251,38 +251,11 @@ def test_train_run_stopped_then_resumed_is_the_uninterrupted_run(tmp_path):
 
 @pytest.mark.slow  # a compiling subprocess, killed, then resumed
 def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path):
-    """SIGKILL of `mjxsuite train --agent td3` once a checkpoint exists (saves slowed down, so the
-    kill lands mid-run), then `--resume`: the uninterrupted run's train state, replay included."""
-    import signal
-    import subprocess
-    import sys
-    import time
+    """`mjxsuite train --agent td3` killed with SIGKILL once a checkpoint exists, then `--resume`:
+    the uninterrupted run's train state, replay included (test_agents_cli's harness)."""
+    from test_agents_cli import kill_9_then_resume
 
-    from test_agents_cli import SLOW_SAVES, _env, _leaves
-
-    from agents import checkpoint
-    from agents.cli import main as cli_main
-    from agents.run import train_run
-
-    config = dataclasses.replace(TINY, num_evals=7)
-    train_run("pendulum-mjx", config, out_dir=tmp_path / "whole", progress=False, judge_every=1)
-    args = [f"--{f.name}={','.join(map(str, v)) if isinstance(v, tuple) else v}"
-            for f in dataclasses.fields(config) if (v := getattr(config, f.name)) is not None]
-    out = tmp_path / "killed"
-    process = subprocess.Popen([sys.executable, "-c", SLOW_SAVES, "train", "--env", "pendulum-mjx", "--agent", "td3",
-                                "--out", str(out), "--checkpoint-seconds", "0", "--judge-every", "1", *args], env=_env(),
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 180
-        while checkpoint.chunks_saved(out) < 1 and time.monotonic() < deadline and process.poll() is None:
-            time.sleep(0.01)
-    finally:
-        process.send_signal(signal.SIGKILL)
-        process.wait()
-    assert 1 <= checkpoint.chunks_saved(out) < config.num_chunks and not (out / "eval.json").exists()
-    assert cli_main(["train", "--out", str(out), "--resume"]) == 0
-    for a, b in zip(_leaves(tmp_path / "whole"), _leaves(out), strict=True):
-        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    kill_9_then_resume(tmp_path, "td3", dataclasses.replace(TINY, num_evals=7), judge_every=1)
 
 
 # ---- learning -----------------------------------------------------------------------------------
