@@ -725,11 +725,19 @@ def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, e
 def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -> Any:
     """One seed's parameters: `seed_index`, or the run's best seed (`checkpoint.best_seed`)."""
     seeds = jax.tree.leaves(params)[0].shape[0]
-    if seed_index is None:
-        seed_index = checkpoint.best_seed(out_dir)
+    seed_index = checkpoint.best_seed(out_dir) if seed_index is None else checked_seed_index(seed_index)
     if not 0 <= seed_index < seeds:
         raise ValueError(f"{out_dir} holds {seeds} seeds; seed index {seed_index} is out of range")
     return jax.tree.map(lambda x: x[seed_index], params)
+
+
+def checked_seed_index(seed_index: Any) -> int:
+    """`seed_index` as an int, refused with a clear error unless it is a whole number (a str or a
+    float would fail deep inside numpy's indexing)."""
+    if isinstance(seed_index, bool) or not isinstance(seed_index, (int, np.integer)):
+        raise TypeError(f"seed_index must be an int (a seed's index in the run, 0 for the first) or None for the "
+                        f"run's best seed; got {seed_index!r} ({type(seed_index).__name__})")
+    return int(seed_index)
 
 
 def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
@@ -753,9 +761,11 @@ def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
         raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
     bad = ~np.isfinite(obs)
     if bad.any():
-        where = np.argwhere(bad)[:3].tolist()
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = (f"first in observation {first[0]} of the batch, at value {first[1]}" if len(first) == 2
+                 else f"first at value {first[-1]}" if len(first) == 1 else f"first at index {first}")
         raise ValueError(f"the policy of {env_name} got a non-finite observation ({int(bad.sum())} NaN or inf "
-                         f"values, first at index {where}); check the env that produced it (NaN physics ends an "
+                         f"values, {where}: {obs[first]}); check the env that produced it (NaN physics ends an "
                          "episode in mjxsuite's own envs) before acting on it")
     return obs
 
@@ -779,6 +789,8 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused;
     a run trained on camera images (`observation="pixels"`) takes uint8 frames as its env gives them.
     """
+    if seed_index is not None:
+        checked_seed_index(seed_index)  # before anything loads
     env_name, env, agent, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
     if env.num_actions is not None:

@@ -450,8 +450,20 @@ def test_the_policy_refuses_non_finite_observations(reference):
 
     policy = load_policy(reference)
     assert policy(np.zeros(4)).shape == ()
-    with pytest.raises(ValueError, match=r"non-finite observation \(1 NaN or inf values, first at index \[\[1, 2\]\]\)"):
+    with pytest.raises(ValueError, match=r"non-finite observation \(1 NaN or inf values, first in observation 1 of "
+                                         r"the batch, at value 2: nan\)"):
         policy(np.array([[0, 0, 0, 0], [0, 0, np.nan, 0]]))
+    with pytest.raises(ValueError, match=r"\(1 NaN or inf values, first at value 3: inf\)"):  # one observation (#5)
+        policy(np.array([0, 0, 0, np.inf]))
+
+
+@pytest.mark.parametrize("seed_index", ["1", 1.0, True])
+def test_a_seed_index_of_the_wrong_type_is_a_clear_error(reference, seed_index):
+    """Case #4: load_policy(DIR, seed_index="1") named the type, not numpy's raw comparison error."""
+    from agents import load_policy
+
+    with pytest.raises(TypeError, match=rf"seed_index must be an int .*; got {seed_index!r}"):
+        load_policy(reference, seed_index=seed_index)
 
 
 # ---- portable run directories (issue #42): a run trained with impl="warp" acts anywhere -------------
