@@ -417,9 +417,8 @@ def wall_line(result) -> str:
     between chunks: metrics, the Rerun logger, progress)."""
     parts = result.wall_parts()
     age = process_age_s()
-    wall = result.wall_s if age is None else max(age, result.wall_s)
-    parts = {"start-up": parts.pop("setup") + wall - result.wall_s, **parts}
-    parts["other"] = parts.pop("host")
+    wall = result.wall_s if age is None else max(age + result.earlier_wall_s, result.wall_s)
+    parts["start-up"] += wall - result.wall_s  # the process's start before the run's
     return f"wall {wall:.1f}s = " + " + ".join(f"{name} {seconds:.1f}" for name, seconds in parts.items()) + " s"
 
 

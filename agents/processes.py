@@ -247,12 +247,14 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
     result = RunResult(params=None, train_state=None, mean_return=mean_return,
                        solve_step=[s for e in evals for s in e["solve_step"]],
                        solve_wall_s=[s for e in evals for s in e["solve_wall_s"]],
-                       compile_s=max(e["compile_s"] for e in evals), setup_s=parts["setup"], train_s=parts["train"],
+                       compile_s=max(e["compile_s"] for e in evals), setup_s=parts["start-up"], train_s=parts["train"],
                        judge_s=parts["judge"], save_s=parts["saves"], eval_s=parts["evaluation"],
                        judges=max(e["judged_chunks"] for e in evals), chunks_done=max(e["chunks"] for e in evals),
                        devices=len(children), processes=len(children), best_seed=best_seed,
                        diverged=[d for e in evals for d in e.get("diverged_seeds", [])])
-    result.finish(start_time)  # the parent's wall time; what its processes' parts leave is "other"
+    # The parent's wall time, at least the slowest process's (every session's, `RunResult.finish`);
+    # what its processes' parts leave is "other"
+    result.finish(start_time, {"wall_s": max(0.0, slowest["wall_s"] - (time.perf_counter() - start_time))})
     summary = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "best_seed": best_seed,
                "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,

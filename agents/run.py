@@ -7,6 +7,7 @@ run directory back."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -31,6 +32,12 @@ from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
 
+# The parts of a run's wall time, named as eval.json's `wall_parts_s` and the command's last line
+# (`agents.cli.wall_line`) both say them: start-up (setup_s), compile, train, judge, saves,
+# evaluation, and other (host_s, the host's work between chunks).
+WALL_PARTS = ("start-up", "compile", "train", "judge", "saves", "evaluation", "other")
+
+
 @dataclass
 class RunResult:
     params: Any  # best parameters per seed (leading seed axis)
@@ -38,8 +45,12 @@ class RunResult:
     history: list[dict] = field(default_factory=list)  # one record per evaluation
     mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
     solve_step: list[int | None] = field(default_factory=list)
-    solve_wall_s: list[float | None] = field(default_factory=list)  # seconds from the start (compile included)
-    wall_s: float = 0.0  # train_run's whole call; the parts below add up to it
+    # Seconds from the run's start (compile included) to the judge that first reached solve_return;
+    # wall_s: the run's whole time. Both span every session of a resumed run: each checkpoint saves
+    # the clock so far (`_Run.clock_now`), which a --resume goes on from (the seconds a killed
+    # session spent after its last checkpoint are not counted: their work is done again).
+    solve_wall_s: list[float | None] = field(default_factory=list)
+    wall_s: float = 0.0  # train_run's whole call, every session's; the parts below add up to it
     compile_s: float = 0.0
     # Where the rest of wall_s went: setting up (the env, the first JAX calls, placing the agents,
     # loading a checkpoint), the training chunks, their greedy judges (`run_steps.JudgeClock`),
@@ -54,15 +65,24 @@ class RunResult:
     host_s: float = 0.0
 
     def wall_parts(self) -> dict[str, float]:
-        """wall_s's parts by name, in the order they happen."""
-        return {"setup": self.setup_s, "compile": self.compile_s, "train": self.train_s, "judge": self.judge_s,
-                "saves": self.save_s, "evaluation": self.eval_s, "host": self.host_s}
+        """wall_s's parts by name, in the order they happen: eval.json's `wall_parts_s`, under the
+        names the command's last line prints (`WALL_PARTS`)."""
+        return dict(zip(WALL_PARTS, (self.setup_s, self.compile_s, self.train_s, self.judge_s, self.save_s,
+                                     self.eval_s, self.host_s)))
 
-    def finish(self, start: float) -> None:
-        """Set wall_s to the time since `start`, and host_s to what the other parts leave of it."""
-        self.wall_s = time.perf_counter() - start
+    def finish(self, start: float, earlier: dict | None = None) -> None:
+        """Set wall_s to the time since `start` plus the earlier sessions' (`earlier`: the clock the
+        checkpoint a --resume began from saved, `checkpoint.saved_clock`), each part to its own
+        plus theirs, and host_s to what the other parts leave of wall_s."""
+        earlier = earlier or {}
+        before = earlier.get("wall_parts_s", {})
+        for name, part in zip(WALL_PARTS[:-1], ("setup_s", "compile_s", "train_s", "judge_s", "save_s", "eval_s")):
+            setattr(self, part, getattr(self, part) + before.get(name, 0.0))
+        self.earlier_wall_s = earlier.get("wall_s", 0.0)
+        self.wall_s = time.perf_counter() - start + self.earlier_wall_s
         self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.judge_s - self.save_s
                           - self.eval_s)
+    earlier_wall_s: float = 0.0  # the earlier sessions' share of wall_s (0 but after a --resume)
     interrupted: bool = False  # SIGINT or SIGTERM; like `stop_after_chunks`, leaves params None and a checkpoint
     stop_signal: str | None = None  # "SIGINT" or "SIGTERM" when interrupted
     chunks_done: int = 0  # chunks the train state has done at the end of this call
@@ -324,8 +344,10 @@ class _Run:
         init_args, self.eval_keys = placement.abstract(jax.eval_shape(self._run_inputs))
         self.chunks_done, init_program = 0, None
         self.compile_start = time.perf_counter()
+        self.earlier = {}  # the clock of the sessions before this one (`RunResult.finish`)
         if self.resume and checkpoint.has_state(self.out):
             ts, self.chunks_done = checkpoint.load_state(self.out, self.env_name, jax.eval_shape(init, *init_args))
+            self.earlier = checkpoint.saved_clock(self.out)
             self.ts = placement.put(ts)  # saved from any number of devices, split over this run's
             self.compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
         else:  # a run killed before its first checkpoint resumes from the start, as it began
@@ -398,7 +420,8 @@ class _Run:
         flight and its state unlogged)."""
         config = self.config
         self.result = RunResult(params=None, train_state=self.ts, compile_s=self.compile_s,
-                                solve_wall_s=[None] * self.agents, devices=self.placement.count,
+                                solve_wall_s=list(self.earlier.get("solve_wall_s") or [None] * self.agents),
+                                devices=self.placement.count,
                                 setup_s=self.compile_start - self.start, total_chunks=config.num_chunks)
         prefill = getattr(config, "prefill_steps", 0)  # SAC's and TD3's first fill of the replay, in `init`
         self.bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
@@ -481,7 +504,7 @@ class _Run:
         self.overflow_told = _check_overflow(self.env, record, config.eval_every, self.bar, self.overflow_told)
         _check_diverged(record, result.diverged, self.first, self.bar)
         result.history.append(record)
-        now = time.perf_counter() - self.start
+        now = time.perf_counter() - self.start + self.earlier.get("wall_s", 0.0)
         for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
             if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
                 result.solve_wall_s[i] = now
@@ -496,9 +519,17 @@ class _Run:
         """A save of `state` after `done` chunks, timed on the save clock."""
         save_start = time.perf_counter()
         save(self.saves, self.out, self.env_name, self.placement, state, done, final=final,
-             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside)
+             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside,
+             clock=self.clock_now())
         self.clock.saved(done, save_start, self.saves.written_s)
         self.result.save_s += time.perf_counter() - save_start
+
+    def clock_now(self) -> dict:
+        """The run's clock so far, every session's: wall_s, its parts and solve_wall_s, saved with
+        each checkpoint (`checkpoint.saved_clock`) for a --resume to go on from."""
+        now = dataclasses.replace(self.result, judge_s=self.judge_clock.judge_s)
+        now.finish(self.start, self.earlier)
+        return {"wall_s": now.wall_s, "wall_parts_s": now.wall_parts(), "solve_wall_s": now.solve_wall_s}
 
     # ---- the end -------------------------------------------------------------------------------
     def _evaluated(self):
@@ -535,7 +566,7 @@ class _Run:
         result.stop_signal = self.stop.name or ("SIGINT" if result.interrupted else None)
         if result.interrupted or not finished:  # checkpoint saved, no final eval
             result.save_s += _waited(self.saves)
-            result.finish(self.start)
+            result.finish(self.start, self.earlier)
             return result
         eval_start = time.perf_counter()
         placement = self.placement
@@ -548,7 +579,7 @@ class _Run:
                                                  result.mean_return, self.seed, self.first, every_seed=every_seed)
         result.eval_s = eval_s + time.perf_counter() - eval_start
         result.save_s += _waited(self.saves)
-        result.finish(self.start)
+        result.finish(self.start, self.earlier)
         if self.writer:
             run_steps.write_eval(self.out, self._summary(tie_break))
         return result
@@ -558,7 +589,7 @@ class _Run:
         result = self.result
         return {"agent": self.agent, "env": self.env_name, "seeds": self.trained_seeds, "best_seed": result.best_seed,
                 "mean_return": result.mean_return, "solve_step": result.solve_step,
-                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": self.compile_s,
+                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": result.compile_s,
                 "devices": self.placement.count, "wall_parts_s": result.wall_parts(),
                 "judged_chunks": result.judges, "chunks": result.chunks_done,
                 "tie_break_return": [tie_break.get(self.first + i) for i in range(self.agents)],
@@ -685,7 +716,8 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True) -> None:
+         chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True,
+         clock: dict | None = None) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
     The files are written on another thread while the run goes on (the next chunks, or the final
@@ -697,17 +729,18 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     device its copy to the host is made on the writing thread too (arrays split over devices are
     copied here: never fetched by two threads at once), unless `copy_beside` is False (an env on
     MuJoCo Warp: `envs.mjx_warp.CompileRules`, docs/mjx.md "MuJoCo Warp and CUDA graphs"). A
-    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`)."""
+    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`).
+    `clock`: the run's clock at the save (`_Run.clock_now`), saved beside the state."""
     if finished:
         ts = checkpoint.without_replay(ts)
     if final and copy_beside and placement.mesh is None and jax.process_count() == 1:
-        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished)
+        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished, clock)
         return
     host = placement.to_host(ts)
     if sharding.is_writer():
         if placement.devices[0].platform == "cpu":
             host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
-        saves.save(out, env_name, host, chunks_done, finished)
+        saves.save(out, env_name, host, chunks_done, finished, clock)
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:
