@@ -568,6 +568,7 @@ class _Run:
             result.save_s += _waited(self.saves)
             result.finish(self.start, self.earlier)
             return result
+        self.stop.finishing("its final evaluation and writes eval.json")  # a signal now says so, and stops nothing
         eval_start = time.perf_counter()
         placement = self.placement
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)

@@ -102,16 +102,30 @@ class _Catching:
 
 class StopSignals(_Catching):
     """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
-    raising; a second one exits the process at once with `exit_status`."""
+    raising; a second one exits the process at once with `exit_status`. Once the run calls
+    `finishing`, nothing stops it any more but a second signal, and a first one says so."""
+
+    finishing_what: str | None = None
+
+    def finishing(self, what: str) -> None:
+        """From here the run ends `what` (e.g. its final evaluation) whatever a first signal asks,
+        and that signal's message says so instead of announcing a stop."""
+        self.finishing_what = what
 
     def _handle(self, signum, frame) -> None:
+        name = signal.Signals(signum).name
         if self.requested is not None:
             # Nothing else runs here: the process may be inside an XLA or Warp call.
-            os.write(2, f"\n{signal.Signals(signum).name} again: exiting now, without saving\n".encode())
+            os.write(2, f"\n{name} again: exiting now, without saving\n".encode())
             os._exit(exit_status(signum))
         self.requested = signum
         # os.write, not print: print is not reentrant, and the signal may arrive inside a print.
-        os.write(2, f"\n{signal.Signals(signum).name}: stopping after the current step of work and saving "
+        if self.finishing_what is not None:
+            os.write(2, f"\n{name}: the run is past its last checkpoint and finishes {self.finishing_what} "
+                        f"(send it again to exit now: the checkpoint holds every chunk, and --resume evaluates "
+                        "them)\n".encode())
+            return
+        os.write(2, f"\n{name}: stopping after the current step of work and saving "
                     "(send it again to exit now, without saving)\n".encode())
 
 
