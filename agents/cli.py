@@ -124,19 +124,13 @@ def _choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
     a mismatch is refused."""
     import envs
 
-    from agents import brax_defaults
+    from agents import brax_defaults, registry
 
     env = envs.spec(env_name, **env_opts)  # not envs.make: an MJX task would load MJX and take a device
-    discrete = env.num_actions is not None
-    fits = ("dqn",) if discrete else ("ppo", "sac", "td3")
-    agent = agent or ("dqn" if discrete else brax_defaults.default_agent(env_name))
-    if agent not in fits:
-        kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
-        raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
-                         f"{' or '.join(fits)}" + ("" if discrete else " (or a discrete variant of the task with dqn)"))
-    if env.pixels and agent != "ppo":
-        raise UsageError(f"--agent {agent} has no network for camera images (--env-opt observation=pixels); "
-                         "train them with --agent ppo, or drop observation=pixels")
+    agent = agent or ("dqn" if env.num_actions is not None else brax_defaults.default_agent(env_name))
+    why = registry.misfit(agent, env_name, env.num_actions, env.action_size, env.pixels)
+    if why:
+        raise UsageError(why)
     return agent
 
 

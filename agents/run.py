@@ -269,6 +269,10 @@ class _Run:
         self.configs = sweep_configs(config, self.sweep)
         self.agents = self.trained_seeds * len(self.configs)
         self.env = envs.make(env_name, **(env_options or {}))
+        why = registry.misfit(registry.name_of(config), env_name, self.env.num_actions, self.env.action_size,
+                              getattr(self.env, "observation_shape", None) is not None)
+        if why:  # before anything compiles: DQN's network on camera images fails inside JAX's trace
+            raise ValueError(why)
         if judge_every is None:  # from the config and the time limit (`run_steps.judge_every`), saved in config.json
             judge_every = run_steps.judge_every(config, getattr(self.env, "episode_length", None) or 1000)
         self.judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
