@@ -41,6 +41,9 @@ PROCESSES_ENV = "MJXSUITE_PROCESSES"
 # `mjxsuite` as a program of this interpreter: its console script (pyproject.toml), run as the user
 # runs it, also where mjxsuite is a checkout that was never installed.
 MJXSUITE = [sys.executable, "-c", "from agents.console import run; run()"]
+# A child's `mjxsuite`: the same, ended with its parent (`signals.die_with_parent`).
+CHILD_MJXSUITE = [sys.executable, "-c",
+                  "from agents.signals import die_with_parent; die_with_parent(); from agents.console import run; run()"]
 
 
 class ProcessFailed(Exception):
@@ -144,7 +147,7 @@ def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) 
 def child_command(child: Child, options: list[str]) -> list[str]:
     """The child's `mjxsuite train`: --resume of its own directory (which start() wrote, or an
     earlier run left), on one device."""
-    return [*MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
+    return [*CHILD_MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
 
 
 def child_environment(child: Child) -> dict[str, str]:
@@ -156,6 +159,7 @@ def child_environment(child: Child) -> dict[str, str]:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     env.pop(PROCESSES_ENV, None)
     env["PYTHONUNBUFFERED"] = "1"  # its log.txt as it happens, not when a buffer fills
+    env[signals.PARENT_PID_ENV] = str(os.getpid())  # it stops and saves when this process ends, even by SIGKILL
     return env
 
 

@@ -24,6 +24,35 @@ import signal
 import threading
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# The pid of the `agents.processes` parent that started this process (`die_with_parent`).
+PARENT_PID_ENV = "MJXSUITE_PARENT_PID"
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent() -> None:
+    """In a child of `agents.processes` (PARENT_PID_ENV set): a SIGTERM when the parent ends,
+    however it ends (SIGKILL included), so that the child stops and saves as on the parent's own
+    SIGTERM instead of training on, orphaned. Linux's prctl(PR_SET_PDEATHSIG) where there is one;
+    elsewhere a thread that watches the parent's pid. A parent gone before this ran counts too."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if not parent:
+        return
+    try:
+        import ctypes
+
+        watched = ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM) != 0
+    except (OSError, AttributeError):  # no prctl: not Linux
+        watched = True
+    if os.getppid() != int(parent):
+        os.kill(os.getpid(), signal.SIGTERM)
+    elif watched:
+        threading.Thread(target=_watch_parent, args=(int(parent),), daemon=True, name="mjxsuite-parent").start()
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        threading.Event().wait(1.0)
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def exit_status(signum: int) -> int:
