@@ -85,6 +85,7 @@ except ImportError as err:  # gymnasium is an optional extra
         f"(which installs gymnasium==1.4.0); importing it failed with: {err}"
     ) from err
 
+from envs.compile_cache import enable_unless_off
 from envs.core import Env, State
 from envs.registry import make
 from envs.core import Wrapper
@@ -469,13 +470,16 @@ class RegisteredEnv(GymnasiumEnv):
 
 
 def make_env(task: str, render_mode: str | None = None, **kwargs: Any) -> RegisteredEnv:
-    """The ids' `entry_point` (`gymnasium.make`)."""
+    """The ids' `entry_point` (`gymnasium.make`), with JAX's persistent compile cache on as the
+    `mjxsuite` command has it (`envs.compile_cache`): a new process loads the env's compiled step."""
+    enable_unless_off()
     return RegisteredEnv(task, render_mode=render_mode, **kwargs)
 
 
 def make_vector_env(task: str, num_envs: int, max_episode_steps: int | None = None,
                     autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any) -> JaxVectorEnv:
-    """The ids' `vector_entry_point` (`gymnasium.make_vec`)."""
+    """The ids' `vector_entry_point` (`gymnasium.make_vec`), with the compile cache on (`make_env`)."""
+    enable_unless_off()
     return JaxVectorEnv(task, num_envs, max_episode_steps=max_episode_steps, autoreset_mode=autoreset_mode, **kwargs)
 
 
