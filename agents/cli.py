@@ -163,20 +163,14 @@ def _say_rounding(config) -> None:
         print(f"note: {said}", file=sys.stderr)
 
 
-# A run of more env steps than this (all seeds together) is a GPU's work: on a CPU it takes hours.
-GPU_SIZED_STEPS = 10_000_000
-
-
 def _say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]) -> None:
-    """Say, before anything compiles, when a run on a machine without a GPU is sized for one (the
-    GPU recipes of agents/brax_defaults.py), and how to train a CPU-sized one."""
-    steps = config.total_steps * seeds
-    if gpus or steps <= GPU_SIZED_STEPS:
-        return
-    print(f"note: this {agent} run of {env_name} trains {config.total_steps:,} env steps per seed ({seeds} seed"
-          f"{'s' if seeds > 1 else ''}), a recipe sized for a GPU: on this CPU it takes hours. --steps N trains "
-          "fewer (e.g. --steps 200000 to see it learn), and Ctrl-C stops it after the current chunk, saved",
-          file=sys.stderr)
+    """Say, before anything compiles, when a run on a machine without a GPU is sized for one, and
+    which preset fits a CPU (`brax_defaults.gpu_sized_note`)."""
+    from agents import brax_defaults
+
+    note = None if gpus else brax_defaults.gpu_sized_note(env_name, agent, config.total_steps, seeds)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
 
 
 def _require_registered(env_name: str) -> None:

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import checkpoint, registry, run_steps, sharding, signals, traced_programs
+from agents import checkpoint, evaluation, registry, run_steps, sharding, signals, traced_programs
 from agents.device_options import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
@@ -305,6 +305,7 @@ class _Run:
         `envs.mjx_warp.CompileRules` (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
         self.learner = registry.make(self.config, self.env, agents=self.agents // self.placement.count)
         self.rules = CompileRules(runs_warp(self.learner.env))
+        self.parts = run_steps.chunk_parts(self.config) if hasattr(self.learner, "chunk_loop") else 1
         if progress and self.writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
             builds = " (MuJoCo Warp also builds its kernels once per machine)" if self.rules.on_warp else ""
             print(f"{self.env_name}: compiling{builds}...", file=sys.stderr, flush=True)
@@ -374,6 +375,9 @@ class _Run:
         if self.chunks_done >= self.config.num_chunks:
             return None, None
         learner, ts, per_device = self.learner, self.ts, self.agents // self.placement.count
+        if self.parts > 1:  # a chunk in parts (`_in_parts`): the first part's state is kept, so none is donated
+            return self._lower_parts(per_device, seed_axis, after_traces), self._lower_judge(
+                per_device, seed_axis, record_episode)
         train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
         judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
         if self.placement.mesh is None:
@@ -392,6 +396,33 @@ class _Run:
                                        "train", after=after_traces)
         return train_program, traced_programs.LoweredProgram(
             jax.jit(spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
+
+    def _lower_parts(self, per_device: int, seed_axis: str, after_traces) -> Future:
+        """The program of one part of a chunk (`evaluation.chunk_part`), compiling on another thread,
+        and the carry its first part starts from."""
+        learner, ts, parts = self.learner, self.ts, self.parts
+        part_fn = seed_batched(partial(_train_part, learner, parts), per_device, seed_axis)
+        self.carry_shapes = jax.eval_shape(jax.vmap(partial(evaluation.part_carry, learner.chunk_loop)), ts)
+        carry = self.placement.abstract(self.carry_shapes)
+        if self.placement.mesh is None:
+            lowered = lower_cached(f"{type(learner).__name__}.chunk_part of {parts} over seeds by {seed_axis}",
+                                   part_fn, (ts, carry), learner, self.agents, self.env_name, self.env_options)
+            return _in_background(lowered.compile, "train", after=after_traces)
+        options = training_compiler_options(env=learner.env)
+        return _in_background(partial(jax.jit(self.placement.spread(part_fn)).lower(ts, carry).compile, options),
+                              "train", after=after_traces)
+
+    def _lower_judge(self, per_device: int, seed_axis: str, record_episode: bool) -> traced_programs.LoweredProgram:
+        """The judge's program, lowered (`_lower_chunk` for a chunk in parts)."""
+        learner, ts = self.learner, self.ts
+        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
+        if self.placement.mesh is None:
+            judged = (f"{type(learner).__name__}.evaluate_and_keep_best over seeds by {seed_axis}"
+                      + ("" if record_episode else ", no episode recorded"))
+            return lower_cached(judged, judge_fn, (ts, ts.key), learner, self.agents, self.env_name,
+                                self.env_options, donate=True)
+        return traced_programs.LoweredProgram(jax.jit(self.placement.spread(judge_fn), donate_argnums=0).lower(
+            ts, ts.key), training_compiler_options(env=learner.env))
 
     def lower_evaluation(self, params: Any, keys: Any) -> Any:
         """The final evaluation, lowered for these shapes."""
@@ -435,7 +466,8 @@ class _Run:
         self.clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(self.ts)))  # the first save, before one is timed
         self.last, self.solved_early, self.overflow_told = self.chunks_done, False, False
         self.on_chunk, self.stop_when_solved = on_chunk, stop_when_solved
-        self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching
+        self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching and self.parts == 1
+        self.bar_ahead = 0  # env steps the bar moved within the chunk under way (`_in_parts`)
         self.stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
         ahead = None  # the next chunk, `_dispatched` early
         try:
@@ -448,6 +480,9 @@ class _Run:
                         break
                     ahead = self._dispatched(self.ts)
                 (self.ts, metrics, eval_key), tick = ahead
+                if metrics is None:  # a signal between the parts of a chunk (`_in_parts`)
+                    self.result.interrupted = True
+                    break
                 ahead = self._after_chunk(index, metrics, eval_key, tick)
                 if self.solved_early:
                     break
@@ -463,7 +498,23 @@ class _Run:
     def _dispatched(self, ts):
         """The next chunk's outputs and when it began (a dispatch can return only once done)."""
         began = time.perf_counter()
-        return self.train_program(ts), began
+        return (self.train_program(ts) if self.parts == 1 else self._in_parts(ts)), began
+
+    def _in_parts(self, ts):
+        """A chunk as `self.parts` programs (`evaluation.chunk_part`), with the result of one: the bar
+        moves after each part, and a signal between parts drops the chunk under way, returning
+        (its start state, None, None): the state of the chunks done, which the run then saves."""
+        carry, start = self.placement.put(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.carry_shapes)), ts
+        steps = self.config.eval_every // self.parts
+        for part in range(self.parts):
+            ts, carry, metrics, eval_key = self.train_program(ts, carry)
+            if part < self.parts - 1:
+                jax.block_until_ready(carry)
+                self.bar.update(steps)
+                self.bar_ahead += steps
+                if self._signalled():
+                    return start, None, None
+        return ts, metrics, eval_key
 
     def _save_due(self, done: int) -> bool:
         """A periodic save; a run's last chunk is the final save's (`finish`). Process 0's clock."""
@@ -516,7 +567,8 @@ class _Run:
             run_steps.append_metrics(self.out, record)
         if self.on_chunk is not None:
             self.on_chunk(index, self.ts, {**record, "eval_episode": eval_episode})
-        run_steps.show(self.bar, config.eval_every, record)
+        run_steps.show(self.bar, config.eval_every - self.bar_ahead, record)
+        self.bar_ahead = 0
         self.solved_early = self.stop_when_solved and judging and None not in result.solve_wall_s
 
     def _checkpoint(self, state: Any, done: int, final: bool = False) -> None:
@@ -613,6 +665,13 @@ def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
     still says where the run stands (the logger's timeline, metrics.jsonl)."""
     ts, metrics, eval_key = learner.train_steps(ts)
     return ts, {**metrics, "env_steps": ts.env_steps}, eval_key
+
+
+def _train_part(learner: Any, parts: int, ts: Any, carry: tuple) -> tuple:
+    """One of `parts` parts of a chunk (`evaluation.chunk_part`), its metrics with the env steps
+    done (`_train_steps`)."""
+    ts, carry, metrics, eval_key = evaluation.chunk_part(learner.chunk_loop(ts), parts, ts, carry)
+    return ts, carry, {**metrics, "env_steps": ts.env_steps}, eval_key
 
 
 def _check_diverged(record: dict, diverged: list[int], first: int, bar) -> None:

@@ -260,3 +260,70 @@ def test_a_run_directory_trains_one_run_at_a_time(tmp_path):
     held.release()
     train_run("cartpole", SMALL, out_dir=out, progress=False, stop_after_chunks=1)
     run_steps.RunDirLock(out).release()  # the run released it when it returned
+
+
+# ---- a long chunk in parts (case 118): the bar moves and a signal acts between them -------------------
+PARTED = PPOConfig(num_timesteps=2 * 4 * 256, num_envs=8, batch_size=8, num_minibatches=4, unroll_length=8,
+                   num_updates_per_batch=1, num_evals=3, num_eval_envs=4, policy_hidden=(16,), value_hidden=(16,))
+
+
+def test_how_many_parts_a_chunk_runs_as_is_a_function_of_the_config():
+    from agents import brax_defaults
+
+    assert PARTED.training_steps_per_chunk == 4 and run_steps.chunk_parts(PARTED) == 1  # 1,024 steps: one part
+    hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))  # 983,040 env steps per training step
+    assert run_steps.chunk_parts(hopper) == hopper.training_steps_per_chunk > 1  # one training step a part
+    cpu = PPOConfig(**brax_defaults.settings("hopper", "ppo", "cpu"))
+    parts = run_steps.chunk_parts(cpu)
+    assert cpu.training_steps_per_chunk % parts == 0 and cpu.eval_every // parts <= run_steps.PART_ENV_STEPS
+    assert run_steps.chunk_parts(SMALL) == run_steps.chunk_parts(SACConfig()) == 1
+
+
+def test_a_chunk_in_parts_ends_as_the_whole_chunk_to_the_bit():
+    """`evaluation.chunk_part` run in turn gives `train_steps`' train state, metrics and evaluation key."""
+    import envs
+    from agents import evaluation
+    from agents.ppo import PPO
+
+    ppo = PPO(PARTED, envs.make("pendulum-mjx"))
+    ts = ppo.init(jax.random.PRNGKey(0))
+    whole = jax.jit(ppo.train_steps)(ts)
+    part = jax.jit(lambda ts, carry: evaluation.chunk_part(ppo.chunk_loop(ts), 4, ts, carry))
+    carry = evaluation.part_carry(ppo.chunk_loop, ts)
+    for _ in range(4):
+        ts, carry, metrics, eval_key = part(ts, carry)
+    jax.tree.map(np.testing.assert_array_equal, (ts, metrics, eval_key), whole)
+
+
+@pytest.mark.slow
+def test_a_signal_between_parts_stops_the_run_and_resume_ends_as_the_whole_run(tmp_path, monkeypatch):
+    """With chunks in parts, SIGINT is acted on after the part under way: the chunk under way is
+    dropped, the checkpoint holds the chunks done, and --resume ends as an uninterrupted run of
+    whole chunks, to the bit."""
+    import signal
+
+    from agents import run as run_module
+
+    whole = train_run("pendulum-mjx", PARTED, out_dir=tmp_path / "whole", progress=False)
+    monkeypatch.setattr(run_steps, "PART_ENV_STEPS", 256)  # each chunk in 4 parts
+    real_bar = run_steps.progress_bar
+
+    def bar(*args, **kwargs):
+        made = real_bar(*args, **kwargs)
+        update = made.update
+
+        def signalled(steps):
+            update(steps)
+            if made.n == PARTED.eval_every + 256:  # chunk 1's first part
+                os.kill(os.getpid(), signal.SIGINT)
+        made.update = signalled
+        return made
+
+    monkeypatch.setattr(run_module.run_steps, "progress_bar", bar)
+    out = tmp_path / "parts"
+    stopped = train_run("pendulum-mjx", PARTED, out_dir=out, progress=True)
+    assert stopped.interrupted and stopped.chunks_done == stopped.saved_chunks == 1
+    monkeypatch.setattr(run_module.run_steps, "progress_bar", real_bar)
+    resumed = train_run("pendulum-mjx", PARTED, out_dir=out, progress=False, resume=True)
+    jax.tree.map(np.testing.assert_array_equal, resumed.params, whole.params)
+    assert resumed.mean_return == whole.mean_return
