@@ -4,7 +4,7 @@
 (`PPOConfig()` in `agents/ppo.py`, `SACConfig()` in `agents/sac.py`, `TD3Config()` in `agents/td3.py`,
 sized for small tasks on a CPU);
 `--FIELD VALUE` options then change the result. A task without a row trains with the base
-recipe. Rows are keyed by name only, so a row for a task that is not registered (yet) costs
+recipe. Gymnasium's MuJoCo tasks also have "cpu", their row resized for a CPU (`cpu_settings`). Rows are keyed by name only, so a row for a task that is not registered (yet) costs
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default"; without it a
 run on camera images (`--env-opt observation=pixels`) takes the task's "pixels" recipe where it
 has one (`default_preset`), and the task's `PIXEL_ENV_OPTIONS` (e.g. `frame_stack`) where
