@@ -4,7 +4,7 @@
 (`PPOConfig()` in `agents/ppo.py`, `SACConfig()` in `agents/sac.py`, `TD3Config()` in `agents/td3.py`,
 sized for small tasks on a CPU);
 `--FIELD VALUE` options then change the result. A task without a row trains with the base
-recipe. Rows are keyed by name only, so a row for a task that is not registered (yet) costs
+recipe. Gymnasium's MuJoCo tasks also have "cpu", their row resized for a CPU (`cpu_settings`). Rows are keyed by name only, so a row for a task that is not registered (yet) costs
 nothing and breaks nothing. `--preset NAME` picks a recipe other than "default"; without it a
 run on camera images (`--env-opt observation=pixels`) takes the task's "pixels" recipe where it
 has one (`default_preset`), and the task's `PIXEL_ENV_OPTIONS` (e.g. `frame_stack`) where
@@ -177,6 +177,58 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 }
 
 
+# The Gymnasium tasks' "cpu" preset (`--preset cpu`, `cpu_settings`): the task's default row with
+# the fields that size a run for an accelerator (envs, batches, updates, networks, steps) replaced
+# by CPU_SIZES, the base recipes' sizes (tens of envs, small batches) and a run of at most a few
+# million env steps; the task's own fields (reward scaling, discount, the critic's support,
+# solve_return) stay. A default row already that small is the cpu preset as it is. PPO's run is
+# cut into 20 chunks, so its bar moves and a Ctrl-C is acted on every few minutes at most.
+# Starting points: not run here to Gymnasium's goals.
+GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
+                   "walker2d", "reacher", "pusher", "swimmer")
+CPU_SIZES: dict[str, dict[str, Any]] = {
+    "ppo": dict(num_timesteps=2_000_000, num_evals=21, num_envs=64, batch_size=64, num_minibatches=16,
+                unroll_length=16, num_updates_per_batch=4),
+    "sac": dict(num_timesteps=300_000, num_evals=11, num_envs=16, batch_size=256, grad_updates_per_step=8,
+                min_replay_size=2_000, max_replay_size=300_000),
+    "td3": dict(num_timesteps=300_000, num_evals=11, num_envs=16, batch_size=256, num_updates=4,
+                min_replay_size=1_024, max_replay_size=300_000),
+}
+# Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
+CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
+# A run of more env steps than this (all seeds together) is a GPU's work: on a CPU it takes hours.
+GPU_SIZED_STEPS = 10_000_000
+
+
+def cpu_settings(task: str, agent: str) -> dict[str, Any]:
+    """The "cpu" preset's fields for `agent` on one of GYMNASIUM_TASKS (see CPU_SIZES)."""
+    row = dict(SETTINGS.get(task, {}).get(agent, {}).get("default", {}))
+    if row.get("num_timesteps", 0) <= CPU_SIZES[agent]["num_timesteps"]:
+        return row
+    kept = {k: v for k, v in row.items() if k not in CPU_SIZES[agent] and k not in CPU_DROPPED}
+    return {**kept, **CPU_SIZES[agent]}
+
+
+def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int) -> str | None:
+    """What a run on a machine without a GPU says before anything compiles when its recipe is
+    sized for one (more than GPU_SIZED_STEPS env steps over its seeds), naming the preset that
+    fits a CPU where there is one; None for a CPU-sized run."""
+    if total_steps * seeds <= GPU_SIZED_STEPS:
+        return None
+    per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
+    smaller = (f"--preset cpu trains a smaller one ({cpu_total_steps(task, agent):,} env steps)"
+               if "cpu" in presets(task, agent) else "--steps N trains fewer (e.g. --steps 200000 to see it learn)")
+    return (f"{task}'s {agent.upper()} recipe trains {total_steps / 1e6:,.1f}M env steps{per_seed}, sized for a GPU: "
+            f"on this CPU that takes hours; {smaller}. Ctrl-C stops it after the part of a chunk under way, saved")
+
+
+def cpu_total_steps(task: str, agent: str) -> int:
+    """The env steps per seed the "cpu" preset trains (its config's `total_steps`)."""
+    from agents import registry
+
+    return registry.config_class(agent)(**cpu_settings(task, agent)).total_steps
+
+
 def default_agent(task: str) -> str:
     """The agent a continuous task trains with when --agent is not given."""
     return DEFAULT_AGENT.get(task, "ppo")
@@ -199,8 +251,10 @@ def default_preset(task: str, agent: str, observation: str = "state") -> str:
 
 
 def presets(task: str, agent: str) -> list[str]:
-    """The recipes the table holds for `agent` on `task` ("default" always exists)."""
-    return sorted({"default", *SETTINGS.get(task, {}).get(agent, {})})
+    """The recipes the table holds for `agent` on `task` ("default" always exists; "cpu" for the
+    Gymnasium tasks, `cpu_settings`)."""
+    cpu = ("cpu",) if task in GYMNASIUM_TASKS and agent in CPU_SIZES else ()
+    return sorted({"default", *cpu, *SETTINGS.get(task, {}).get(agent, {})})
 
 
 def settings(task: str, agent: str, preset: str = "default") -> dict[str, Any]:
@@ -208,4 +262,6 @@ def settings(task: str, agent: str, preset: str = "default") -> dict[str, Any]:
     if preset not in presets(task, agent):
         raise ValueError(f"--preset {preset!r} does not exist for --agent {agent} on {task}; "
                          f"choose one of {', '.join(presets(task, agent))}")
+    if preset == "cpu" and task in GYMNASIUM_TASKS:
+        return cpu_settings(task, agent)
     return dict(SETTINGS.get(task, {}).get(agent, {}).get(preset, {}))

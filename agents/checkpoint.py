@@ -317,18 +317,20 @@ def without_replay(train_state: Any) -> Any:
     return train_state.replace(buffer=None) if hasattr(train_state, "buffer") else train_state
 
 
-def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, finished: bool = False) -> None:
+def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, finished: bool = False,
+               clock: dict | None = None) -> None:
     """The whole (seed-batched) train state, buffer included, so a resumed run continues
     exactly, and the best parameters for eval; a `finished` run's state without its replay
     buffer (`without_replay`; `train_state` may already lack it). A kill between the renames
     leaves the two files one save apart, each whole: a resume reads only the train state (with
-    its own chunk count) and rewrites the policy file at its next save."""
+    its own chunk count) and rewrites the policy file at its next save. `clock`: the run's seconds
+    so far (`saved_clock`), in the train state's header."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
     _write_arrays(out_dir / POLICY_FILE, "best_params", train_state.best_params, {"env": env, "best_return": best_return})
     if finished:
         train_state = without_replay(train_state)
     _write_arrays(out_dir / STATE_FILE, "train_state", train_state,
-                  {"env": env, "chunks_done": chunks_done, "replay_left_out": finished})
+                  {"env": env, "chunks_done": chunks_done, "replay_left_out": finished, "clock": clock or {}})
     atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
 
 
@@ -344,7 +346,8 @@ class BackgroundSaves:
         self._error: BaseException | None = None
         self.written_s = 0.0
 
-    def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int, finished: bool = False) -> None:
+    def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int, finished: bool = False,
+             clock: dict | None = None) -> None:
         """Write `host_state` (numpy arrays that nothing else changes, or a function that makes
         them on the writing thread) in the background, as `save_state` does."""
         self.wait()
@@ -352,7 +355,8 @@ class BackgroundSaves:
         def write():
             try:
                 start = time.perf_counter()
-                save_state(out_dir, env, host_state() if callable(host_state) else host_state, chunks_done, finished)
+                save_state(out_dir, env, host_state() if callable(host_state) else host_state, chunks_done, finished,
+                           clock)
                 self.written_s = time.perf_counter() - start
             except BaseException as err:  # raised again by the next save or wait, on the run's thread
                 self._error = err
@@ -378,6 +382,15 @@ def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any
     if meta.get("replay_left_out"):
         template = without_replay(template)
     return _unflatten(path, record, template, RESUME_FIX), int(meta["chunks_done"])
+
+
+def saved_clock(out_dir: str | os.PathLike) -> dict:
+    """The run's clock when its checkpoint was saved, every session's until then: `wall_s`,
+    `wall_parts_s` and `solve_wall_s` (`agents.run.RunResult`), which a --resume goes on from; {}
+    for a checkpoint written without one. Reads the train state's header alone."""
+    with open(Path(out_dir) / STATE_FILE, "rb") as f:
+        _, header_size, _ = PREFIX.unpack(f.read(PREFIX.size))
+        return json.loads(f.read(header_size))["meta"].get("clock") or {}
 
 
 def check_saved(out_dir: str | os.PathLike, env: str) -> None:

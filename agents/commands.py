@@ -18,7 +18,6 @@ from agents import sweep as sweeps
 AGENTS = ("dqn", "ppo", "sac", "td3")
 POLICY_NAMES = {"dqn": "greedy", "ppo": "deterministic", "sac": "deterministic", "td3": "deterministic"}  # judged
 CONFIG = "field."  # the namespace prefix of the agents' config fields (`agents.cli.add_config_fields`)
-GPU_SIZED_STEPS = 10_000_000  # a run of more env steps than this (all seeds together) takes a CPU hours
 
 
 class UsageError(SystemExit):
@@ -85,19 +84,13 @@ def choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
     a mismatch is refused."""
     import envs
 
-    from agents import brax_defaults
+    from agents import brax_defaults, registry
 
     env = envs.spec(env_name, **env_opts)  # not envs.make: an MJX task would load MJX and take a device
-    discrete = env.num_actions is not None
-    fits = ("dqn",) if discrete else ("ppo", "sac", "td3")
-    agent = agent or ("dqn" if discrete else brax_defaults.default_agent(env_name))
-    if agent not in fits:
-        kind = f"discrete ({env.num_actions} actions)" if discrete else f"continuous ({env.action_size} action values)"
-        raise UsageError(f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent "
-                         f"{' or '.join(fits)}" + ("" if discrete else " (or a discrete variant of the task with dqn)"))
-    if env.pixels and agent != "ppo":
-        raise UsageError(f"--agent {agent} has no network for camera images (--env-opt observation=pixels); "
-                         "train them with --agent ppo, or drop observation=pixels")
+    agent = agent or ("dqn" if env.num_actions is not None else brax_defaults.default_agent(env_name))
+    why = registry.misfit(agent, env_name, env.num_actions, env.action_size, env.pixels)
+    if why:
+        raise UsageError(why)
     return agent
 
 
@@ -132,14 +125,13 @@ def say_rounding(config) -> None:
 
 
 def say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]) -> None:
-    """Say, before anything compiles, when a run on a machine without a GPU is sized for one (the GPU
-    recipes of agents/brax_defaults.py), and how to train a CPU-sized one."""
-    if gpus or config.total_steps * seeds <= GPU_SIZED_STEPS:
-        return
-    print(f"note: this {agent} run of {env_name} trains {config.total_steps:,} env steps per seed ({seeds} seed"
-          f"{'s' if seeds > 1 else ''}), a recipe sized for a GPU: on this CPU it takes hours. --steps N trains "
-          "fewer (e.g. --steps 200000 to see it learn), and Ctrl-C stops it after the current chunk, saved",
-          file=sys.stderr)
+    """Say, before anything compiles, when a run on a machine without a GPU is sized for one, and
+    which preset fits a CPU (`brax_defaults.gpu_sized_note`)."""
+    from agents import brax_defaults
+
+    note = None if gpus else brax_defaults.gpu_sized_note(env_name, agent, config.total_steps, seeds)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
 
 
 def before_any_jax(args) -> None:
@@ -386,9 +378,8 @@ def wall_line(result) -> str:
     compile, training, checkpoint saves, the final evaluation, and the rest (host work
     between chunks: metrics, the Rerun logger, progress)."""
     parts, age = result.wall_parts(), process_age_s()
-    wall = result.wall_s if age is None else max(age, result.wall_s)
-    parts = {"start-up": parts.pop("setup") + wall - result.wall_s, **parts}
-    parts["other"] = parts.pop("host")
+    wall = result.wall_s if age is None else max(age + result.earlier_wall_s, result.wall_s)
+    parts["start-up"] += wall - result.wall_s  # the process's start before the run's
     return f"wall {wall:.1f}s = " + " + ".join(f"{name} {seconds:.1f}" for name, seconds in parts.items()) + " s"
 
 

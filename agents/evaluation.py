@@ -4,6 +4,7 @@ the best parameters and the step that solved the task."""
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Callable, NamedTuple
 
 import jax
@@ -92,6 +93,65 @@ def episode_metrics(totals: dict) -> dict:
     return {"episodes": episodes, "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
             "nan_episodes": totals["nan_episodes"], "overflow_contacts": totals["overflow_contacts"].astype(jnp.int32),
             "overflow_constraints": totals["overflow_constraints"].astype(jnp.int32)}
+
+
+class ChunkLoop(NamedTuple):
+    """A chunk's training steps as pure pieces, so that `agents.run` can run a long chunk as several
+    programs (`chunk_part`, for the bar and signals between them) with the result of one
+    (`whole_chunk`): `start(ts) -> (ts, pending)` splits the chunk's keys (`pending`: arrays the
+    chunk hands on, its evaluation key under "eval_key"); `step(ts) -> (ts, stats)` is one of
+    `iterations` iterations; `finish(ts, pending, totals) -> (ts, metrics)` ends the chunk from
+    the running totals of the stats (`totals`: each stat's name and dtype)."""
+
+    iterations: int
+    start: Callable
+    step: Callable
+    finish: Callable
+    totals: dict
+
+
+def _add_up(loop: ChunkLoop, carry, _):
+    ts, totals = carry
+    ts, stats = loop.step(ts)
+    return (ts, {name: (total + stats[name]).astype(total.dtype) for name, total in totals.items()}), None
+
+
+def _zero_totals(loop: ChunkLoop) -> dict:
+    return {name: jnp.zeros((), dtype) for name, dtype in loop.totals.items()}
+
+
+def whole_chunk(loop: ChunkLoop, ts: Any) -> tuple[Any, dict, jax.Array]:
+    """A chunk's training steps in one program: the train state, its metrics and the key of the
+    evaluation that follows (an agent's `train_steps`)."""
+    ts, pending = loop.start(ts)
+    (ts, totals), _ = jax.lax.scan(partial(_add_up, loop), (ts, _zero_totals(loop)), None, length=loop.iterations)
+    ts, metrics = loop.finish(ts, pending, totals)
+    return ts, metrics, pending["eval_key"]
+
+
+def chunk_part(loop: ChunkLoop, parts: int, ts: Any, carry: tuple) -> tuple:
+    """Part `carry[0]` of `parts` of a chunk (`loop.iterations` split evenly): the first starts the
+    chunk, the last finishes it, and every part runs its share of the iterations in between, so the
+    parts in turn end with `whole_chunk`'s train state and metrics, to the bit. `carry`:
+    `(index, pending, totals)`, zeros before the first part (`part_carry`). Returns the train
+    state, the next carry, and the metrics and evaluation key (zeros before the last part)."""
+    index, pending, totals = carry
+    ts, pending, totals = jax.lax.cond(index == 0, lambda: (*loop.start(ts), _zero_totals(loop)),
+                                       lambda: (ts, pending, totals))
+    (ts, totals), _ = jax.lax.scan(partial(_add_up, loop), (ts, totals), None, length=loop.iterations // parts)
+    shapes = jax.eval_shape(loop.finish, ts, pending, totals)[1]
+    ts, metrics = jax.lax.cond(index == parts - 1, lambda: loop.finish(ts, pending, totals),
+                               lambda: (ts, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)))
+    return ts, (index + 1, pending, totals), metrics, pending["eval_key"]
+
+
+def part_carry(loop_of: Callable[[Any], ChunkLoop], ts: Any) -> tuple:
+    """The carry of a chunk's first part (`chunk_part`) for the train state `ts` (arrays or shapes):
+    zeros shaped as what `loop_of(ts).start` hands on."""
+    loop = loop_of(ts)
+    pending = jax.eval_shape(lambda t: loop.start(t)[1], ts)
+    return (jnp.zeros((), jnp.int32), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), pending),
+            _zero_totals(loop))
 
 
 def keep_best(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,

@@ -3,11 +3,10 @@
 An MJX training chunk takes seconds to compile on a CPU; with the cache a second
 `mjxsuite train` or `rollout` loads the compiled program from disk instead.
 
-Where: `$XDG_CACHE_HOME/mjxsuite/jax`, i.e. `~/.cache/mjxsuite/jax` by default.
-Switch it with the environment variable `MJXSUITE_COMPILE_CACHE`: `0`/`off`/`false`
-turns it off, a path puts it there; or pass `--no-compile-cache` to a command.
-A cache directory set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins.
-Delete the directory to clear it.
+Where and how it is switched: `envs.compile_cache` (`~/.cache/mjxsuite/jax`; the environment
+variable `MJXSUITE_COMPILE_CACHE`: `0`/`off`/`false` turns it off, a path puts it there), which
+Gymnasium's entry points use too; or pass `--no-compile-cache` to a command. A cache directory
+set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins. Delete the directory to clear it.
 
 `enable()` also turns on `agents.traced_programs` in a subdirectory, which keeps the traced
 programs of `train`, `eval` and `rollout`, so a second run skips tracing too; `disable()`
@@ -28,43 +27,16 @@ import jax
 from jax import monitoring
 
 from agents import traced_programs
-
-ENV_VAR = "MJXSUITE_COMPILE_CACHE"
-_OFF = ("0", "off", "false", "no")
-
-
-def default_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "mjxsuite" / "jax"
-
-
-def configured_dir() -> Path | None:
-    """The directory `enable()` would use: None when the environment variable turns the cache off."""
-    setting = os.environ.get(ENV_VAR, "").strip()
-    if setting.lower() in _OFF:
-        return None
-    if setting and setting.lower() not in ("1", "on", "true", "yes"):
-        return Path(setting).expanduser()
-    return default_dir()
-
+from envs import compile_cache
+from envs.compile_cache import ENV_VAR, configured_dir, default_dir  # noqa: F401  (kept as this module's names)
 
 def enable(path: str | os.PathLike | None = None) -> Path | None:
-    """Turn the persistent cache on (call before the first compile); returns its directory,
-    or None when `MJXSUITE_COMPILE_CACHE` turns it off (a given `path` overrides that)."""
-    already = jax.config.jax_compilation_cache_dir
-    if already:  # set through JAX's own flag or environment variable: respect it
-        directory = Path(already)
-    else:
-        directory = Path(path).expanduser() if path is not None else configured_dir()
-        if directory is None:
-            return None
-        directory.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(directory))
-    # JAX's defaults skip programs that compile in under a second; ours are many
-    # such programs (init, evaluation, small chunks), and they add up at startup.
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
-    traced_programs.enable(directory / traced_programs.SUBDIR)
+    """Turn the persistent cache on (call before the first compile; `envs.compile_cache.enable`,
+    which Gymnasium's entry points call too) and the export cache in a subdirectory; returns the
+    directory, or None when `MJXSUITE_COMPILE_CACHE` turns it off (a given `path` overrides that)."""
+    directory = compile_cache.enable(path)
+    if directory is not None:
+        traced_programs.enable(directory / traced_programs.SUBDIR)
     return directory
 
 

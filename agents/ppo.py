@@ -466,21 +466,33 @@ class PPO:
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
         """A chunk's `training_steps_per_chunk` training steps: the train state, its training
         metrics (scalars) and the key of the evaluation that follows."""
-        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
-            return self.with_hyperparams(ts.hyperparams).train_steps(ts)
-        key, steps_key, eval_key = jax.random.split(ts.key, 3)
-        ts, stats = jax.lax.scan(lambda ts, _: self.training_step(ts), ts.replace(key=steps_key), None,
-                                 length=self.config.training_steps_per_chunk)
-        ts = ts.replace(key=key)
-        totals = jax.tree.map(jnp.sum, stats)
-        metrics = {
-            "loss": stats["total_loss"].mean(),
-            "policy_loss": stats["policy_loss"].mean(),
-            "v_loss": stats["v_loss"].mean(),
-            "entropy_loss": stats["entropy_loss"].mean(),
-            **evaluation.episode_metrics(totals),
-        }
-        return ts, metrics, eval_key
+        return evaluation.whole_chunk(self.chunk_loop(ts), ts)
+
+    # What a chunk adds up over its training steps (`chunk_loop`): their episode stats and losses.
+    CHUNK_TOTALS = {
+        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
+        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
+        "total_loss": jnp.float32, "policy_loss": jnp.float32, "v_loss": jnp.float32, "entropy_loss": jnp.float32,
+    }
+
+    def chunk_loop(self, ts: TrainState) -> evaluation.ChunkLoop:
+        """A chunk's training steps as pieces (`evaluation.ChunkLoop`), which `agents.run` may run
+        as several programs; a sweep agent's with its own values."""
+        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
+            return self.with_hyperparams(ts.hyperparams).chunk_loop(ts)
+        steps = self.config.training_steps_per_chunk
+
+        def start(ts):
+            key, steps_key, eval_key = jax.random.split(ts.key, 3)
+            return ts.replace(key=steps_key), {"key": key, "eval_key": eval_key}
+
+        def finish(ts, pending, totals):
+            metrics = {"loss": totals["total_loss"] / steps,
+                       **{name: totals[name] / steps for name in ("policy_loss", "v_loss", "entropy_loss")},
+                       **evaluation.episode_metrics(totals)}
+            return ts.replace(key=pending["key"]), metrics
+
+        return evaluation.ChunkLoop(steps, start, self.training_step, finish, self.CHUNK_TOTALS)
 
     def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
                                record: bool = True) -> tuple[TrainState, dict]:

@@ -41,6 +41,9 @@ PROCESSES_ENV = "MJXSUITE_PROCESSES"
 # `mjxsuite` as a program of this interpreter: its console script (pyproject.toml), run as the user
 # runs it, also where mjxsuite is a checkout that was never installed.
 MJXSUITE = [sys.executable, "-c", "from agents.console import run; run()"]
+# A child's `mjxsuite`: the same, ended with its parent (`signals.die_with_parent`).
+CHILD_MJXSUITE = [sys.executable, "-c",
+                  "from agents.signals import die_with_parent; die_with_parent(); from agents.console import run; run()"]
 
 
 class ProcessFailed(Exception):
@@ -144,7 +147,7 @@ def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) 
 def child_command(child: Child, options: list[str]) -> list[str]:
     """The child's `mjxsuite train`: --resume of its own directory (which start() wrote, or an
     earlier run left), on one device."""
-    return [*MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
+    return [*CHILD_MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
 
 
 def child_environment(child: Child) -> dict[str, str]:
@@ -156,6 +159,7 @@ def child_environment(child: Child) -> dict[str, str]:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     env.pop(PROCESSES_ENV, None)
     env["PYTHONUNBUFFERED"] = "1"  # its log.txt as it happens, not when a buffer fills
+    env[signals.PARENT_PID_ENV] = str(os.getpid())  # it stops and saves when this process ends, even by SIGKILL
     return env
 
 
@@ -247,12 +251,14 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
     result = RunResult(params=None, train_state=None, mean_return=mean_return,
                        solve_step=[s for e in evals for s in e["solve_step"]],
                        solve_wall_s=[s for e in evals for s in e["solve_wall_s"]],
-                       compile_s=max(e["compile_s"] for e in evals), setup_s=parts["setup"], train_s=parts["train"],
+                       compile_s=max(e["compile_s"] for e in evals), setup_s=parts["start-up"], train_s=parts["train"],
                        judge_s=parts["judge"], save_s=parts["saves"], eval_s=parts["evaluation"],
                        judges=max(e["judged_chunks"] for e in evals), chunks_done=max(e["chunks"] for e in evals),
                        devices=len(children), processes=len(children), best_seed=best_seed,
                        diverged=[d for e in evals for d in e.get("diverged_seeds", [])])
-    result.finish(start_time)  # the parent's wall time; what its processes' parts leave is "other"
+    # The parent's wall time, at least the slowest process's (every session's, `RunResult.finish`);
+    # what its processes' parts leave is "other"
+    result.finish(start_time, {"wall_s": max(0.0, slowest["wall_s"] - (time.perf_counter() - start_time))})
     summary = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "best_seed": best_seed,
                "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
                "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,

@@ -42,6 +42,32 @@ def name_of(config: Any) -> str:
     raise TypeError(f"{type(config).__name__} is not the config of an agent ({', '.join(AGENTS)})")
 
 
+# Which agents train which tasks: DQN discrete actions, the others continuous ones; only PPO has a
+# network for camera images (Brax's vision networks), so no agent trains a discrete task from pixels.
+PIXEL_AGENTS = ("ppo",)
+
+
+def misfit(agent: str, env_name: str, num_actions: int | None, action_size: int | None, pixels: bool) -> str | None:
+    """Why `agent` cannot train `env_name` (discrete actions where `num_actions` is given, camera
+    images where `pixels`), naming what can; None where it can. One message for the command line
+    and the Python API, checked before anything compiles."""
+    discrete = num_actions is not None
+    if pixels and discrete:
+        return (f"{env_name} with observation=pixels: no agent trains camera images with discrete actions "
+                f"(DQN has no network for camera images, and PPO, the one agent with one, acts on continuous "
+                f"actions only); train {env_name} from its state with --agent dqn (drop observation=pixels), or "
+                "camera images of a continuous task with --agent ppo (e.g. --env cartpole-balance-mjx)")
+    fits = ("dqn",) if discrete else ("ppo", "sac", "td3")
+    if agent not in fits:
+        kind = f"discrete ({num_actions} actions)" if discrete else f"continuous ({action_size} action values)"
+        return (f"--agent {agent} cannot train {env_name}, which is {kind}; choose --agent {' or '.join(fits)}"
+                + ("" if discrete else " (or a discrete variant of the task with dqn)"))
+    if pixels and agent not in PIXEL_AGENTS:
+        return (f"--agent {agent} has no network for camera images (--env-opt observation=pixels); train them "
+                "with --agent ppo, or drop observation=pixels")
+    return None
+
+
 def make(config: Any, env: Env, platform: str | None = None, agents: int = 1) -> Any:
     """The agent `config` configures, for `env` (`platform`, `agents`: as `agents.dqn.DQN` takes them)."""
     name = name_of(config)

@@ -7,6 +7,7 @@ run directory back."""
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import threading
 import time
@@ -21,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from agents import checkpoint, registry, run_steps, sharding, signals, traced_programs
+from agents import checkpoint, evaluation, registry, run_steps, sharding, signals, traced_programs
 from agents.device_options import default_seed_axis, init_compiler_options, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
@@ -31,6 +32,12 @@ from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
 
+# The parts of a run's wall time, named as eval.json's `wall_parts_s` and the command's last line
+# (`agents.commands.wall_line`) both say them: start-up (setup_s), compile, train, judge, saves,
+# evaluation, and other (host_s, the host's work between chunks).
+WALL_PARTS = ("start-up", "compile", "train", "judge", "saves", "evaluation", "other")
+
+
 @dataclass
 class RunResult:
     params: Any  # best parameters per seed (leading seed axis)
@@ -38,8 +45,12 @@ class RunResult:
     history: list[dict] = field(default_factory=list)  # one record per evaluation
     mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
     solve_step: list[int | None] = field(default_factory=list)
-    solve_wall_s: list[float | None] = field(default_factory=list)  # seconds from the start (compile included)
-    wall_s: float = 0.0  # train_run's whole call; the parts below add up to it
+    # Seconds from the run's start (compile included) to the judge that first reached solve_return;
+    # wall_s: the run's whole time. Both span every session of a resumed run: each checkpoint saves
+    # the clock so far (`_Run.clock_now`), which a --resume goes on from (the seconds a killed
+    # session spent after its last checkpoint are not counted: their work is done again).
+    solve_wall_s: list[float | None] = field(default_factory=list)
+    wall_s: float = 0.0  # train_run's whole call, every session's; the parts below add up to it
     compile_s: float = 0.0
     # Where the rest of wall_s went: setting up (the env, the first JAX calls, placing the agents,
     # loading a checkpoint), the training chunks, their greedy judges (`run_steps.JudgeClock`),
@@ -54,15 +65,24 @@ class RunResult:
     host_s: float = 0.0
 
     def wall_parts(self) -> dict[str, float]:
-        """wall_s's parts by name, in the order they happen."""
-        return {"setup": self.setup_s, "compile": self.compile_s, "train": self.train_s, "judge": self.judge_s,
-                "saves": self.save_s, "evaluation": self.eval_s, "host": self.host_s}
+        """wall_s's parts by name, in the order they happen: eval.json's `wall_parts_s`, under the
+        names the command's last line prints (`WALL_PARTS`)."""
+        return dict(zip(WALL_PARTS, (self.setup_s, self.compile_s, self.train_s, self.judge_s, self.save_s,
+                                     self.eval_s, self.host_s)))
 
-    def finish(self, start: float) -> None:
-        """Set wall_s to the time since `start`, and host_s to what the other parts leave of it."""
-        self.wall_s = time.perf_counter() - start
+    def finish(self, start: float, earlier: dict | None = None) -> None:
+        """Set wall_s to the time since `start` plus the earlier sessions' (`earlier`: the clock the
+        checkpoint a --resume began from saved, `checkpoint.saved_clock`), each part to its own
+        plus theirs, and host_s to what the other parts leave of wall_s."""
+        earlier = earlier or {}
+        before = earlier.get("wall_parts_s", {})
+        for name, part in zip(WALL_PARTS[:-1], ("setup_s", "compile_s", "train_s", "judge_s", "save_s", "eval_s")):
+            setattr(self, part, getattr(self, part) + before.get(name, 0.0))
+        self.earlier_wall_s = earlier.get("wall_s", 0.0)
+        self.wall_s = time.perf_counter() - start + self.earlier_wall_s
         self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.judge_s - self.save_s
                           - self.eval_s)
+    earlier_wall_s: float = 0.0  # the earlier sessions' share of wall_s (0 but after a --resume)
     interrupted: bool = False  # SIGINT or SIGTERM; like `stop_after_chunks`, leaves params None and a checkpoint
     stop_signal: str | None = None  # "SIGINT" or "SIGTERM" when interrupted
     chunks_done: int = 0  # chunks the train state has done at the end of this call
@@ -249,6 +269,10 @@ class _Run:
         self.configs = sweep_configs(config, self.sweep)
         self.agents = self.trained_seeds * len(self.configs)
         self.env = envs.make(env_name, **(env_options or {}))
+        why = registry.misfit(registry.name_of(config), env_name, self.env.num_actions, self.env.action_size,
+                              getattr(self.env, "observation_shape", None) is not None)
+        if why:  # before anything compiles: DQN's network on camera images fails inside JAX's trace
+            raise ValueError(why)
         if judge_every is None:  # from the config and the time limit (`run_steps.judge_every`), saved in config.json
             judge_every = run_steps.judge_every(config, getattr(self.env, "episode_length", None) or 1000)
         self.judge_clock = run_steps.JudgeClock(judge_every, config.num_chunks - 1)
@@ -281,6 +305,7 @@ class _Run:
         `envs.mjx_warp.CompileRules` (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
         self.learner = registry.make(self.config, self.env, agents=self.agents // self.placement.count)
         self.rules = CompileRules(runs_warp(self.learner.env))
+        self.parts = run_steps.chunk_parts(self.config) if hasattr(self.learner, "chunk_loop") else 1
         if progress and self.writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
             builds = " (MuJoCo Warp also builds its kernels once per machine)" if self.rules.on_warp else ""
             print(f"{self.env_name}: compiling{builds}...", file=sys.stderr, flush=True)
@@ -324,8 +349,10 @@ class _Run:
         init_args, self.eval_keys = placement.abstract(jax.eval_shape(self._run_inputs))
         self.chunks_done, init_program = 0, None
         self.compile_start = time.perf_counter()
+        self.earlier = {}  # the clock of the sessions before this one (`RunResult.finish`)
         if self.resume and checkpoint.has_state(self.out):
             ts, self.chunks_done = checkpoint.load_state(self.out, self.env_name, jax.eval_shape(init, *init_args))
+            self.earlier = checkpoint.saved_clock(self.out)
             self.ts = placement.put(ts)  # saved from any number of devices, split over this run's
             self.compile_start = time.perf_counter()  # compile_s: the chunk's compile alone
         else:  # a run killed before its first checkpoint resumes from the start, as it began
@@ -348,6 +375,9 @@ class _Run:
         if self.chunks_done >= self.config.num_chunks:
             return None, None
         learner, ts, per_device = self.learner, self.ts, self.agents // self.placement.count
+        if self.parts > 1:  # a chunk in parts (`_in_parts`): the first part's state is kept, so none is donated
+            return self._lower_parts(per_device, seed_axis, after_traces), self._lower_judge(
+                per_device, seed_axis, record_episode)
         train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
         judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
         if self.placement.mesh is None:
@@ -366,6 +396,33 @@ class _Run:
                                        "train", after=after_traces)
         return train_program, traced_programs.LoweredProgram(
             jax.jit(spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
+
+    def _lower_parts(self, per_device: int, seed_axis: str, after_traces) -> Future:
+        """The program of one part of a chunk (`evaluation.chunk_part`), compiling on another thread,
+        and the carry its first part starts from."""
+        learner, ts, parts = self.learner, self.ts, self.parts
+        part_fn = seed_batched(partial(_train_part, learner, parts), per_device, seed_axis)
+        self.carry_shapes = jax.eval_shape(jax.vmap(partial(evaluation.part_carry, learner.chunk_loop)), ts)
+        carry = self.placement.abstract(self.carry_shapes)
+        if self.placement.mesh is None:
+            lowered = lower_cached(f"{type(learner).__name__}.chunk_part of {parts} over seeds by {seed_axis}",
+                                   part_fn, (ts, carry), learner, self.agents, self.env_name, self.env_options)
+            return _in_background(lowered.compile, "train", after=after_traces)
+        options = training_compiler_options(env=learner.env)
+        return _in_background(partial(jax.jit(self.placement.spread(part_fn)).lower(ts, carry).compile, options),
+                              "train", after=after_traces)
+
+    def _lower_judge(self, per_device: int, seed_axis: str, record_episode: bool) -> traced_programs.LoweredProgram:
+        """The judge's program, lowered (`_lower_chunk` for a chunk in parts)."""
+        learner, ts = self.learner, self.ts
+        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
+        if self.placement.mesh is None:
+            judged = (f"{type(learner).__name__}.evaluate_and_keep_best over seeds by {seed_axis}"
+                      + ("" if record_episode else ", no episode recorded"))
+            return lower_cached(judged, judge_fn, (ts, ts.key), learner, self.agents, self.env_name,
+                                self.env_options, donate=True)
+        return traced_programs.LoweredProgram(jax.jit(self.placement.spread(judge_fn), donate_argnums=0).lower(
+            ts, ts.key), training_compiler_options(env=learner.env))
 
     def lower_evaluation(self, params: Any, keys: Any) -> Any:
         """The final evaluation, lowered for these shapes."""
@@ -398,7 +455,8 @@ class _Run:
         flight and its state unlogged)."""
         config = self.config
         self.result = RunResult(params=None, train_state=self.ts, compile_s=self.compile_s,
-                                solve_wall_s=[None] * self.agents, devices=self.placement.count,
+                                solve_wall_s=list(self.earlier.get("solve_wall_s") or [None] * self.agents),
+                                devices=self.placement.count,
                                 setup_s=self.compile_start - self.start, total_chunks=config.num_chunks)
         prefill = getattr(config, "prefill_steps", 0)  # SAC's and TD3's first fill of the replay, in `init`
         self.bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
@@ -408,7 +466,8 @@ class _Run:
         self.clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(self.ts)))  # the first save, before one is timed
         self.last, self.solved_early, self.overflow_told = self.chunks_done, False, False
         self.on_chunk, self.stop_when_solved = on_chunk, stop_when_solved
-        self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching
+        self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching and self.parts == 1
+        self.bar_ahead = 0  # env steps the bar moved within the chunk under way (`_in_parts`)
         self.stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
         ahead = None  # the next chunk, `_dispatched` early
         try:
@@ -421,6 +480,9 @@ class _Run:
                         break
                     ahead = self._dispatched(self.ts)
                 (self.ts, metrics, eval_key), tick = ahead
+                if metrics is None:  # a signal between the parts of a chunk (`_in_parts`)
+                    self.result.interrupted = True
+                    break
                 ahead = self._after_chunk(index, metrics, eval_key, tick)
                 if self.solved_early:
                     break
@@ -436,7 +498,23 @@ class _Run:
     def _dispatched(self, ts):
         """The next chunk's outputs and when it began (a dispatch can return only once done)."""
         began = time.perf_counter()
-        return self.train_program(ts), began
+        return (self.train_program(ts) if self.parts == 1 else self._in_parts(ts)), began
+
+    def _in_parts(self, ts):
+        """A chunk as `self.parts` programs (`evaluation.chunk_part`), with the result of one: the bar
+        moves after each part, and a signal between parts drops the chunk under way, returning
+        (its start state, None, None): the state of the chunks done, which the run then saves."""
+        carry, start = self.placement.put(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.carry_shapes)), ts
+        steps = self.config.eval_every // self.parts
+        for part in range(self.parts):
+            ts, carry, metrics, eval_key = self.train_program(ts, carry)
+            if part < self.parts - 1:
+                jax.block_until_ready(carry)
+                self.bar.update(steps)
+                self.bar_ahead += steps
+                if self._signalled():
+                    return start, None, None
+        return ts, metrics, eval_key
 
     def _save_due(self, done: int) -> bool:
         """A periodic save; a run's last chunk is the final save's (`finish`). Process 0's clock."""
@@ -481,7 +559,7 @@ class _Run:
         self.overflow_told = _check_overflow(self.env, record, config.eval_every, self.bar, self.overflow_told)
         _check_diverged(record, result.diverged, self.first, self.bar)
         result.history.append(record)
-        now = time.perf_counter() - self.start
+        now = time.perf_counter() - self.start + self.earlier.get("wall_s", 0.0)
         for i, solve in enumerate(np.atleast_1d(record.get("eval_return", []))):
             if config.solve_return is not None and solve >= config.solve_return and result.solve_wall_s[i] is None:
                 result.solve_wall_s[i] = now
@@ -489,16 +567,25 @@ class _Run:
             run_steps.append_metrics(self.out, record)
         if self.on_chunk is not None:
             self.on_chunk(index, self.ts, {**record, "eval_episode": eval_episode})
-        run_steps.show(self.bar, config.eval_every, record)
+        run_steps.show(self.bar, config.eval_every - self.bar_ahead, record)
+        self.bar_ahead = 0
         self.solved_early = self.stop_when_solved and judging and None not in result.solve_wall_s
 
     def _checkpoint(self, state: Any, done: int, final: bool = False) -> None:
         """A save of `state` after `done` chunks, timed on the save clock."""
         save_start = time.perf_counter()
         save(self.saves, self.out, self.env_name, self.placement, state, done, final=final,
-             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside)
+             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside,
+             clock=self.clock_now())
         self.clock.saved(done, save_start, self.saves.written_s)
         self.result.save_s += time.perf_counter() - save_start
+
+    def clock_now(self) -> dict:
+        """The run's clock so far, every session's: wall_s, its parts and solve_wall_s, saved with
+        each checkpoint (`checkpoint.saved_clock`) for a --resume to go on from."""
+        now = dataclasses.replace(self.result, judge_s=self.judge_clock.judge_s)
+        now.finish(self.start, self.earlier)
+        return {"wall_s": now.wall_s, "wall_parts_s": now.wall_parts(), "solve_wall_s": now.solve_wall_s}
 
     # ---- the end -------------------------------------------------------------------------------
     def _evaluated(self):
@@ -535,8 +622,9 @@ class _Run:
         result.stop_signal = self.stop.name or ("SIGINT" if result.interrupted else None)
         if result.interrupted or not finished:  # checkpoint saved, no final eval
             result.save_s += _waited(self.saves)
-            result.finish(self.start)
+            result.finish(self.start, self.earlier)
             return result
+        self.stop.finishing("its final evaluation and writes eval.json")  # a signal now says so, and stops nothing
         eval_start = time.perf_counter()
         placement = self.placement
         result.params = ts.best_params if jax.process_count() == 1 else placement.to_host(ts.best_params)
@@ -548,7 +636,7 @@ class _Run:
                                                  result.mean_return, self.seed, self.first, every_seed=every_seed)
         result.eval_s = eval_s + time.perf_counter() - eval_start
         result.save_s += _waited(self.saves)
-        result.finish(self.start)
+        result.finish(self.start, self.earlier)
         if self.writer:
             run_steps.write_eval(self.out, self._summary(tie_break))
         return result
@@ -558,7 +646,7 @@ class _Run:
         result = self.result
         return {"agent": self.agent, "env": self.env_name, "seeds": self.trained_seeds, "best_seed": result.best_seed,
                 "mean_return": result.mean_return, "solve_step": result.solve_step,
-                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": self.compile_s,
+                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": result.compile_s,
                 "devices": self.placement.count, "wall_parts_s": result.wall_parts(),
                 "judged_chunks": result.judges, "chunks": result.chunks_done,
                 "tie_break_return": [tie_break.get(self.first + i) for i in range(self.agents)],
@@ -577,6 +665,13 @@ def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
     still says where the run stands (the logger's timeline, metrics.jsonl)."""
     ts, metrics, eval_key = learner.train_steps(ts)
     return ts, {**metrics, "env_steps": ts.env_steps}, eval_key
+
+
+def _train_part(learner: Any, parts: int, ts: Any, carry: tuple) -> tuple:
+    """One of `parts` parts of a chunk (`evaluation.chunk_part`), its metrics with the env steps
+    done (`_train_steps`)."""
+    ts, carry, metrics, eval_key = evaluation.chunk_part(learner.chunk_loop(ts), parts, ts, carry)
+    return ts, carry, {**metrics, "env_steps": ts.env_steps}, eval_key
 
 
 def _check_diverged(record: dict, diverged: list[int], first: int, bar) -> None:
@@ -685,7 +780,8 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 
 
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
-         chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True) -> None:
+         chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True,
+         clock: dict | None = None) -> None:
     """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
 
     The files are written on another thread while the run goes on (the next chunks, or the final
@@ -697,17 +793,18 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
     device its copy to the host is made on the writing thread too (arrays split over devices are
     copied here: never fetched by two threads at once), unless `copy_beside` is False (an env on
     MuJoCo Warp: `envs.mjx_warp.CompileRules`, docs/mjx.md "MuJoCo Warp and CUDA graphs"). A
-    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`)."""
+    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`).
+    `clock`: the run's clock at the save (`_Run.clock_now`), saved beside the state."""
     if finished:
         ts = checkpoint.without_replay(ts)
     if final and copy_beside and placement.mesh is None and jax.process_count() == 1:
-        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished)
+        saves.save(out, env_name, partial(placement.to_host, ts), chunks_done, finished, clock)
         return
     host = placement.to_host(ts)
     if sharding.is_writer():
         if placement.devices[0].platform == "cpu":
             host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
-        saves.save(out, env_name, host, chunks_done, finished)
+        saves.save(out, env_name, host, chunks_done, finished, clock)
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:
@@ -725,11 +822,19 @@ def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, e
 def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -> Any:
     """One seed's parameters: `seed_index`, or the run's best seed (`checkpoint.best_seed`)."""
     seeds = jax.tree.leaves(params)[0].shape[0]
-    if seed_index is None:
-        seed_index = checkpoint.best_seed(out_dir)
+    seed_index = checkpoint.best_seed(out_dir) if seed_index is None else checked_seed_index(seed_index)
     if not 0 <= seed_index < seeds:
         raise ValueError(f"{out_dir} holds {seeds} seeds; seed index {seed_index} is out of range")
     return jax.tree.map(lambda x: x[seed_index], params)
+
+
+def checked_seed_index(seed_index: Any) -> int:
+    """`seed_index` as an int, refused with a clear error unless it is a whole number (a str or a
+    float would fail deep inside numpy's indexing)."""
+    if isinstance(seed_index, bool) or not isinstance(seed_index, (int, np.integer)):
+        raise TypeError(f"seed_index must be an int (a seed's index in the run, 0 for the first) or None for the "
+                        f"run's best seed; got {seed_index!r} ({type(seed_index).__name__})")
+    return int(seed_index)
 
 
 def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
@@ -753,9 +858,11 @@ def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
         raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
     bad = ~np.isfinite(obs)
     if bad.any():
-        where = np.argwhere(bad)[:3].tolist()
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        where = (f"first in observation {first[0]} of the batch, at value {first[1]}" if len(first) == 2
+                 else f"first at value {first[-1]}" if len(first) == 1 else f"first at index {first}")
         raise ValueError(f"the policy of {env_name} got a non-finite observation ({int(bad.sum())} NaN or inf "
-                         f"values, first at index {where}); check the env that produced it (NaN physics ends an "
+                         f"values, {where}: {obs[first]}); check the env that produced it (NaN physics ends an "
                          "episode in mjxsuite's own envs) before acting on it")
     return obs
 
@@ -779,6 +886,8 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused;
     a run trained on camera images (`observation="pixels"`) takes uint8 frames as its env gives them.
     """
+    if seed_index is not None:
+        checked_seed_index(seed_index)  # before anything loads
     env_name, env, agent, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
     if env.num_actions is not None:

@@ -192,6 +192,27 @@ class JudgeClock:
         self.judge_s += seconds
 
 
+# A chunk of more env steps (per agent) than PART_ENV_STEPS runs as several programs, each of at
+# most that many where its iterations split evenly (`chunk_parts`): on a CPU a GPU recipe's chunk
+# is minutes to hours of work, and the bar and a Ctrl-C wait for the program under way to end.
+# The parts end as the whole chunk does, to the bit (`agents.evaluation.chunk_part`).
+PART_ENV_STEPS = 100_000
+
+
+def chunk_parts(config) -> int:
+    """How many programs each chunk of a run of `config` runs as: the fewest that split its
+    iterations (PPO's `training_steps_per_chunk`) evenly into parts of at most PART_ENV_STEPS env
+    steps, or one per iteration where none does; 1 for an agent whose chunk does not split (DQN's,
+    SAC's and TD3's chunks are `eval_every` env steps, short by their recipes). A function of the
+    config alone, and the results do not depend on it."""
+    iterations = getattr(config, "training_steps_per_chunk", None)
+    if iterations is None:
+        return 1
+    per_iteration = config.eval_every // iterations
+    return next((parts for parts in range(1, iterations + 1)
+                 if iterations % parts == 0 and iterations // parts * per_iteration <= PART_ENV_STEPS), iterations)
+
+
 def progress_bar(total: int, initial: int, desc: str, enabled: bool = True) -> tqdm:
     """The progress bar over env steps (per seed) a run shows."""
     return tqdm(total=total, initial=initial, unit="step", disable=not enabled, desc=desc, dynamic_ncols=True)

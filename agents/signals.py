@@ -24,6 +24,35 @@ import signal
 import threading
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# The pid of the `agents.processes` parent that started this process (`die_with_parent`).
+PARENT_PID_ENV = "MJXSUITE_PARENT_PID"
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent() -> None:
+    """In a child of `agents.processes` (PARENT_PID_ENV set): a SIGTERM when the parent ends,
+    however it ends (SIGKILL included), so that the child stops and saves as on the parent's own
+    SIGTERM instead of training on, orphaned. Linux's prctl(PR_SET_PDEATHSIG) where there is one;
+    elsewhere a thread that watches the parent's pid. A parent gone before this ran counts too."""
+    parent = os.environ.get(PARENT_PID_ENV)
+    if not parent:
+        return
+    try:
+        import ctypes
+
+        watched = ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM) != 0
+    except (OSError, AttributeError):  # no prctl: not Linux
+        watched = True
+    if os.getppid() != int(parent):
+        os.kill(os.getpid(), signal.SIGTERM)
+    elif watched:
+        threading.Thread(target=_watch_parent, args=(int(parent),), daemon=True, name="mjxsuite-parent").start()
+
+
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        threading.Event().wait(1.0)
+    os.kill(os.getpid(), signal.SIGTERM)
 
 
 def exit_status(signum: int) -> int:
@@ -102,16 +131,30 @@ class _Catching:
 
 class StopSignals(_Catching):
     """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
-    raising; a second one exits the process at once with `exit_status`."""
+    raising; a second one exits the process at once with `exit_status`. Once the run calls
+    `finishing`, nothing stops it any more but a second signal, and a first one says so."""
+
+    finishing_what: str | None = None
+
+    def finishing(self, what: str) -> None:
+        """From here the run ends `what` (e.g. its final evaluation) whatever a first signal asks,
+        and that signal's message says so instead of announcing a stop."""
+        self.finishing_what = what
 
     def _handle(self, signum, frame) -> None:
+        name = signal.Signals(signum).name
         if self.requested is not None:
             # Nothing else runs here: the process may be inside an XLA or Warp call.
-            os.write(2, f"\n{signal.Signals(signum).name} again: exiting now, without saving\n".encode())
+            os.write(2, f"\n{name} again: exiting now, without saving\n".encode())
             os._exit(exit_status(signum))
         self.requested = signum
         # os.write, not print: print is not reentrant, and the signal may arrive inside a print.
-        os.write(2, f"\n{signal.Signals(signum).name}: stopping after the current step of work and saving "
+        if self.finishing_what is not None:
+            os.write(2, f"\n{name}: the run is past its last checkpoint and finishes {self.finishing_what} "
+                        f"(send it again to exit now: the checkpoint holds every chunk, and --resume evaluates "
+                        "them)\n".encode())
+            return
+        os.write(2, f"\n{name}: stopping after the current step of work and saving "
                     "(send it again to exit now, without saving)\n".encode())
 
 

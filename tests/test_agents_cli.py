@@ -272,16 +272,42 @@ def test_sweeps_name_another_agents_field_and_refuse_repeated_values(capsys):
     assert "lists 0.001 more than once; give each value once" in capsys.readouterr().err
 
 
-def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts(capsys):
+def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts_naming_the_cpu_preset(capsys):
     from agents import commands
 
     hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))
     commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=[])
     said = capsys.readouterr().err
-    assert f"trains {hopper.total_steps:,} env steps per seed" in said and "--steps" in said
+    cpu = PPOConfig(**brax_defaults.settings("hopper", "ppo", "cpu"))
+    assert (f"hopper's PPO recipe trains {hopper.total_steps / 1e6:.1f}M env steps, sized for a GPU: on this CPU "
+            f"that takes hours; --preset cpu trains a smaller one ({cpu.total_steps:,} env steps)") in said
     commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
     commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("agent", ["ppo", "sac", "td3"])
+def test_every_gymnasium_task_has_a_cpu_preset_that_keeps_the_tasks_own_fields(agent):
+    """`--preset cpu`: the task's row resized for a CPU (envs, batches, networks, steps), its reward
+    scaling, discount, critic support and solve_return kept; nothing to warn about on a CPU."""
+    from agents import commands, registry
+
+    for task in brax_defaults.GYMNASIUM_TASKS:
+        assert "cpu" in brax_defaults.presets(task, agent)
+        config = commands.agent_config(task, agent, "cpu", {}, None, None)
+        row = brax_defaults.settings(task, agent)
+        assert brax_defaults.gpu_sized_note(task, agent, config.total_steps, 1) is None, task
+        base = registry.config_class(agent)()
+        for field in ("reward_scaling", "discounting", "solve_return", "v_min", "v_max", "entropy_cost"):
+            if field in row:
+                assert getattr(config, field) == row[field], (task, field)
+        if row.get("num_timesteps", 0) > brax_defaults.CPU_SIZES[agent]["num_timesteps"]:
+            assert config.num_envs == brax_defaults.CPU_SIZES[agent]["num_envs"] <= 64, task
+            for field in brax_defaults.CPU_DROPPED:
+                if hasattr(base, field):
+                    assert getattr(config, field) == getattr(base, field), (task, field)
+    hopper = commands.agent_config("hopper", "ppo", "cpu", {"num_envs": "32"}, None, None)  # options still apply
+    assert hopper.num_envs == 32 and hopper.num_evals == 21 and hopper.discounting == 0.99
 
 
 def test_every_agent_says_how_it_rounded_the_steps():

@@ -411,6 +411,25 @@ def test_what_a_stopped_run_says_is_what_it_saved(tmp_path, capsys, monkeypatch)
     assert not (tmp_path / "b" / checkpoint.CONFIG_FILE).exists()
 
 
+def test_a_signal_during_the_final_evaluation_says_the_run_finishes_and_it_does(tmp_path, monkeypatch, capfd):
+    """Case 35: past the signal check before the final evaluation, a first signal stops nothing:
+    its message says the run finishes (not "stopping ... and saving"), and the run writes eval.json."""
+    from agents import run as run_module
+
+    real = run_module.break_ties
+
+    def signalled(*args, **kwargs):  # inside the final evaluation's tie-break
+        os.kill(os.getpid(), signal.SIGINT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "break_ties", signalled)
+    result = run_module.train_run("cartpole", CONFIG, out_dir=tmp_path / "run", progress=False)
+    said = capfd.readouterr().err
+    assert "SIGINT: the run is past its last checkpoint and finishes its final evaluation and writes eval.json" in said
+    assert "stopping" not in said
+    assert not result.interrupted and (tmp_path / "run" / "eval.json").is_file()
+
+
 def test_a_second_signal_exits_at_once(tmp_path):
     code = ("import os, signal, time\nfrom agents.signals import StopSignals\nwith StopSignals() as stop:\n"
             "    os.kill(os.getpid(), signal.SIGINT)\n    assert stop.requested == signal.SIGINT\n"
@@ -450,8 +469,20 @@ def test_the_policy_refuses_non_finite_observations(reference):
 
     policy = load_policy(reference)
     assert policy(np.zeros(4)).shape == ()
-    with pytest.raises(ValueError, match=r"non-finite observation \(1 NaN or inf values, first at index \[\[1, 2\]\]\)"):
+    with pytest.raises(ValueError, match=r"non-finite observation \(1 NaN or inf values, first in observation 1 of "
+                                         r"the batch, at value 2: nan\)"):
         policy(np.array([[0, 0, 0, 0], [0, 0, np.nan, 0]]))
+    with pytest.raises(ValueError, match=r"\(1 NaN or inf values, first at value 3: inf\)"):  # one observation (#5)
+        policy(np.array([0, 0, 0, np.inf]))
+
+
+@pytest.mark.parametrize("seed_index", ["1", 1.0, True])
+def test_a_seed_index_of_the_wrong_type_is_a_clear_error(reference, seed_index):
+    """Case #4: load_policy(DIR, seed_index="1") named the type, not numpy's raw comparison error."""
+    from agents import load_policy
+
+    with pytest.raises(TypeError, match=rf"seed_index must be an int .*; got {seed_index!r}"):
+        load_policy(reference, seed_index=seed_index)
 
 
 # ---- portable run directories (issue #42): a run trained with impl="warp" acts anywhere -------------

@@ -97,6 +97,12 @@ def test_gymnasium_keyword_arguments_and_time_limit_reach_the_task():
 def test_bad_options_are_clear_errors():
     with pytest.raises(ValueError, match=r"autoreset_mode=.* is not supported; pass gymnasium.vector.AutoresetMode"):
         gymnasium.make_vec("mjxsuite/CartPole-v1", num_envs=2, autoreset_mode=AutoresetMode.DISABLED)
+    with pytest.raises(ValueError, match=r"autoreset_mode='same' is not supported"):  # what was passed (#82)
+        gymnasium.make_vec("mjxsuite/CartPole-v1", num_envs=2, autoreset_mode="same")
+    for make in (gymnasium.make, lambda *a, **k: gymnasium.make_vec(*a, num_envs=2, **k)):  # v5's frame_skip (#95)
+        with pytest.raises(ValueError, match=r"env 'hopper' through Gymnasium: frame_skip=5 is not taken\. .*"
+                                             r"envs\.options\('hopper'\) lists them"):
+            make("mjxsuite/Hopper-v5", frame_skip=5)
     with pytest.raises(ValueError, match=r"pass max_episode_steps=\.\.\., not episode_length"):
         gymnasium.make_vec("mjxsuite/CartPole-v1", num_envs=2, episode_length=5)
     with pytest.raises(ValueError, match=r"unknown option\(s\) \['gravitee'\] for env 'cartpole'"):

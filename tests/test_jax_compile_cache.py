@@ -10,7 +10,7 @@ import pytest
 
 from agents.cli import main as cli_main
 from agents.dqn import DQNConfig
-from agents.jax_compile_cache import CompileCounter, configured_dir, default_dir
+from agents.jax_compile_cache import ENV_VAR, CompileCounter, configured_dir, default_dir
 from agents.run import train_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -97,3 +97,28 @@ def test_training_chunks_compile_once(tmp_path):
     # one program for the chunk's training steps, one for its evaluation (the judge)
     assert counter.compiled.count("jit(evaluate)") == 1 and counter.compiled.count("jit(single)") == 2
     assert counter.compiles == len(counter.compiled) >= 4  # the counter does see compiles (init, chunk's two, final evaluation)
+
+
+GYMNASIUM_PROCESS = """
+import gymnasium, jax
+vec = gymnasium.make_vec("mjxsuite/CartPole-v1", num_envs=2)
+vec.reset(seed=0)
+vec.step(vec.action_space.sample())
+print(jax.config.jax_compilation_cache_dir)
+"""
+
+
+@pytest.mark.parametrize("setting", ["a path", "0"])
+def test_gymnasiums_entry_points_turn_the_compile_cache_on_as_the_command_does(tmp_path, setting):
+    """Case 94: a Gymnasium env made in a new process compiled from scratch every time; its entry
+    points now turn on the persistent cache (`envs.compile_cache`), with the command's switch."""
+    cache = tmp_path / "cache"
+    environ = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    environ[ENV_VAR] = str(cache) if setting == "a path" else setting
+    done = subprocess.run([sys.executable, "-c", GYMNASIUM_PROCESS], env=environ, cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    if setting == "a path":
+        assert done.stdout.split()[-1] == str(cache) and any(cache.iterdir())  # the env's programs were written
+    else:
+        assert done.stdout.split()[-1] == "None" and not cache.exists()

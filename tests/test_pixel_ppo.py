@@ -89,6 +89,20 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
         _choose_agent(TASK, "sac", PIXELS)
 
 
+def test_pixels_on_a_discrete_task_get_one_truthful_message_from_every_agent_and_the_api():
+    """Cases 68/69: DQN said "use ppo" and PPO "use dqn"; through the Python API DQN failed inside
+    JAX. Every way in now says no agent trains that combination, and what does, before any compile."""
+    from agents import DQNConfig, PPOConfig, train_run
+
+    message = r"cartpole-mjx with observation=pixels: no agent trains camera images with discrete actions"
+    for agent in (None, "dqn", "ppo", "sac"):
+        with pytest.raises(UsageError, match=message):
+            _choose_agent("cartpole-mjx", agent, PIXELS)
+    for config in (DQNConfig(), PPOConfig()):
+        with pytest.raises(ValueError, match=message + r".*--agent dqn \(drop observation=pixels\)"):
+            train_run("cartpole-mjx", config, env_options=PIXELS, progress=False)
+
+
 def test_pixel_runs_stack_frames_as_playground():
     """A pixel run of the cart-pole sees the last 3 frames, 4 task steps apart, by default: one
     frame has no velocities, and frames one 10 ms step apart barely differ (no run balanced from

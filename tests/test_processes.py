@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -148,6 +149,47 @@ def test_ctrl_c_stops_every_process_with_a_checkpoint_and_resume_ends_as_one_pro
     whole = run.parent / "whole"
     assert cli_main(["train", *DQN_ARGS, *steps, "--out", str(whole)]) == 0
     assert same_params(load_agent(run)[3], load_agent(whole)[3])
+
+
+def _alive(pid: int) -> bool:
+    try:
+        status = open(f"/proc/{pid}/status").read()
+    except FileNotFoundError:
+        return False
+    return "\nState:\tZ" not in status  # a zombie has ended
+
+
+def _children_of(pid: int) -> list[int]:
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:  # field 4, the parent's pid
+                found.append(int(stat.parent.name))
+        except (OSError, ValueError, IndexError):
+            pass
+    return found
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_children_stop_when_their_parent_is_killed(tmp_path):
+    """Case 54: SIGKILL of a --processes parent used to leave its children training. Each child
+    gets SIGTERM when its parent ends (`signals.die_with_parent`): it stops, as on a Ctrl-C. Killed
+    as soon as both started, while they import (a child in training stops the same way, saved)."""
+    run = tmp_path / "run"
+    parent = subprocess.Popen([*CLI, "train", *DQN_ARGS, "--steps", "200000", "--out", str(run), "--processes", "2"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while len(children := _children_of(parent.pid)) < 2:
+        assert parent.poll() is None and time.monotonic() < deadline
+        time.sleep(0.05)
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 120
+    while any(map(_alive, children)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(map(_alive, children))  # unsignalled, each would train its 200,000 steps for minutes
+    for k in range(2):  # ended by the signal (before or after their handlers), not by an error
+        assert "Traceback" not in (run / processes.PROCESSES_DIR / str(k) / processes.LOG_FILE).read_text()
 
 
 @pytest.mark.slow

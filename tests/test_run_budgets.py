@@ -2,8 +2,10 @@
 end with the greedy judge, a function of the run's config alone (never of the clock), saved in
 config.json and kept by a resumed run."""
 
+import dataclasses
 import json
 import os
+import re
 import subprocess
 import threading
 import time
@@ -12,8 +14,10 @@ import jax
 import numpy as np
 import pytest
 
-from agents import DQNConfig, PPOConfig, SACConfig, run_steps, train_run
+from agents import DQNConfig, PPOConfig, SACConfig, checkpoint, run_steps, train_run
+from agents.cli import wall_line
 from agents.processes import MJXSUITE
+from agents.run import WALL_PARTS
 
 SMALL = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                   eval_episodes=4, hidden=(16,))
@@ -57,6 +61,8 @@ def test_a_run_judges_its_configs_cadence_and_saves_it(tmp_path):
     summary = json.loads((tmp_path / "eval.json").read_text())
     assert summary["judged_chunks"] == len(judged) and summary["chunks"] == SMALL.num_chunks
     assert sum(summary["wall_parts_s"].values()) == pytest.approx(summary["wall_s"], abs=1e-6)
+    printed = re.findall(r"([a-z-]+) [0-9.]+", wall_line(result).split("=", 1)[1])  # case 147: one set of names
+    assert list(summary["wall_parts_s"]) == printed == list(WALL_PARTS)
     pinned = train_run("cartpole", SMALL, progress=False, judge_every=1)  # judging changes no training
     jax.tree.map(np.testing.assert_array_equal, result.train_state.params, pinned.train_state.params)
 
@@ -86,6 +92,25 @@ def test_a_resumed_run_keeps_its_runs_cadence_and_ends_as_the_uninterrupted_one(
     assert _judged_chunks(tmp_path / "part") == _judged_chunks(tmp_path / "whole")
     with pytest.raises(ValueError, match="judge_every"):
         train_run("cartpole", SMALL, out_dir=tmp_path / "part", progress=False, resume=True, judge_every=1)
+
+
+def test_wall_s_and_solve_wall_s_span_every_session_of_a_resumed_run(tmp_path):
+    """Cases 28 and 56: after a --resume, eval.json's wall_s, its parts and solve_wall_s count the
+    sessions before it too (the clock each checkpoint saves), not the resumed session alone."""
+    config = dataclasses.replace(SMALL, solve_return=1.0)  # every CartPole policy reaches it at its first judge
+    out = tmp_path / "run"
+    slow = lambda *_: time.sleep(0.3)  # noqa: E731  a first session of at least 3 x 0.3 s
+    train_run("cartpole", config, out_dir=out, progress=False, judge_every=1, stop_after_chunks=3, on_chunk=slow)
+    first = checkpoint.saved_clock(out)
+    assert first["wall_s"] >= 0.9 and all(s is not None and s < first["wall_s"] for s in first["solve_wall_s"])
+    resumed = train_run("cartpole", config, out_dir=out, progress=False, resume=True)
+    summary = json.loads((out / "eval.json").read_text())
+    assert summary["solve_wall_s"] == first["solve_wall_s"]  # reached in the first session, timed there
+    assert summary["wall_s"] == resumed.wall_s > first["wall_s"] + resumed.train_s - first["wall_parts_s"]["train"]
+    assert resumed.earlier_wall_s == first["wall_s"]
+    assert sum(summary["wall_parts_s"].values()) == pytest.approx(summary["wall_s"], abs=1e-6)
+    for name in ("start-up", "compile", "train", "judge"):
+        assert summary["wall_parts_s"][name] >= first["wall_parts_s"][name] > 0, name
 
 
 def _cli_run(out, *flags, cache=None):
@@ -235,3 +260,70 @@ def test_a_run_directory_trains_one_run_at_a_time(tmp_path):
     held.release()
     train_run("cartpole", SMALL, out_dir=out, progress=False, stop_after_chunks=1)
     run_steps.RunDirLock(out).release()  # the run released it when it returned
+
+
+# ---- a long chunk in parts (case 118): the bar moves and a signal acts between them -------------------
+PARTED = PPOConfig(num_timesteps=2 * 4 * 256, num_envs=8, batch_size=8, num_minibatches=4, unroll_length=8,
+                   num_updates_per_batch=1, num_evals=3, num_eval_envs=4, policy_hidden=(16,), value_hidden=(16,))
+
+
+def test_how_many_parts_a_chunk_runs_as_is_a_function_of_the_config():
+    from agents import brax_defaults
+
+    assert PARTED.training_steps_per_chunk == 4 and run_steps.chunk_parts(PARTED) == 1  # 1,024 steps: one part
+    hopper = PPOConfig(**brax_defaults.settings("hopper", "ppo"))  # 983,040 env steps per training step
+    assert run_steps.chunk_parts(hopper) == hopper.training_steps_per_chunk > 1  # one training step a part
+    cpu = PPOConfig(**brax_defaults.settings("hopper", "ppo", "cpu"))
+    parts = run_steps.chunk_parts(cpu)
+    assert cpu.training_steps_per_chunk % parts == 0 and cpu.eval_every // parts <= run_steps.PART_ENV_STEPS
+    assert run_steps.chunk_parts(SMALL) == run_steps.chunk_parts(SACConfig()) == 1
+
+
+def test_a_chunk_in_parts_ends_as_the_whole_chunk_to_the_bit():
+    """`evaluation.chunk_part` run in turn gives `train_steps`' train state, metrics and evaluation key."""
+    import envs
+    from agents import evaluation
+    from agents.ppo import PPO
+
+    ppo = PPO(PARTED, envs.make("pendulum-mjx"))
+    ts = ppo.init(jax.random.PRNGKey(0))
+    whole = jax.jit(ppo.train_steps)(ts)
+    part = jax.jit(lambda ts, carry: evaluation.chunk_part(ppo.chunk_loop(ts), 4, ts, carry))
+    carry = evaluation.part_carry(ppo.chunk_loop, ts)
+    for _ in range(4):
+        ts, carry, metrics, eval_key = part(ts, carry)
+    jax.tree.map(np.testing.assert_array_equal, (ts, metrics, eval_key), whole)
+
+
+@pytest.mark.slow
+def test_a_signal_between_parts_stops_the_run_and_resume_ends_as_the_whole_run(tmp_path, monkeypatch):
+    """With chunks in parts, SIGINT is acted on after the part under way: the chunk under way is
+    dropped, the checkpoint holds the chunks done, and --resume ends as an uninterrupted run of
+    whole chunks, to the bit."""
+    import signal
+
+    from agents import run as run_module
+
+    whole = train_run("pendulum-mjx", PARTED, out_dir=tmp_path / "whole", progress=False)
+    monkeypatch.setattr(run_steps, "PART_ENV_STEPS", 256)  # each chunk in 4 parts
+    real_bar = run_steps.progress_bar
+
+    def bar(*args, **kwargs):
+        made = real_bar(*args, **kwargs)
+        update = made.update
+
+        def signalled(steps):
+            update(steps)
+            if made.n == PARTED.eval_every + 256:  # chunk 1's first part
+                os.kill(os.getpid(), signal.SIGINT)
+        made.update = signalled
+        return made
+
+    monkeypatch.setattr(run_module.run_steps, "progress_bar", bar)
+    out = tmp_path / "parts"
+    stopped = train_run("pendulum-mjx", PARTED, out_dir=out, progress=True)
+    assert stopped.interrupted and stopped.chunks_done == stopped.saved_chunks == 1
+    monkeypatch.setattr(run_module.run_steps, "progress_bar", real_bar)
+    resumed = train_run("pendulum-mjx", PARTED, out_dir=out, progress=False, resume=True)
+    jax.tree.map(np.testing.assert_array_equal, resumed.params, whole.params)
+    assert resumed.mean_return == whole.mean_return

@@ -38,8 +38,9 @@ Gymnasium's registry (`envs.interop.gymnasium_ids` registers the ids) builds its
   which stay on the device (Gymnasium's `JaxToTorch` / `JaxToNumpy` convert them through DLPack).
 
 Gymnasium's keyword arguments keep their names (`ctrl_cost_weight`, `reset_noise_scale`, ...: our
-tasks' options are v5's constructor arguments), `max_episode_steps` is the time limit, and the
-suite's own options pass the same way (`impl="warp"`, `opt={...}`).
+tasks' options are v5's reward, termination, reset and observation arguments; v5's `xml_file`,
+`frame_skip` and camera arguments are refused, `V5_NOT_TAKEN`), `max_episode_steps` is the time
+limit, and the suite's own options pass the same way (`impl="warp"`, `opt={...}`).
 
 `JaxVectorEnv` autoresets as `gymnasium.vector.SyncVectorEnv` over Gymnasium's env does in the
 mode chosen with `autoreset_mode`:
@@ -84,6 +85,7 @@ except ImportError as err:  # gymnasium is an optional extra
         f"(which installs gymnasium==1.4.0); importing it failed with: {err}"
     ) from err
 
+from envs.compile_cache import enable_unless_off
 from envs.core import Env, State
 from envs.registry import make
 from envs.core import Wrapper
@@ -412,8 +414,22 @@ class GymnasiumVectorEnv(gymnasium.vector.VectorEnv):
 _NO_LIMIT = 2**31 - 1
 
 
+# v5's constructor arguments of the MuJoCo base env that the tasks do not take: each task keeps
+# Gymnasium's MJCF and frame skip, the model its physics is proven equal to Gymnasium's on
+# (docs/tasks.md); rendering is `render_mode="rgb_array"` and the pixel options.
+V5_NOT_TAKEN = ("xml_file", "frame_skip", "default_camera_config", "camera_id", "camera_name", "max_geom",
+                "visual_options")
+
+
 def _suite_options(task: str, max_episode_steps: int | None, kwargs: dict[str, Any]) -> dict[str, Any]:
     overrides = dict(kwargs)
+    refused = [name for name in V5_NOT_TAKEN if name in overrides]
+    if refused:
+        given = ", ".join(f"{name}={overrides[name]!r}" for name in refused)
+        raise ValueError(f"env {task!r} through Gymnasium: {given} is not taken. The tasks take v5's reward, "
+                         f"termination, reset and observation arguments (envs.options({task!r}) lists them) but "
+                         f"not {', '.join(V5_NOT_TAKEN)}: each keeps v5's own MJCF and frame skip, the ones its "
+                         "physics is proven equal to Gymnasium's on; drop the argument")
     if "episode_length" in overrides:
         raise ValueError(f"env {task!r} through Gymnasium: pass max_episode_steps=..., not episode_length "
                          f"(got episode_length={overrides['episode_length']!r})")
@@ -454,26 +470,29 @@ class RegisteredEnv(GymnasiumEnv):
 
 
 def make_env(task: str, render_mode: str | None = None, **kwargs: Any) -> RegisteredEnv:
-    """The ids' `entry_point` (`gymnasium.make`)."""
+    """The ids' `entry_point` (`gymnasium.make`), with JAX's persistent compile cache on as the
+    `mjxsuite` command has it (`envs.compile_cache`): a new process loads the env's compiled step."""
+    enable_unless_off()
     return RegisteredEnv(task, render_mode=render_mode, **kwargs)
 
 
 def make_vector_env(task: str, num_envs: int, max_episode_steps: int | None = None,
                     autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any) -> JaxVectorEnv:
-    """The ids' `vector_entry_point` (`gymnasium.make_vec`)."""
+    """The ids' `vector_entry_point` (`gymnasium.make_vec`), with the compile cache on (`make_env`)."""
+    enable_unless_off()
     return JaxVectorEnv(task, num_envs, max_episode_steps=max_episode_steps, autoreset_mode=autoreset_mode, **kwargs)
 
 
 def _autoreset_mode(task: str, mode: AutoresetMode | str) -> AutoresetMode:
     supported = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
     try:
-        mode = AutoresetMode(mode)
+        chosen = AutoresetMode(mode)
     except ValueError:
-        mode = None
-    if mode not in supported:
+        chosen = None
+    if chosen not in supported:
         raise ValueError(f"env {task!r}: autoreset_mode={mode!r} is not supported; pass "
                          f"gymnasium.vector.AutoresetMode.NEXT_STEP (the default) or AutoresetMode.SAME_STEP")
-    return mode
+    return chosen
 
 
 class JaxVectorEnv(VectorEnv):
