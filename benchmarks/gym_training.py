@@ -116,24 +116,26 @@ def start(train_args: list[str], out_dir: Path, share: int = 1) -> tuple[dict, s
     return record, subprocess.Popen(command, env=child_env)
 
 
-def stop(record: dict, training: subprocess.Popen, timeout: float | None) -> dict:
-    """Wait for a started training until `timeout` s after its start, then Ctrl-C it (it saves its
-    checkpoint and stops); the record gets the wall time and, if so, "interrupted"."""
-    started = record.pop("started")
-    try:
-        training.wait(timeout=None if timeout is None else max(0.0, started + timeout - time.perf_counter()))
-    except subprocess.TimeoutExpired:
-        record["interrupted"] = f"stopped after {timeout:.0f} s"
-        training.send_signal(signal.SIGINT)
+def stop(started: list[tuple[dict, subprocess.Popen]], timeout: float | None) -> list[dict]:
+    """Wait for started trainings until `timeout` s after each one's start; then Ctrl-C every one
+    still running, all at once (each saves its checkpoint at the end of its chunk and stops). The
+    records get the wall time and, where it was stopped, "interrupted"."""
+    for record, training in started:
+        try:
+            training.wait(timeout=None if timeout is None else max(0.0, record["started"] + timeout - time.perf_counter()))
+        except subprocess.TimeoutExpired:
+            record["interrupted"] = f"stopped after {timeout:.0f} s"
+            training.send_signal(signal.SIGINT)
+    for record, training in started:
         try:
             training.wait(timeout=120)
         except subprocess.TimeoutExpired:
             training.kill()
             training.wait()
-    record["wall_s"] = time.perf_counter() - started
-    if training.returncode != 0 and "interrupted" not in record:
-        record["skipped"] = f"exit status {training.returncode}"
-    return record
+        record["wall_s"] = time.perf_counter() - record.pop("started")
+        if training.returncode != 0 and "interrupted" not in record:
+            record["skipped"] = f"exit status {training.returncode}"
+    return [record for record, _ in started]
 
 
 def describe(record: dict) -> dict:
@@ -189,7 +191,7 @@ def judge(record: dict, episodes: int) -> dict:
 def run_one(train_args: list[str], out_dir: Path, episodes: int, timeout: float | None) -> dict:
     """Train, then judge. A training still running after `timeout` s gets Ctrl-C (it saves its
     checkpoint and stops); its saved policy is judged all the same, marked "interrupted"."""
-    record = stop(*start(train_args, out_dir), timeout)
+    [record] = stop([start(train_args, out_dir)], timeout)
     return judge(describe(record), episodes) if "skipped" not in record else record
 
 
@@ -216,11 +218,11 @@ def train_all(parser, args) -> list[dict]:
         if "--out" in train_args:
             parser.error(f"--run {text!r}: leave --out out, the runs go under --out {args.out}")
         runs.append((train_args, Path(args.out) / f"run{i}"))
-    share = len(runs) if args.parallel else 1
-    started = [start(*run, share) for run in runs] if args.parallel else []
+    if args.parallel:
+        stopped = iter(stop([start(*run, share=len(runs)) for run in runs], args.timeout))
     found = []
-    for i, run in enumerate(runs):
-        record = stop(*(started[i] if args.parallel else start(*run)), args.timeout)
+    for run in runs:
+        [record] = [next(stopped)] if args.parallel else stop([start(*run)], args.timeout)
         record = describe(record) if "skipped" not in record else record
         found.append(record if args.no_judge else judge(record, args.episodes))
         print(line(found[-1]), flush=True)
