@@ -87,11 +87,29 @@ def test_full_episodes_and_the_judges_seeds():
     """A whole episode is dm_control's 1,000 steps, and each episode is its own seed's reset (no
     compile: the fast suite's check of the judge)."""
     still = lambda obs: np.zeros(1)  # noqa: E731
-    first, again = policy_returns(still, "dmc-cartpole-swingup", 2), policy_returns(still, "dmc-cartpole-swingup", 2)
-    assert first == again and first[0] != first[1]
+    first = policy_returns(still, "dmc-cartpole-swingup", 2)
+    assert first[0] != first[1]
     theirs = load("cartpole", "swingup", JUDGE_FIRST_SEED)
     step, steps, total = theirs.reset(), 0, 0.0
     while not step.last():
         step = theirs.step(np.zeros(1))
         steps, total = steps + 1, total + step.reward
     assert steps == 1000 and total == first[0]
+
+
+def test_gym_training_judges_each_task_on_its_reference_env(tmp_path, capsys):
+    """`python -m benchmarks.gym_training` picks the judge by task (no training here): Gymnasium's env
+    for Gymnasium's tasks, dm_control's for dmc-*, none for our own; `--judge` marks a run directory
+    that is not here instead of failing, and refuses --run with --judge."""
+    from benchmarks import gym_training
+
+    assert gym_training.reference_of("hopper") == "gymnasium"
+    assert gym_training.reference_of("dmc-walker-walk") == "dm_control"
+    assert gym_training.reference_of("cartpole-mjx") is None
+    records = tmp_path / "records.json"
+    records.write_text('[{"kind": "gym-training", "command": "mjxsuite train --env dmc-cartpole-balance", '
+                       f'"out": "{tmp_path / "elsewhere"}", "env": "dmc-cartpole-balance"}}]')
+    gym_training.main(["--judge", str(records), "--json", str(tmp_path / "judged.json")])
+    assert "not found here" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        gym_training.main(["--judge", str(records), "--run", "--env dmc-cartpole-balance"])
