@@ -11,7 +11,7 @@ actions:
   reset with seeds 0, 1, ...;
 - dmc-* tasks: dm_control's `suite.load(domain, task)` (through the mujoco-4 shim), one episode per
   seed from `envs.interop.dm_control.JUDGE_FIRST_SEED` on, its observation flattened in its order,
-  1,000 steps (`policy_returns`).
+  1,000 steps (`returns_on_dm_control`).
 The record holds that mean return beside the run's own final evaluation (eval.json), on our env,
 and the run's evaluation curve (env steps, evaluation return per seed, env-steps/s); with several
 seeds every seed is judged (median and worst seed). A run still training after `--timeout` seconds
@@ -83,11 +83,11 @@ def gymnasium_returns(out_dir: Path, env_name: str, episodes: int, seed_index: i
 
 def dm_control_returns(out_dir: Path, env_name: str, episodes: int, seed_index: int | None = None) -> list[float]:
     """Returns of the run's saved policy (`seed_index`, default the run's best seed) on dm_control's
-    own env of its DeepMind Control Suite task `env_name` (`envs.interop.dm_control.policy_returns`)."""
+    own env of its DeepMind Control Suite task `env_name` (`envs.returns_on_dm_control`)."""
     import agents
-    from envs.interop import dm_control
+    import envs
 
-    return dm_control.policy_returns(agents.load_policy(out_dir, seed_index), env_name, episodes)
+    return envs.returns_on_dm_control(agents.load_policy(out_dir, seed_index), env_name, episodes)
 
 
 def reference_returns(out_dir: Path, env_name: str, episodes: int,
@@ -122,7 +122,8 @@ def stop(started: list[tuple[dict, subprocess.Popen]], timeout: float | None) ->
     records get the wall time and, where it was stopped, "interrupted"."""
     for record, training in started:
         try:
-            training.wait(timeout=None if timeout is None else max(0.0, record["started"] + timeout - time.perf_counter()))
+            left = None if timeout is None else max(0.0, record["started"] + timeout - time.perf_counter())
+            training.wait(timeout=left)
         except subprocess.TimeoutExpired:
             record["interrupted"] = f"stopped after {timeout:.0f} s"
             training.send_signal(signal.SIGINT)

@@ -1,5 +1,5 @@
 """The judge of a trained DeepMind Control Suite policy on dm_control's own env
-(`envs.interop.dm_control.policy_returns`, reached by `python -m benchmarks.gym_training`): a fixed
+(`envs.interop.dm_control.returns_on_dm_control`, reached by `python -m benchmarks.gym_training`): a fixed
 policy's return there equals its return on our env from the same initial states (dm_control's resets
 of the judge's seeds), within the one-step proof's bounds grown over a short horizon; the same
 comparison fails when the judge hands the policy the observation in another order."""
@@ -15,7 +15,7 @@ import envs
 
 pytest.importorskip("dm_control", reason="the judge runs dm-control==1.0.50 (pip install 'mjxsuite[dmc]')")
 
-from envs.interop.dm_control import JUDGE_FIRST_SEED, load, policy_returns  # noqa: E402
+from envs.interop.dm_control import JUDGE_FIRST_SEED, load, returns_on_dm_control  # noqa: E402
 
 HORIZON = 100  # control steps: 1 s of the cart-pole, 2 s of the reacher
 EPISODES = 3
@@ -66,11 +66,11 @@ def check_judge(name: str) -> None:
     env = envs.make(name).unwrapped
     gain = fixed_gain(env)
     ours = our_returns(env, gain, *dm_control_starts(env, EPISODES))
-    judged = policy_returns(lambda obs: np.clip(obs @ gain, -1.0, 1.0), name, EPISODES, max_steps=HORIZON)
+    judged = returns_on_dm_control(lambda obs: np.clip(obs @ gain, -1.0, 1.0), name, EPISODES, max_steps=HORIZON)
     np.testing.assert_allclose(judged, ours, atol=RETURN_BOUND, rtol=0)
     assert np.ptp(ours) > 100 * RETURN_BOUND  # the episodes differ: the starts were the judge's own
     # The observation in reverse order: the same policy is judged on another input.
-    reversed_order = policy_returns(lambda obs: np.clip(obs[::-1] @ gain, -1.0, 1.0), name, EPISODES,
+    reversed_order = returns_on_dm_control(lambda obs: np.clip(obs[::-1] @ gain, -1.0, 1.0), name, EPISODES,
                                     max_steps=HORIZON)
     assert np.abs(np.asarray(reversed_order) - ours).max() > 100 * RETURN_BOUND
 
@@ -87,7 +87,7 @@ def test_full_episodes_and_the_judges_seeds():
     """A whole episode is dm_control's 1,000 steps, and each episode is its own seed's reset (no
     compile: the fast suite's check of the judge)."""
     still = lambda obs: np.zeros(1)  # noqa: E731
-    first = policy_returns(still, "dmc-cartpole-swingup", 2)
+    first = returns_on_dm_control(still, "dmc-cartpole-swingup", 2)
     assert first[0] != first[1]
     theirs = load("cartpole", "swingup", JUDGE_FIRST_SEED)
     step, steps, total = theirs.reset(), 0, 0.0

@@ -16,8 +16,8 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `Comparison`: both sides, with the error of each step's observation, reward and discount.
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
-- `policy_returns(policy, env)`: a policy's returns on dm_control's own env (the judge of a trained
-  run: `python -m benchmarks.gym_training`).
+- `returns_on_dm_control(policy, env)` (also `envs.returns_on_dm_control`): a policy's returns on
+  dm_control's own env, the judge of a trained run (`python -m benchmarks.gym_training`).
 
 dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
 (`load`, with MUJOCO_GL=disable unless the variable is set).
@@ -290,7 +290,7 @@ def dm_control_reset_samples(domain: str, task: str, count: int,
 JUDGE_FIRST_SEED = 1_000
 
 
-def policy_returns(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
+def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
                    max_steps: int | None = None) -> list[float]:
     """The returns of `policy` on dm_control's own env of `env`'s task (the twin of judging a
     Gymnasium task on Gymnasium's env): episode i is `suite.load(domain, task)` seeded with
