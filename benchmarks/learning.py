@@ -46,9 +46,9 @@ class Case(NamedTuple):
 
 
 # The DeepMind Control Suite's tasks with a goal in issue 68 (a median of 4 seeds at least the goal
-# on dm_control's own env; here 3 of 4 seeds, which implies it), each with the recipe's agent that
-# docs/tasks.md's training table ran on it: PPO where the physics is cheap enough for its millions
-# of steps under impl="jax", SAC on the contact tasks.
+# on dm_control's own env; here 3 of 4 seeds, which implies it), each with the agent of its recipes
+# that docs/tasks.md's training table chose: PPO where the physics is cheap enough for PPO's tens of
+# millions of steps, SAC (fewer steps) where contacts or substeps make each step dear.
 DMC_GOALS = (("ppo", "dmc-cartpole-balance", 900.0), ("ppo", "dmc-cartpole-swingup", 900.0),
              ("ppo", "dmc-reacher-easy", 900.0), ("sac", "dmc-ball-in-cup-catch", 900.0),
              ("sac", "dmc-walker-stand", 900.0), ("sac", "dmc-walker-walk", 900.0), ("sac", "dmc-cheetah-run", 700.0),
