@@ -16,7 +16,8 @@ Where each row comes from:
   notebooks/training.ipynb) for its look-alike of the Gymnasium task (same robot, its own
   MJCF and reward), as published; sized for an accelerator (thousands of envs).
 - "Playground": MuJoCo Playground's `dm_control_suite_params.py` (`brax_ppo_config`,
-  `brax_sac_config`, `brax_vision_ppo_config`) for the dm_control look-alike.
+  `brax_sac_config`, `brax_vision_ppo_config`) for the dm_control look-alike; every dmc-* task's
+  rows (`_DMC_TASKS`) are Playground's recipe for its look-alike of that task.
 - "FastTD3": FastTD3's hyperparams.py (`_FASTTD3`), for a GPU.
 Rows run on a GPU (`python -m benchmarks.gym_training`) say "run"; docs/agents.md, "Per-task
 recipes", has each run (machine, time, steps, score on Gymnasium's env; records "gym-training" in
@@ -175,6 +176,46 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
                                 min_replay_size=10_000, solve_return=360.0)},
     },
 }
+
+# The DeepMind Control Suite's tasks (dmc-*): MuJoCo Playground's recipes for its look-alikes of
+# them (google-deepmind/mujoco_playground, mujoco_playground/config/dm_control_suite_params.py at
+# commit 0b06a59; Playground's envs differ from dm_control's, docs/tasks.md). PPO: `brax_ppo_config`
+# with Brax's default PPO networks, which Playground's training script builds for it (policy 4 x 32,
+# value 5 x 256); SAC: `brax_sac_config` with Brax's default SAC networks (2 x 256). Left out:
+# num_resets_per_eval (our envs draw a fresh episode at every auto-reset), PendulumSwingup's PPO
+# action_repeat 4 (an env option here, not a recipe field; its num_updates_per_batch 4 is kept) and
+# SAC's q_network_layer_norm (our SAC has none). Playground's SAC exception for "PendulumSwingUp"
+# matches none of its registered names (it registers "PendulumSwingup"), so pendulum's SAC keeps the
+# base 5M steps, as it does in Playground. solve_return: the issue's goal where it sets one (the
+# median of 4 seeds on dm_control's own env: 900, or 700). Not run on dm_control's tasks yet unless
+# docs/tasks.md's training table shows a run: starting points.
+_DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
+_DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
+# task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
+_DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
+    "dmc-acrobot-swingup": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
+    "dmc-acrobot-swingup-sparse": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
+    "dmc-ball-in-cup-catch": (dict(discounting=0.95), {}, 900.0),
+    "dmc-cartpole-balance": ({}, {}, 900.0),
+    "dmc-cartpole-balance-sparse": ({}, {}, None),
+    "dmc-cartpole-swingup": ({}, {}, 900.0),
+    "dmc-cartpole-swingup-sparse": ({}, {}, None),
+    "dmc-cheetah-run": ({}, dict(num_timesteps=10_000_000), 700.0),
+    "dmc-hopper-hop": ({}, dict(num_timesteps=10_000_000), None),
+    "dmc-hopper-stand": ({}, dict(num_timesteps=10_000_000), 700.0),
+    "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
+    "dmc-point-mass-easy": ({}, {}, None),
+    "dmc-reacher-easy": ({}, {}, 900.0),
+    "dmc-reacher-hard": ({}, {}, None),
+    "dmc-walker-stand": ({}, {}, 900.0),
+    "dmc-walker-walk": ({}, {}, 900.0),
+    "dmc-walker-run": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), 700.0),
+}
+for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
+    _solve = {} if _goal is None else {"solve_return": _goal}
+    SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}},
+                       "sac": {"default": {**_DMC_SAC, **_sac, **_solve}}}
+del _task, _ppo, _sac, _goal, _solve
 
 
 # The Gymnasium tasks' "cpu" preset (`--preset cpu`, `cpu_settings`): the task's default row with

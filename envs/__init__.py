@@ -69,6 +69,7 @@ _LAZY_API = {
     "DmControlEnv": "envs.tasks.dm_control_suite",
     "BraxEnv": "envs.interop.brax",
     "to_brax": "envs.interop.brax",
+    "returns_on_dm_control": "envs.interop.dm_control",  # a policy judged on dm_control's own env
 }
 
 # Every task's names are imported on first use (PEP 562 `__getattr__` below), so `envs.make("cartpole")`

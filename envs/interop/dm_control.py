@@ -16,6 +16,8 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `Comparison`: both sides, with the error of each step's observation, reward and discount.
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
+- `returns_on_dm_control(policy, env)` (also `envs.returns_on_dm_control`): a policy's returns on
+  dm_control's own env, the judge of a trained run (`python -m benchmarks.gym_training`).
 
 dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
 (`load`, with MUJOCO_GL=disable unless the variable is set).
@@ -281,3 +283,28 @@ def dm_control_reset_samples(domain: str, task: str, count: int,
         qpos.append(theirs.physics.data.qpos.copy()), qvel.append(theirs.physics.data.qvel.copy())
         obs.append(flatten(step.observation))
     return np.array(qpos), np.array(qvel), np.array(obs)
+
+
+# The judge's episodes are dm_control's seeds from here on: seeds that neither training (JAX keys)
+# nor the proof (dm_control seeds 0 and 1) uses, so a judged policy meets episodes it never saw.
+JUDGE_FIRST_SEED = 1_000
+
+
+def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
+                   max_steps: int | None = None) -> list[float]:
+    """The returns of `policy` on dm_control's own env of `env`'s task (the twin of judging a
+    Gymnasium task on Gymnasium's env): episode i is `suite.load(domain, task)` seeded with
+    `first_seed + i`, reset, then stepped with `policy(observation)` (dm_control's observation
+    flattened in its order, as our task observes it; the action in the actuators' ctrlrange, as
+    `agents.load_policy` gives it) until dm_control's episode ends (1,000 control steps) or after
+    `max_steps` steps. The return sums dm_control's rewards."""
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+    returns = []
+    for episode in range(episodes):
+        theirs = load(env.domain, env.task, first_seed + episode)
+        step, total, steps = theirs.reset(), 0.0, 0
+        while not step.last() and (max_steps is None or steps < max_steps):
+            step = theirs.step(np.asarray(policy(flatten(step.observation)), np.float64))
+            total, steps = total + float(step.reward), steps + 1
+        returns.append(total)
+    return returns
