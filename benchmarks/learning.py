@@ -190,9 +190,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tiny", action="store_true", help="a few hundred steps per case: do they run")
     parser.add_argument("--json", help="write the records to this file")
     args = parser.parse_args(argv)
-    records = section(args.cases, args.tiny)
-    if args.json:
-        Path(args.json).write_text(json.dumps(records, indent=2))
+    records = []
+    for name in args.cases or [case.name for case in CASES if case.by_default]:
+        records += section([name], args.tiny)
+        if args.json:  # after every case, atomically: a run stopped part-way keeps the cases it finished
+            partial = Path(args.json + ".part")
+            partial.write_text(json.dumps(records, indent=2))
+            partial.replace(args.json)
     return 0 if args.tiny or all(r["met"] for r in records) else 1
 
 
