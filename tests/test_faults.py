@@ -295,7 +295,7 @@ def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int],
     clock, saves = _FakeTime(), []
 
     def slow_save(background_saves, out, env_name, placement, ts, chunks_done, final=False, finished=False,
-                  copy_beside=True):
+                  copy_beside=True, clock=None):
         clock.now += save_s
         saves.append(chunks_done)
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from agents import DQNConfig, PPOConfig, SACConfig, checkpoint, run_steps, train_run
-from agents.cli import wall_line
+from agents.commands import wall_line
 from agents.processes import MJXSUITE
 from agents.run import WALL_PARTS
 
