@@ -198,6 +198,11 @@ class DmControlEnv(MjxEnv):
         """Make this episode's model edits (`info`: the `episode_info` entries) in dm_control's
         `physics`; nothing for a task without any."""
 
+    def get_episode(self, physics) -> dict:
+        """This episode's model edits read back from dm_control's `physics` (the `episode_info`
+        entries, the inverse of `put_episode`); nothing for a task without any."""
+        return {}
+
     def terminated(self, data: mjx.Data) -> jax.Array:
         return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)
 
