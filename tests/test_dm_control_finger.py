@@ -19,9 +19,9 @@ import envs
 pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
-from envs.interop.dm_control import (Comparison, dm_control_observations, dm_control_reset_samples,  # noqa: E402
-                                     dm_control_rollouts, dm_control_steps, flatten, load, steps_from)
-from envs.mjx_env import mjx  # noqa: E402
+from envs.interop.dm_control import (Comparison, compare_readings_with_dm_control,  # noqa: E402
+                                     dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
+                                     dm_control_steps, load, steps_from)
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 
 TASKS = {"dmc-finger-spin": ("finger", "spin"), "dmc-finger-turn-easy": ("finger", "turn_easy"),
@@ -103,31 +103,22 @@ def contact_counts(env, qpos):
     return np.array(counts)
 
 
+def spin_and_turn(physics, rng):
+    """The hinge spun across spin's threshold and turned anywhere (onto turn's target at times)."""
+    hinge = physics.model.name2id("hinge", "joint")
+    physics.data.qvel[physics.model.jnt_dofadr[hinge]] = rng.uniform(-30.0, 0.0)
+    physics.data.qpos[physics.model.jnt_qposadr[hinge]] = rng.uniform(-np.pi, np.pi)
+
+
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_finger_observation_and_reward_of_dm_controls_states(name):
-    """Our observation and reward of dm_control's own physics after each of its steps (its data put on
-    the device as it is: no physics runs here), over random-action episodes with states spun and
-    turned onto the target: every task's readings of the sensors, its target and its thresholds."""
-    env = envs.make(name).unwrapped
-    theirs, rng = load(*TASKS[name]), np.random.default_rng(0)
-    hinge = env.mj_model.joint("hinge")
-    datas, obs, rewards = [], [], []
-    for episode in range(8):
-        theirs.reset()
-        for step in range(12):
-            if step % 3 == 0:  # spun across spin's threshold, turned about turn's target
-                theirs.physics.data.qvel[hinge.dofadr[0]] = rng.uniform(-30.0, 0.0)
-                theirs.physics.data.qpos[hinge.qposadr[0]] = rng.uniform(-np.pi, np.pi)
-                theirs.physics.forward()
-            result = theirs.step(rng.uniform(-1.0, 1.0, 2))
-            datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
-            obs.append(flatten(result.observation)), rewards.append(result.reward)
-    batch = jax.tree.map(lambda *leaves: np.stack(leaves), *datas)
-    ours, our_rewards = jax.jit(jax.vmap(lambda d: (env.observation(d), env.reward(d, None, d))))(batch)
-    np.testing.assert_allclose(np.asarray(ours), np.array(obs), atol=1e-6, rtol=1e-5)
-    np.testing.assert_array_equal(np.asarray(our_rewards), np.array(rewards))
-    if env.task == "spin":
-        assert 0 < np.mean(rewards) < 1, "both rewards must occur"
+    """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
+    here), over random-action episodes spun and turned every third step: every task's readings of
+    the sensors, its target and its thresholds."""
+    comparison = compare_readings_with_dm_control(name, perturb=spin_and_turn)
+    comparison.assert_within({"obs": 1e-6, "reward": 0.0}, rtol=1e-5)
+    if name == "dmc-finger-spin":
+        assert 0 < comparison.theirs.reward.mean() < 1, "both rewards must occur"
 
 
 def test_finger_tasks_are_dm_controls():
