@@ -28,7 +28,12 @@ from tests.test_dm_control import assert_same_distribution  # noqa: E402
 TASKS = {"dmc-humanoid-stand": ("humanoid", "stand"), "dmc-humanoid-walk": ("humanoid", "walk"),
          "dmc-humanoid-run": ("humanoid", "run")}
 COUNT = 64  # states: one batch shape, one compiled program
-BOUNDS = {"obs": 1e-2, "reward": 1e-4}
+# float32 (ours) against float64 (dm_control), one control step (+ 1e-4 relative). A step in which
+# a limb starts to touch the floor can part in float32 far beyond this (the contact's onset turns on
+# the rounding of its distance): such steps are counted, at most SPIKES of the COUNT, and their
+# rewards still held to the bound; docs/tasks.md gives the x64 rerun of them.
+BOUNDS = {"obs": 1e-3, "reward": 1e-5}
+SPIKES = 4
 
 
 def stand_up(physics, rng):
@@ -79,7 +84,11 @@ def stand_case():
 @pytest.mark.slow
 def test_humanoid_steps_match_dm_control(stand_case):
     env, starts, theirs = stand_case
-    Comparison(starts.steps, theirs).assert_within(BOUNDS)
+    within = np.all(np.abs(starts.steps.obs - theirs.obs) <= BOUNDS["obs"] + 1e-4 * np.abs(theirs.obs), axis=1)
+    assert (~within).sum() <= SPIKES, f"{(~within).sum()} of {COUNT} steps beyond the bound"
+    calm = lambda steps: type(steps)(steps.obs[within], steps.reward[within], steps.discount[within])  # noqa: E731
+    Comparison(calm(starts.steps), calm(theirs)).assert_within(BOUNDS)
+    np.testing.assert_allclose(starts.steps.reward, theirs.reward, atol=BOUNDS["reward"], rtol=1e-4)
     assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
     assert theirs.reward.max() > 0.5 and theirs.reward.min() < 0.1, "the reward must be exercised"
 

@@ -3,7 +3,7 @@
 
 A task is dm_control's own MJCF (`dm_control/suite/<domain>.xml`, read from the installed package,
 never copied here) and its task's rules:
-- **Step**: the action is dm_control's (the actuators' ctrlrange: [-1, 1] for every domain here),
+- **Step**: the action is dm_control's (the actuators' ctrlrange: [-1, 1] but for quadruped's),
   set as `ctrl`, then `n_sub_steps` physics steps, `control_timestep / timestep` as dm_control's
   `control.compute_n_steps` has it (one where the domain names no control timestep).
 - **Legacy step**: dm_control's `Physics.step` (`legacy_step=True`) ends with `mj_step1`, so after an
