@@ -37,10 +37,11 @@ SPIKES = 4
 
 
 def stand_up(physics, rng):
-    """Upright at the model's initial pose, moving at up to 1.5 times run's speed: every reward term."""
+    """Upright at the model's initial pose, nearly still (stand's reward) or moving at up to 1.5 times
+    run's speed (walk's and run's): every reward term."""
     physics.data.qpos[:] = physics.model.qpos0 + rng.uniform(-0.05, 0.05, physics.model.nq)
-    physics.data.qvel[:] = rng.normal(0.0, 0.5, physics.model.nv)
-    physics.data.qvel[:2] = rng.uniform(-15.0, 15.0, 2)
+    physics.data.qvel[:] = rng.normal(0.0, 0.1, physics.model.nv)
+    physics.data.qvel[:2] = rng.choice([0.1, 15.0]) * rng.uniform(-1.0, 1.0, 2)
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))
