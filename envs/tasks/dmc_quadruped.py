@@ -39,6 +39,13 @@ HEIGHT_STEP = 0.01  # _find_non_contacting_height's rise per try (m)
 REMOVED_GEOMS = ("wall_px", "wall_py", "wall_nx", "wall_ny", "terrain")
 
 
+def sensor_values(model: mujoco.MjModel, *kinds: int) -> np.ndarray:
+    """The `sensordata` indices of every sensor of the given types, in sensor order (dm_control's
+    `_get_sensor_names`, which picks them by type, not by name)."""
+    sensors = np.flatnonzero(np.isin(model.sensor_type, kinds))
+    return np.concatenate([np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i]) for i in sensors])
+
+
 class DmcQuadruped(DmControlEnv):
     """dm_control's `quadruped.Move(desired_speed)`; the two tasks below fix it."""
 
@@ -64,13 +71,11 @@ class DmcQuadruped(DmControlEnv):
     def __init__(self, xml: str | None = None):
         super().__init__(xml)
         model = self.mj_model
+        # dm_control's egocentric_state reads the hinges, in joint order, picked by type.
         self._hinges = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE)
         self._root = model.joint("root").qposadr[0]
-        sensors_of = lambda *kinds: np.concatenate([  # noqa: E731  dm_control's _get_sensor_names, in sensor order
-            np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i])
-            for i in np.flatnonzero(np.isin(model.sensor_type, kinds))])
-        self._imu = sensors_of(mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
-        self._force_torque = sensors_of(mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
+        self._imu = sensor_values(model, mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
+        self._force_torque = sensor_values(model, mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
 
     def touching(self, qpos: jax.Array) -> jax.Array:
         """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
