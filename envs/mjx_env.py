@@ -111,7 +111,7 @@ class MjxEnv(Env):
             raise TypeError(f"task {self.name}: set the class attribute `xml` to an MJCF file (or pass xml=...)")
         try:
             self.xml_path = asset_path(xml)  # the MJCF file (envs.pixels adds a camera to it)
-            self.mj_model: mujoco.MjModel = load_model(self.xml_path)
+            self.mj_model: mujoco.MjModel = self.load_mj_model(self.xml_path)
         except (ValueError, FileNotFoundError) as err:
             raise type(err)(f"task {self.name}: {err}") from err
         if not isinstance(getattr(self, "observation_size", None), int):
@@ -131,6 +131,11 @@ class MjxEnv(Env):
             self.num_actions, self.action_size = len(self.action_bins), None
         else:
             self.num_actions, self.action_size = None, self.mj_model.nu
+
+    def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
+        """The task's MjModel from its MJCF file; a task whose reference edits the file's model before
+        compiling it (dm_control's quadruped drops walls and sensors) does the same here."""
+        return load_model(path)
 
     def _put_on_device(self, impl: str) -> None:
         """The MJX model and the initial `mjx.Data` for MJX's implementation `impl`."""

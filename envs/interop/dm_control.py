@@ -13,6 +13,10 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
   task's `put_episode`, e.g. reacher's target), its physics put in each start state (qpos, qvel,
   act, `mj_forward`, then MuJoCo's solver warm start) and stepped once with the action.
 - `steps_from(env, qpos, qvel, actions)`: our steps from given states (near a task's goal).
+- `compare_readings_with_dm_control(env)`: our observation and reward of dm_control's own physics
+  states (no MJX physics runs: seconds, for tasks whose physics compiles for minutes).
+- `dm_control_rollouts(env)`: dm_control's own states along random-action episodes (start states
+  for `steps_from`: the touches and spins its physics reached).
 - `Comparison`: both sides, with the error of each step's observation, reward and discount.
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
@@ -28,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import jax
 import mujoco
@@ -158,29 +162,63 @@ def _episode_at(episode: Mapping[str, np.ndarray], index: int) -> dict:
 
 
 def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.ndarray,
-               episode: Mapping[str, np.ndarray] | None = None) -> Transitions:
-    """Our env stepped once from each given state (qpos, qvel; everything else as after a reset,
+               episode: Mapping[str, np.ndarray] | None = None, seed: int = 0,
+               act: np.ndarray | None = None) -> Transitions:
+    """Our env stepped once from each given state (qpos, qvel, `act` where given; everything else as after a reset,
     `mjx.forward` of it; `episode`: the task's `episode_info` entries, e.g. reacher's target, in place
     of the reset's) with each action in [-1, 1] (one jitted vmap): for states that random rollouts
-    from resets rarely reach (a hopper standing, a cheetah running, a fingertip on its target)."""
+    from resets rarely reach (a hopper standing, a cheetah running, a fingertip on its target), or
+    states taken from dm_control's own rollouts. The resets each step started from (one per state,
+    keys from `seed`) come back too (`reset_obs`, `reset_qpos`, ...), from the same compiled program."""
     env = (make(env) if isinstance(env, str) else env).unwrapped
     episode = {name: np.asarray(values) for name, values in (episode or {}).items()}
+    given_act = act is not None
+    act = np.asarray(act) if given_act else np.zeros((len(qpos), env.mj_model.na), np.float32)
 
-    def step(key, q, v, action, given):
-        state = env.reset(key)
+    def step(key, q, v, a, action, given):
+        reset = state = env.reset(key)
         state = state.replace(info={**state.info, **{k: value.astype(state.info[k].dtype) for k, value in given.items()}})
         data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
+        data = data.replace(act=a.astype(data.act.dtype)) if given_act else data
         before = env.compute_derived(data)
         after = env.step(state.replace(pipeline_state=before), action)
-        return before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state)
+        resets = (reset.obs, reset.pipeline_state.qpos, reset.pipeline_state.qvel, episode_info(env, reset))
+        return (before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state),
+                resets)
 
-    keys = jax.random.split(jax.random.PRNGKey(0), len(qpos))
-    act, warmstart, obs, reward, discount, episode = jax.tree.map(
-        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, actions, episode))
+    keys = jax.random.split(jax.random.PRNGKey(seed), len(qpos))
+    act, warmstart, obs, reward, discount, episode, resets = jax.tree.map(
+        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, act, actions, episode))
     env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
     return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
-                       episode)
+                       episode, *resets)
+
+
+def dm_control_rollouts(env: Env, episodes: int = 4, num_steps: int = 250, seed: int = 0) -> Transitions:
+    """States of dm_control's own env of `env`'s task along `episodes` episodes of `num_steps` random
+    actions (uniform in its action spec; C MuJoCo, float64): each step's start state (qpos, qvel,
+    act, warm start, the task's per-episode edits read back by `get_episode`), its action and what
+    it returned. Start states for `steps_from` that dm_control itself reached (touches, spins)."""
+    theirs = load(env.domain, env.task, seed)
+    rng, spec = np.random.default_rng(seed), theirs.action_spec()
+    record = {name: [] for name in ("qpos", "qvel", "act", "qacc_warmstart", "actions", "obs", "reward", "discount")}
+    episode = []
+    for _ in range(episodes):
+        theirs.reset()
+        for _ in range(num_steps):
+            physics = theirs.physics
+            for name in ("qpos", "qvel", "act", "qacc_warmstart"):
+                record[name].append(getattr(physics.data, name).copy())
+            episode.append(env.get_episode(physics))
+            action = rng.uniform(spec.minimum, spec.maximum)
+            step = theirs.step(action)
+            record["actions"].append(action), record["obs"].append(flatten(step.observation))
+            record["reward"].append(step.reward), record["discount"].append(step.discount)
+    arrays = {name: np.array(values) for name, values in record.items()}
+    return Transitions(arrays["qpos"], arrays["qvel"], arrays["act"], arrays["qacc_warmstart"], arrays["actions"],
+                       Steps(arrays["obs"], arrays["reward"], arrays["discount"]),
+                       {name: np.array([e[name] for e in episode]) for name in getattr(env, "episode_info", ())})
 
 
 def put_state(physics, qpos, qvel, act=None, qacc_warmstart=None) -> None:
@@ -264,6 +302,36 @@ def compare_with_dm_control(env: Env | str, num_envs: int = 16, num_steps: int =
     env = (make(env) if isinstance(env, str) else env).unwrapped
     starts = transitions(env, num_envs, num_steps, keep, seed)
     return Comparison(starts.steps, dm_control_steps(env, starts, seed))
+
+
+def compare_readings_with_dm_control(env: Env | str, episodes: int = 8, num_steps: int = 12, seed: int = 0,
+                                     perturb: Callable[[Any, np.random.Generator], None] | None = None) -> Comparison:
+    """Our observation and reward of dm_control's own physics after each of its steps (its data put on
+    the device as it is, `mjx.put_data`: no MJX physics runs, nothing heavy compiles) against what
+    dm_control's step returned, along `episodes` episodes of `num_steps` random actions;
+    `perturb(physics, rng)`, where given, edits dm_control's state before every third step (spins,
+    pushes: states random actions rarely reach) and runs its forward pass. It proves the task's
+    readings (sensors, frames, thresholds) on their own, in seconds, for tasks whose physics takes
+    minutes to compile; the physics is proven by `steps_from` and `dm_control_steps`."""
+    from envs.mjx_env import mjx
+
+    env = (make(env) if isinstance(env, str) else env).unwrapped
+    theirs, rng = load(env.domain, env.task, seed), np.random.default_rng(seed)
+    spec = theirs.action_spec()
+    datas, obs, rewards, discounts = [], [], [], []
+    for _ in range(episodes):
+        theirs.reset()
+        for step in range(num_steps):
+            if perturb is not None and step % 3 == 0:
+                perturb(theirs.physics, rng)
+                theirs.physics.forward()
+            result = theirs.step(rng.uniform(spec.minimum, spec.maximum))
+            datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
+            obs.append(flatten(result.observation)), rewards.append(result.reward), discounts.append(result.discount)
+    batch = jax.tree.map(lambda *leaves: np.stack(leaves), *datas)
+    ours_obs, ours_reward = jax.jit(jax.vmap(lambda d: (env.observation(d), env.reward(d, None, d))))(batch)
+    ours = Steps(np.asarray(ours_obs), np.asarray(ours_reward), np.ones(len(datas)))
+    return Comparison(ours, Steps(np.array(obs), np.array(rewards), np.array(discounts)))
 
 
 def reset_samples(env: Env | str, count: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -3,7 +3,7 @@
 
 A task is dm_control's own MJCF (`dm_control/suite/<domain>.xml`, read from the installed package,
 never copied here) and its task's rules:
-- **Step**: the action is dm_control's (the actuators' ctrlrange: [-1, 1] for every domain here),
+- **Step**: the action is dm_control's (the actuators' ctrlrange: [-1, 1] but for quadruped's),
   set as `ctrl`, then `n_sub_steps` physics steps, `control_timestep / timestep` as dm_control's
   `control.compute_n_steps` has it (one where the domain names no control timestep).
 - **Legacy step**: dm_control's `Physics.step` (`legacy_step=True`) ends with `mj_step1`, so after an
@@ -201,6 +201,11 @@ class DmControlEnv(MjxEnv):
     def put_episode(self, physics, info: dict) -> None:
         """Make this episode's model edits (`info`: the `episode_info` entries) in dm_control's
         `physics`; nothing for a task without any."""
+
+    def get_episode(self, physics) -> dict:
+        """This episode's model edits read back from dm_control's `physics` (the `episode_info`
+        entries, the inverse of `put_episode`); nothing for a task without any."""
+        return {}
 
     def terminated(self, data: mjx.Data) -> jax.Array:
         return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)

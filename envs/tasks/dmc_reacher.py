@@ -67,6 +67,9 @@ class DmcReacher(DmControlEnv):
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
         physics.named.model.geom_pos["target", :2] = info["target"]
 
+    def get_episode(self, physics) -> dict:
+        return {"target": physics.named.model.geom_pos["target", :2].copy()}
+
     def initial_qpos_qvel(self, key):
         return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0), key), jnp.zeros(2)
 

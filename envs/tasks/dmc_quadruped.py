@@ -1,0 +1,125 @@
+"""The DeepMind Control Suite's quadruped walk and run (dm_control/suite/quadruped.py), stepped by MJX:
+`envs.make("dmc-quadruped-walk")` and `-run`. A four-legged body with an ellipsoid torso on a free
+joint, 12 position actuators with a first-order filter (`act`) and 4 couplings (Euler, timestep
+0.005, 4 physics steps per control step: dt 0.02) moves forward at 0.5 m/s (walk) or 5 m/s (run).
+The MJCF is dm_control's `quadruped.xml`, read from the installed package, edited as dm_control's
+`make_model` edits it for these tasks: the floor's size set to 10 (walk) or 100 (run), the walls,
+the ball, the target site, the terrain geom and the rangefinder sensors removed.
+
+- Action: dm_control's, the actuators' ctrlrange: yaw [-1, 1], lift [-1, 1.1], extend [-0.8, 0.8].
+- Observation (78), dm_control's order: egocentric_state (44) = the 16 hinges' qpos, their qvel and
+  the 12 actuators' act; torso_velocity (3) = the velocimeter; torso_upright (1) = torso xmat zz;
+  imu (6) = the gyro and accelerometer sensors (in sensor order: accelerometer first); force_torque
+  (24) = arcsinh of the 4 toes' force and torque sensors. Accelerometer, force and torque are
+  acceleration-stage sensors: the last substep's values, as in dm_control's legacy step.
+- Reward: upright * move: upright = tolerance(torso zz, (1, inf), margin 2, value_at_margin 0,
+  linear); move = tolerance(velocimeter x, (speed, inf), margin speed, value_at_margin 0.5, linear).
+- Reset: a root orientation N(0, 1)^4 normalised (dm_control's `randn`: uniform on the sphere), the
+  joints at qpos0, at rest; the body starts embedded at z = 0 and rises 1 cm per try until nothing
+  touches (dm_control's `_find_non_contacting_height`: a reset and a forward pass per try, up to
+  10,000; here a `lax.while_loop` on MJX's contact slots closer than their margin, without a cap).
+- Episode: 1,000 steps (20 s simulated), never terminated.
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from envs.mjx_env import mjx
+from envs.tasks.dm_control_suite import DmControlEnv, tolerance
+
+WALK_SPEED, RUN_SPEED = 0.5, 5.0  # dm_control's _WALK_SPEED, _RUN_SPEED (m/s)
+TIME_LIMIT = 20.0  # _DEFAULT_TIME_LIMIT (s): the floor's half-size is TIME_LIMIT * speed
+HEIGHT_STEP = 0.01  # _find_non_contacting_height's rise per try (m)
+REMOVED_GEOMS = ("wall_px", "wall_py", "wall_nx", "wall_ny", "terrain")
+
+
+def sensor_values(model: mujoco.MjModel, *kinds: int) -> np.ndarray:
+    """The `sensordata` indices of every sensor of the given types, in sensor order (dm_control's
+    `_get_sensor_names`, which picks them by type, not by name)."""
+    sensors = np.flatnonzero(np.isin(model.sensor_type, kinds))
+    return np.concatenate([np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i]) for i in sensors])
+
+
+class DmcQuadruped(DmControlEnv):
+    """dm_control's `quadruped.Move(desired_speed)`; the two tasks below fix it."""
+
+    domain = "quadruped"
+    control_timestep = 0.02  # dm_control's _CONTROL_TIMESTEP
+    observation_shapes = (("egocentric_state", 44), ("torso_velocity", 3), ("torso_upright", 1), ("imu", 6),
+                          ("force_torque", 24))
+    desired_speed: float
+
+    def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
+        """dm_control's `make_model(floor_size=TIME_LIMIT * speed)` for walk and run."""
+        spec = mujoco.MjSpec.from_file(str(path))
+        size = TIME_LIMIT * self.desired_speed
+        spec.geom("floor").size = [size, size, 0.5]
+        for name in REMOVED_GEOMS:
+            spec.delete(spec.geom(name))
+        spec.delete(spec.body("ball"))
+        spec.delete(spec.site("target"))
+        for sensor in [s for s in spec.sensors if s.type == mujoco.mjtSensor.mjSENS_RANGEFINDER]:
+            spec.delete(sensor)
+        return spec.compile()
+
+    def __init__(self, xml: str | None = None):
+        super().__init__(xml)
+        model = self.mj_model
+        # dm_control's egocentric_state reads the hinges, in joint order, picked by type.
+        self._hinges = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE)
+        self._root = model.joint("root").qposadr[0]
+        self._imu = sensor_values(model, mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
+        self._force_torque = sensor_values(model, mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
+
+    def touching(self, qpos: jax.Array) -> jax.Array:
+        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
+        contact = mjx.collision(self.mjx_model, mjx.kinematics(self.mjx_model, self._initial_data.replace(qpos=qpos)))
+        contact = contact._impl.contact
+        return jnp.any(contact.dist < contact.includemargin)
+
+    def at_height(self, orientation: jax.Array, tries: jax.Array) -> jax.Array:
+        """qpos0 with the root at (0, 0, tries x 1 cm) and `orientation`."""
+        qpos = jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype)
+        position = jnp.stack([0.0, 0.0, tries * HEIGHT_STEP]).astype(qpos.dtype)
+        return qpos.at[self._root:self._root + 3].set(position).at[self._root + 3:self._root + 7].set(orientation)
+
+    def initial_qpos_qvel(self, key):
+        orientation = jax.random.normal(key, (4,))
+        orientation = (orientation / jnp.linalg.norm(orientation)).astype(self._initial_data.qpos.dtype)
+        tries = jax.lax.while_loop(lambda n: self.touching(self.at_height(orientation, n)), lambda n: n + 1,
+                                   jnp.zeros((), jnp.int32))
+        return self.at_height(orientation, tries), jnp.zeros(self.mj_model.nv)
+
+    def _torso_velocity(self, data):
+        return self.sensor(data, "velocimeter")
+
+    def _torso_upright(self, data):
+        return self.body_xmat(data, "torso")[2, 2]
+
+    def observations(self, data):
+        dofs = self.mj_model.jnt_dofadr[self._hinges]
+        egocentric = jnp.concatenate([data.qpos[self.mj_model.jnt_qposadr[self._hinges]], data.qvel[dofs], data.act])
+        return {"egocentric_state": egocentric, "torso_velocity": self._torso_velocity(data),
+                "torso_upright": self._torso_upright(data), "imu": data.sensordata[self._imu],
+                "force_torque": jnp.arcsinh(data.sensordata[self._force_torque])}
+
+    def reward(self, data, action, prev):
+        upright = tolerance(self._torso_upright(data), (1.0, float("inf")), margin=2.0, value_at_margin=0.0,
+                            sigmoid="linear")
+        move = tolerance(self._torso_velocity(data)[0], (self.desired_speed, float("inf")),
+                         margin=self.desired_speed, value_at_margin=0.5, sigmoid="linear")
+        return upright * move
+
+
+class DmcQuadrupedWalk(DmcQuadruped):
+    task, desired_speed = "walk", WALK_SPEED
+
+
+class DmcQuadrupedRun(DmcQuadruped):
+    task, desired_speed = "run", RUN_SPEED

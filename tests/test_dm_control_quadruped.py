@@ -1,0 +1,109 @@
+"""dm_control's quadruped walk and run against dm_control 1.0.50's own envs: single steps from
+dm_control's own physics states (falls, toe contacts, the actuators' filter states), the reset's
+observation and distribution (the height search), and, with no physics compiled, the observation and
+reward of dm_control's states for both tasks.
+
+The quadruped's physics (159 contact pairs, 4 substeps, the 1 cm height search at reset) compiles
+for minutes on two cores: the step proof compiles one program (`steps_from`: a batch of resets and
+one step from the given states) for walk and runs under `slow`; run is walk's model with another
+floor size (drawn only, not collided differently) and target speed, proven by its readings."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+
+pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
+                                         "(pip install 'mjxsuite[dmc]'; the test extra has it)")
+
+from envs.interop.dm_control import (Comparison, compare_readings_with_dm_control,  # noqa: E402
+                                     dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
+                                     dm_control_steps, load, steps_from)
+from tests.test_dm_control import assert_same_distribution  # noqa: E402
+
+TASKS = {"dmc-quadruped-walk": ("quadruped", "walk"), "dmc-quadruped-run": ("quadruped", "run")}
+COUNT = 64  # states: one batch shape, one compiled program
+BOUNDS = {"obs": 1e-2, "reward": 1e-4}
+
+
+def push(physics, rng):
+    """The torso pushed forward at up to 1.5 times run's speed, and turned, so both rewards vary."""
+    physics.data.qvel[0] = rng.uniform(0.0, 7.5)
+    physics.data.qvel[3:6] = rng.normal(0.0, 1.0, 3)
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_quadruped_observation_and_reward_of_dm_controls_states(name):
+    """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
+    here): the hinges, the actuators' act, the velocimeter, the IMU and the toes' force and torque
+    sensors (acceleration-stage) in dm_control's order, and the reward."""
+    comparison = compare_readings_with_dm_control(name, episodes=3, num_steps=8, perturb=push)
+    comparison.assert_within({"obs": 1e-5, "reward": 1e-6}, rtol=1e-5)
+    assert np.ptp(comparison.theirs.reward) > 0.3, "the reward must vary"
+
+
+def test_quadruped_tasks_are_dm_controls():
+    """Specs and dm_control's `make_model` edits: the same model sizes, floor, sensors and bounds."""
+    for name, (domain, task) in TASKS.items():
+        env, theirs = envs.make(name).unwrapped, load(domain, task)
+        model, their_model = env.mj_model, theirs.physics.model.ptr
+        for size in ("nq", "nv", "nu", "na", "nbody", "ngeom", "nsite", "nsensor", "nsensordata", "neq"):
+            assert getattr(model, size) == getattr(their_model, size), f"{name} {size}"
+        for field in ("geom_size", "geom_type", "sensor_type", "sensor_objid", "actuator_ctrlrange", "body_pos"):
+            np.testing.assert_array_equal(getattr(model, field), getattr(their_model, field), err_msg=f"{name} {field}")
+        spec = theirs.action_spec()
+        # The action space is the model's float32 ctrlrange: dm_control's bounds rounded to float32.
+        np.testing.assert_array_equal(env.action_low, spec.minimum.astype(np.float32))
+        np.testing.assert_array_equal(env.action_high, spec.maximum.astype(np.float32))
+        assert env.n_substeps == theirs._n_sub_steps and env.dt == pytest.approx(theirs.control_timestep())
+        assert envs.options(name)["episode_length"] == theirs._step_limit == 1000
+        observation = theirs.reset().observation
+        assert [(key, np.size(value)) for key, value in observation.items()] == list(env.observation_shapes)
+
+
+@pytest.fixture(scope="module")
+def walk_case():
+    env = envs.make("dmc-quadruped-walk").unwrapped
+    rollouts = dm_control_rollouts(env, episodes=4, num_steps=100)
+    chosen = np.linspace(0, len(rollouts.qpos) - 1, COUNT).round().astype(int)
+    actions = np.random.default_rng(0).uniform(-1.0, 1.0, (COUNT, env.action_size))
+    starts = steps_from(env, rollouts.qpos[chosen].astype(np.float32), rollouts.qvel[chosen].astype(np.float32),
+                        actions, act=rollouts.act[chosen].astype(np.float32))
+    return env, starts, dm_control_steps(env, starts)
+
+
+@pytest.mark.slow
+def test_quadruped_steps_match_dm_control(walk_case):
+    env, starts, theirs = walk_case
+    Comparison(starts.steps, theirs).assert_within(BOUNDS)
+    assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
+    force_torque = theirs.obs[:, -24:]
+    assert (np.abs(force_torque).max(axis=1) > 0).mean() > 0.5, "the toes must touch the floor in most steps"
+    assert np.ptp(starts.act, axis=0).min() > 0, "the actuators' filter states must vary"
+
+
+@pytest.mark.slow
+def test_quadruped_reset_observation_is_dm_controls(walk_case):
+    env, starts, _ = walk_case
+    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
+    np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
+
+
+@pytest.mark.slow
+def test_quadruped_reset_distribution_matches_dm_control(walk_case):
+    """The root's orientation and the height the search stops at, in distribution; C MuJoCo finds no
+    contact at any of our resets, and 1 cm lower it does: the lowest free height, as dm_control's."""
+    env, starts, _ = walk_case
+    their_qpos, their_qvel, _ = dm_control_reset_samples("quadruped", "walk", 1000)
+    assert_same_distribution(starts.reset_qpos, their_qpos, "qpos")
+    assert not starts.reset_qvel.any() and not their_qvel.any()
+    data = mujoco.MjData(env.mj_model)
+    for qpos in starts.reset_qpos:
+        for rise, touching in ((0.0, False), (-0.01, True)):
+            data.qpos[:] = qpos
+            data.qpos[2] += rise
+            mujoco.mj_forward(env.mj_model, data)
+            assert (data.ncon > 0) == touching, f"height {data.qpos[2]:.3f}"
