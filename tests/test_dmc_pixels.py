@@ -31,6 +31,7 @@ def test_pixels_default_to_drqv2s_protocol():
     assert given.observation_shape == (24, 32, 3) and given.episode_length == 1000
     assert given.cam == given.unwrapped.mj_model.camera("back").id
     assert envs.make("dmc-cheetah-run").episode_length == 1000  # the state observation
+    assert envs.make("dmc-quadruped-walk", observation="pixels", width=8, height=8).cam == 2  # DrQ-v2's camera
     with pytest.raises(ValueError, match="observation='state'"):
         envs.make("dmc-cheetah-run", width=32)
 

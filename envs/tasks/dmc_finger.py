@@ -124,8 +124,11 @@ class DmcFingerTurn(DmcFinger):
         state = self.reset_with_model(key, self.with_target(target))
         return state.replace(info={**state.info, "target": target})
 
+    def episode_model(self, info: dict) -> mjx.Model:
+        return self.with_target(info["target"])
+
     def step(self, state: State, action: jax.Array) -> State:
-        return self.step_with_model(state, action, self.with_target(state.info["target"]))
+        return self.step_with_model(state, action, self.episode_model(state.info))
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
