@@ -292,17 +292,17 @@ def _faked_saves(monkeypatch, save_s: float, chunk_s: float) -> tuple[list[int],
     the chunks each save was called at, and `on_chunk` for train_run."""
     from agents import run, run_steps
 
-    clock, saves = _FakeTime(), []
+    fake_time, saves = _FakeTime(), []
 
     def slow_save(background_saves, out, env_name, placement, ts, chunks_done, final=False, finished=False,
                   copy_beside=True, clock=None):
-        clock.now += save_s
+        fake_time.now += save_s
         saves.append(chunks_done)
 
-    monkeypatch.setattr(run, "time", clock)
-    monkeypatch.setattr(run_steps, "time", clock)
+    monkeypatch.setattr(run, "time", fake_time)
+    monkeypatch.setattr(run_steps, "time", fake_time)
     monkeypatch.setattr(run, "save", slow_save)
-    return saves, {"on_chunk": lambda index, ts, record: setattr(clock, "now", clock.now + chunk_s)}
+    return saves, {"on_chunk": lambda index, ts, record: setattr(fake_time, "now", fake_time.now + chunk_s)}
 
 
 @pytest.mark.parametrize("save_s, checkpoint_seconds", [(0.52, 0.001), (0.01, 2.5)], ids=["slow", "fast"])
