@@ -279,6 +279,7 @@ def test_how_many_parts_a_chunk_runs_as_is_a_function_of_the_config():
     assert run_steps.chunk_parts(SMALL) == run_steps.chunk_parts(SACConfig()) == 1
 
 
+@pytest.mark.slow  # two compiles of PPO's chunk; the fast run keeps chunk_parts' rule
 def test_a_chunk_in_parts_ends_as_the_whole_chunk_to_the_bit():
     """`evaluation.chunk_part` run in turn gives `train_steps`' train state, metrics and evaluation key."""
     import envs
