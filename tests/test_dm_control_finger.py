@@ -90,7 +90,7 @@ def test_finger_reset_distribution_matches_dm_control(finger_case):
     assert_same_distribution(starts.reset_qpos, their_qpos, f"{name} qpos")
     assert_same_distribution(starts.reset_obs, their_obs, f"{name} reset observation")
     assert not starts.reset_qvel.any() and not their_qvel.any()
-    raw = np.asarray(jax.jit(jax.vmap(env._draw))(jax.random.split(jax.random.PRNGKey(1), 500)))
+    raw = np.asarray(jax.jit(jax.vmap(env.joints_drawn))(jax.random.split(jax.random.PRNGKey(1), 500)))
     assert contact_counts(env, starts.reset_qpos).max() == 0
     assert (contact_counts(env, raw) > 0).mean() > 0.05, "the randomiser's raw draws must touch"
 

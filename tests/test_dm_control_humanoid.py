@@ -109,7 +109,7 @@ def test_humanoid_reset_distribution_matches_dm_control(stand_case):
     their_qpos, their_qvel, _ = dm_control_reset_samples("humanoid", "stand", 1000)
     assert_same_distribution(starts.reset_qpos, their_qpos, "qpos")
     assert not starts.reset_qvel.any() and not their_qvel.any()
-    raw = np.asarray(jax.jit(jax.vmap(env._draw))(jax.random.split(jax.random.PRNGKey(1), 200)))
+    raw = np.asarray(jax.jit(jax.vmap(env.joints_drawn))(jax.random.split(jax.random.PRNGKey(1), 200)))
     assert contact_counts(env, starts.reset_qpos).max() == 0
     assert (contact_counts(env, raw) > 0).mean() > 0.05, "the randomiser's raw draws must touch"
 

@@ -186,6 +186,30 @@ class DmControlEnv(MjxEnv):
         data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
         return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
 
+    # ---- resets by rejection (ball_in_cup, finger, humanoid, quadruped) --------------------------
+    def touching(self, qpos: jax.Array, model: mjx.Model | None = None) -> jax.Array:
+        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
+        model = self.mjx_model if model is None else model
+        contact = mjx.collision(model, mjx.kinematics(model, self._initial_data.replace(qpos=qpos)))._impl.contact
+        return jnp.any(contact.dist < contact.includemargin)
+
+    def joints_drawn(self, key: jax.Array) -> jax.Array:
+        """qpos0 with dm_control's joint randomiser applied (`randomize_joints`)."""
+        return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype), key)
+
+    def drawn_until_apart(self, key: jax.Array, draw) -> jax.Array:
+        """`draw(key)`'s qpos, drawn again with fresh keys until nothing touches: dm_control's
+        rejection loop in `initialize_episode` (its cap of tries aside: a draw that touches is
+        never the episode's start here)."""
+        def redraw(carry):
+            key, _ = carry
+            key, draw_key = jax.random.split(key)
+            return key, draw(draw_key)
+
+        key, draw_key = jax.random.split(key)
+        _, qpos = jax.lax.while_loop(lambda carry: self.touching(carry[1]), redraw, (key, draw(draw_key)))
+        return qpos
+
     # ---- task hooks ----------------------------------------------------------------
     @abc.abstractmethod
     def observations(self, data: mjx.Data) -> dict[str, jax.Array]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.mjx_env import mjx
 from envs.tasks.dm_control_suite import DmControlEnv
 
 
@@ -34,21 +33,8 @@ class DmcBallInCupCatch(DmControlEnv):
         qpos = qpos.at[ball_x].set(jax.random.uniform(x_key, minval=-0.2, maxval=0.2))
         return qpos.at[ball_z].set(jax.random.uniform(z_key, minval=0.2, maxval=0.5))
 
-    def touching(self, qpos: jax.Array) -> jax.Array:
-        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
-        contact = mjx.collision(self.mjx_model, mjx.kinematics(self.mjx_model, self._initial_data.replace(qpos=qpos)))
-        contact = contact._impl.contact
-        return jnp.any(contact.dist < contact.includemargin)
-
     def initial_qpos_qvel(self, key):
-        def redraw(carry):
-            key, _ = carry
-            key, draw_key = jax.random.split(key)
-            return key, self._draw(draw_key)
-
-        key, draw_key = jax.random.split(key)
-        _, qpos = jax.lax.while_loop(lambda carry: self.touching(carry[1]), redraw, (key, self._draw(draw_key)))
-        return qpos, jnp.zeros(self.mj_model.nv)
+        return self.drawn_until_apart(key, self._draw), jnp.zeros(self.mj_model.nv)
 
     def observations(self, data):
         return {"position": data.qpos, "velocity": data.qvel}

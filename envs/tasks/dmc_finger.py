@@ -36,7 +36,7 @@ import jax.numpy as jnp
 
 from envs.core import State
 from envs.mjx_env import mjx
-from envs.tasks.dm_control_suite import DmControlEnv, randomize_joints
+from envs.tasks.dm_control_suite import DmControlEnv
 
 EASY_TARGET_SIZE, HARD_TARGET_SIZE = 0.07, 0.03  # dm_control's _EASY_TARGET_SIZE, _HARD_TARGET_SIZE (m)
 SPIN_VELOCITY = 15.0  # _SPIN_VELOCITY (rad/s)
@@ -49,24 +49,8 @@ class DmcFinger(DmControlEnv):
     domain = "finger"
     control_timestep = 0.02  # dm_control's _CONTROL_TIMESTEP
 
-    def touching(self, qpos: jax.Array, model: mjx.Model | None = None) -> jax.Array:
-        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
-        model = self.mjx_model if model is None else model
-        contact = mjx.collision(model, mjx.kinematics(model, self._initial_data.replace(qpos=qpos)))._impl.contact
-        return jnp.any(contact.dist < contact.includemargin)
-
-    def _draw(self, key):
-        return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype), key)
-
     def initial_qpos_qvel(self, key):
-        def redraw(carry):
-            key, _ = carry
-            key, draw_key = jax.random.split(key)
-            return key, self._draw(draw_key)
-
-        key, draw_key = jax.random.split(key)
-        _, qpos = jax.lax.while_loop(lambda carry: self.touching(carry[1]), redraw, (key, self._draw(draw_key)))
-        return qpos, jnp.zeros(self.mj_model.nv)
+        return self.drawn_until_apart(key, self.joints_drawn), jnp.zeros(self.mj_model.nv)
 
     def _relative_to_hinge(self, data, sensor):
         """A frame sensor's (x, z) less the spinner's (dm_control's `tip_position`, `target_position`)."""

@@ -23,11 +23,9 @@ force and other sensors are stepped but not observed).
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 
-from envs.mjx_env import mjx
-from envs.tasks.dm_control_suite import DmControlEnv, randomize_joints, tolerance
+from envs.tasks.dm_control_suite import DmControlEnv, tolerance
 
 STAND_HEIGHT = 1.4  # dm_control's _STAND_HEIGHT (m)
 WALK_SPEED, RUN_SPEED = 1.0, 10.0  # _WALK_SPEED, _RUN_SPEED (m/s)
@@ -43,24 +41,8 @@ class DmcHumanoid(DmControlEnv):
                           ("com_velocity", 3), ("velocity", 27))
     move_speed: float
 
-    def touching(self, qpos: jax.Array) -> jax.Array:
-        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
-        contact = mjx.collision(self.mjx_model, mjx.kinematics(self.mjx_model, self._initial_data.replace(qpos=qpos)))
-        contact = contact._impl.contact
-        return jnp.any(contact.dist < contact.includemargin)
-
-    def _draw(self, key):
-        return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype), key)
-
     def initial_qpos_qvel(self, key):
-        def redraw(carry):
-            key, _ = carry
-            key, draw_key = jax.random.split(key)
-            return key, self._draw(draw_key)
-
-        key, draw_key = jax.random.split(key)
-        _, qpos = jax.lax.while_loop(lambda carry: self.touching(carry[1]), redraw, (key, self._draw(draw_key)))
-        return qpos, jnp.zeros(self.mj_model.nv)
+        return self.drawn_until_apart(key, self.joints_drawn), jnp.zeros(self.mj_model.nv)
 
     def _head_height(self, data):
         return data.xpos[self.mj_model.body("head").id, 2]

@@ -30,7 +30,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.mjx_env import mjx
 from envs.tasks.dm_control_suite import DmControlEnv, tolerance
 
 WALK_SPEED, RUN_SPEED = 0.5, 5.0  # dm_control's _WALK_SPEED, _RUN_SPEED (m/s)
@@ -78,12 +77,6 @@ class DmcQuadruped(DmControlEnv):
         self._root = model.joint("root").qposadr[0]
         self._imu = sensor_values(model, mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
         self._force_torque = sensor_values(model, mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
-
-    def touching(self, qpos: jax.Array) -> jax.Array:
-        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
-        contact = mjx.collision(self.mjx_model, mjx.kinematics(self.mjx_model, self._initial_data.replace(qpos=qpos)))
-        contact = contact._impl.contact
-        return jnp.any(contact.dist < contact.includemargin)
 
     def at_height(self, orientation: jax.Array, tries: jax.Array) -> jax.Array:
         """qpos0 with the root at (0, 0, tries x 1 cm) and `orientation`."""
