@@ -98,6 +98,10 @@ class MjxEnv(Env):
     # A batch of one stays a batch: one MJX env stepped unbatched was slower on a GPU than as a
     # batch of one (docs/results.md, "The GPU step"), and MuJoCo Warp steps batches of worlds.
     batch_of_one_as_scalars = False
+    # The `state.info` entries that hold a per-episode model edit (dm_control's reacher moves its
+    # target geom each episode; see `episode_model`). MuJoCo Warp steps one model for every world,
+    # so such a task runs with impl="jax" only.
+    episode_info: tuple[str, ...] = ()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -192,6 +196,10 @@ class MjxEnv(Env):
                              f"(this env steps with impl={impl!r})")
         if not opt and not given and impl == self.impl:
             return self
+        if impl == "warp" and self.episode_info:
+            raise ValueError(f"task {self.name}: impl='warp' steps one model for every world, and this task edits "
+                             f"its model every episode ({', '.join(self.episode_info)}, as dm_control does): "
+                             "use impl='jax' (the default)")
         if impl == "warp":
             require_warp()
         task = copy.copy(self)

@@ -253,7 +253,7 @@ def _env() -> dict:
 def test_training_and_judging_a_ppo_run_need_no_rerun(tmp_path):
     """GPU machines may lack rerun-sdk (it is large): only --rerun and `rollout` may import it."""
     out = tmp_path / "run"
-    no_rerun = "import runpy, sys; sys.modules['rerun'] = None; runpy.run_module('agents.cli', run_name='__main__')"
+    no_rerun = "import sys; sys.modules['rerun'] = None; from agents.cli import main; sys.exit(main())"
     for argv in (["train", "--env", "pendulum-mjx", "--agent", "ppo", *TINY_PPO_ARGS, "--out", str(out)],
                  ["eval", "--checkpoint", str(out), "--episodes", "2"]):
         done = subprocess.run([sys.executable, "-c", no_rerun, *argv], env=_env(), capture_output=True, text=True)
