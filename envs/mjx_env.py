@@ -98,10 +98,6 @@ class MjxEnv(Env):
     # A batch of one stays a batch: one MJX env stepped unbatched was slower on a GPU than as a
     # batch of one (docs/results.md, "The GPU step"), and MuJoCo Warp steps batches of worlds.
     batch_of_one_as_scalars = False
-    # The `state.info` entries that hold a per-episode model edit (dm_control's reacher moves its
-    # target geom each episode; see `episode_model`). MuJoCo Warp steps one model for every world,
-    # so such a task runs with impl="jax" only.
-    episode_info: tuple[str, ...] = ()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -196,10 +192,6 @@ class MjxEnv(Env):
                              f"(this env steps with impl={impl!r})")
         if not opt and not given and impl == self.impl:
             return self
-        if impl == "warp" and self.episode_info:
-            raise ValueError(f"task {self.name}: impl='warp' steps one model for every world, and this task edits "
-                             f"its model every episode ({', '.join(self.episode_info)}, as dm_control does): "
-                             "use impl='jax' (the default)")
         if impl == "warp":
             require_warp()
         task = copy.copy(self)
@@ -289,10 +281,23 @@ class MjxEnv(Env):
         scaled = 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
         return jnp.where(limited, scaled, action)
 
-    def episode_model(self, info: dict) -> mjx.Model:
-        """The model an episode steps with, from its `state.info`: the task's own, or its
-        per-episode edit (dm_control's reacher moves its target); a camera draws this one."""
-        return self.mjx_model
+    # ---- per-episode markers ------------------------------------------------
+    # dm_control moves some targets every episode by editing the model (reacher's target geom,
+    # finger turn's target site: world-fixed, nothing collides with them). Here the episode's value
+    # lives in `state.info` (its keys: `episode_info`) and is written into the derived positions
+    # after each physics call, so every env of a batch, and every MuJoCo Warp world, steps the
+    # task's one model, and the positions read are the ones the edited model would give.
+    episode_info: tuple[str, ...] = ()
+
+    def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """(the key left for the reset's state, this episode's `episode_info` values) drawn from
+        `key` at reset. The default draws nothing."""
+        return key, {}
+
+    def with_episode(self, data: mjx.Data, info: Mapping) -> mjx.Data:
+        """`data` with the episode's markers (`info` holds `episode_info`) placed in its derived
+        positions (geom_xpos, site_xpos, the sensors reading them). The default places nothing."""
+        return data
 
     # ---- the env API --------------------------------------------------------
     def reset(self, key: jax.Array) -> State:
@@ -306,6 +311,7 @@ class MjxEnv(Env):
     # each env's physics; `reset`/`step` above pass the task's one model at no extra cost.
     def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
         """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
+        key, episode = self.draw_episode(key)
         qpos, qvel = self.initial_qpos_qvel(key)
         qpos = jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq)
         qvel = jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv)
@@ -319,6 +325,7 @@ class MjxEnv(Env):
             # set_state) leaves qpos as drawn, and so do we (Ant-v5's reset observation shows it).
             derived = self.compute_derived(data, model) if self._warp else self.compute_derived_at_reset(model, data)
             data = derived.replace(qpos=data.qpos)
+        data = self.with_episode(data, episode)
         obs = self.observation(data)
         if obs.shape != (self.observation_size,):
             raise ValueError(
@@ -330,7 +337,8 @@ class MjxEnv(Env):
         no_action = jnp.zeros((self.action_size,), obs.dtype) if self.action_size else jnp.zeros((), jnp.int32)
         _, terms = jax.eval_shape(lambda: self._reward_and_terms(data, no_action, data))
         metrics = {name: jnp.zeros(term.shape, obs.dtype) for name, term in terms.items()}
-        return State(data, obs, zero, zero, metrics=metrics, info={"truncation": zero, "nan": zero, "overflow": zero})
+        info = {"truncation": zero, "nan": zero, "overflow": zero, **episode}
+        return State(data, obs, zero, zero, metrics=metrics, info=info)
 
     def step_with_model(self, state: State, action: jax.Array, model: mjx.Model) -> State:
         """`step`, with `model` in place of the task's own `mjx_model`."""
@@ -339,7 +347,7 @@ class MjxEnv(Env):
         # In the model's dtype: a float32 bin table must not turn float64 ctrl (x64) into float32.
         data = prev.replace(ctrl=self.action_to_ctrl(action).astype(prev.ctrl.dtype))
         data = self._warp.run(self._physics, model, data) if self._warp else self._physics(model, data)
-        data = self.post_step(prev, data)
+        data = self.with_episode(self.post_step(prev, data), state.info)
         overflow = self._overflow(data)
         obs, terminated = self.observation(data), self.terminated(data)
         reward, terms = self._reward_and_terms(data, action, prev)

@@ -180,13 +180,14 @@ class RayRenderer:
         self.cylinders = np.nonzero((m.geom_type == mujoco.mjtGeom.mjGEOM_CYLINDER) & drawn)[0]
         self.colors = jnp.asarray(np.clip(rgba[:, :3], 0, 1), jnp.float32)
 
-    def render(self, data, model=None) -> tuple[jax.Array, jax.Array]:
+    def render(self, data, info=None) -> tuple[jax.Array, jax.Array]:
         """(rgb in [0, 1], (H, W, 3); planar depth, (H, W), 0 where no geom is hit) of `data`'s positions,
-        drawn with `model` (the episode's: `MjxEnv.episode_model`; None: the task's own)."""
-        mjx = self.mjx
-        model = self.task.mjx_model if model is None else model
+        with the episode's markers of `info` (its `state.info`: `MjxEnv.with_episode`) where given."""
+        mjx, model = self.mjx, self.task.mjx_model
         # The positions of data.qpos (a step leaves the previous step's); com_pos for tracking cameras.
-        data = mjx.camlight(model, mjx.com_pos(model, mjx.kinematics(model, data)))
+        data = mjx.kinematics(model, data)
+        data = data if info is None else self.task.with_episode(data, info)
+        data = mjx.camlight(model, mjx.com_pos(model, data))
         origin, frame = data.cam_xpos[self.cam], data.cam_xmat[self.cam]
         dirs = self.rays.reshape(-1, 3) @ frame.T.astype(jnp.float32)
         dist, geom = jax.vmap(lambda vec: self._cast(model, data, origin, vec))(dirs)
@@ -287,8 +288,9 @@ class WarpRenderer:
                 use_shadows=False, enabled_geom_groups=list(GEOM_GROUPS))
         return self.contexts[worlds]
 
-    def render(self, data, model=None) -> tuple[jax.Array, jax.Array]:
+    def render(self, data, info=None) -> tuple[jax.Array, jax.Array]:
         mjx, task = self.mjx, self.task
+        data = data if info is None else task.with_episode(data, info)  # a step's positions, markers placed
 
         def render_worlds(data):  # every leaf has a leading world axis
             worlds = data.qpos.shape[0]
@@ -360,8 +362,8 @@ class Pixels(Wrapper):
     def render(self, data, info: dict | None = None) -> tuple[jax.Array, jax.Array]:
         """The camera's float images of one env's `pipeline_state`: rgb in [0, 1] (H, W, 3) and
         planar depth in metres (H, W), 0 where nothing is hit. `info`: the episode's `state.info`,
-        whose per-episode model edits (`MjxEnv.episode_model`: reacher's target) are drawn."""
-        return self.renderer.render(data, None if info is None else self.unwrapped.episode_model(info))
+        whose per-episode markers (`MjxEnv.with_episode`: reacher's target) are drawn."""
+        return self.renderer.render(data, info)
 
     def frame(self, state: State) -> jax.Array:
         rgb, depth = self.render(state.pipeline_state, state.info)

@@ -49,9 +49,9 @@ def our_returns(env, gain: np.ndarray, qpos, qvel, episode) -> np.ndarray:
 
     def rollout(q, v, given):
         state = env.reset(jax.random.PRNGKey(0))
-        model = env.with_target(given["target"]) if given else env.mjx_model
-        data = env.compute_derived(state.pipeline_state.replace(qpos=q, qvel=v), model)
-        state = state.replace(pipeline_state=data, obs=env.observation(data), info={**state.info, **given})
+        info = {**state.info, **given}
+        data = env.with_episode(env.compute_derived(state.pipeline_state.replace(qpos=q, qvel=v)), info)
+        state = state.replace(pipeline_state=data, obs=env.observation(data), info=info)
 
         def step(state, _):
             state = env.step(state, jnp.clip(state.obs @ gain, -1.0, 1.0))

@@ -52,12 +52,7 @@ def warp_faked(monkeypatch):
     monkeypatch.setattr(mjx_warp.WarpWorlds, "overflow", staticmethod(lambda data: jax.numpy.zeros(())))
 
 
-def edits_model_per_episode(task: str) -> bool:
-    return bool(getattr(envs.registry._lookup(task)[0], "episode_info", ()))
-
-
-TASKS = sorted({task for task, _ in PAIRS if not edits_model_per_episode(task)})
-EDITING_TASKS = sorted({task for task, _ in PAIRS if edits_model_per_episode(task)})
+TASKS = sorted({task for task, _ in PAIRS})
 
 
 @pytest.mark.parametrize("task", TASKS)
@@ -79,14 +74,6 @@ def test_every_recipe_starts_under_warp(warp_faked, task):
     batch = wrap_for_training(env, 2)
     state = jax.eval_shape(batch.reset, jax.random.PRNGKey(0))
     jax.eval_shape(batch.step, state, jax.ShapeDtypeStruct((2, env.action_size), jax.numpy.float32))
-
-
-@pytest.mark.parametrize("task", EDITING_TASKS)
-def test_a_task_that_edits_its_model_per_episode_is_refused_under_warp(warp_faked, task):
-    """dm_control's reacher moves its target in the model every episode; Warp's worlds share one
-    model, so `impl="warp"` is refused when the env is made, naming the fix."""
-    with pytest.raises(ValueError, match=f"task {task}: impl='warp' steps one model.*use impl='jax'"):
-        envs.make(task, impl="warp")
 
 
 def test_the_check_refuses_another_model(warp_faked):

@@ -23,10 +23,10 @@ read from the installed package.
 Model edits, as dm_control makes them in `initialize_episode`: spin sets the hinge's damping to 0.03
 (from 0.5) and hides the target and tip sites (alpha 0); turn sets the target site's radius to 0.07
 (easy) or 0.03 (hard). These are the same every episode: made once on the model. Turn's target
-position is per episode: kept in `state.info["target"]`, each reset and step runs the physics with
-the model whose target `site_pos` is that episode's (`with_target`), so the target's frame sensor
-reads it where dm_control's does (the site collides with nothing). `envs.randomize` steps models of
-its own and would drop it: not offered with the turn tasks.
+position is per episode: kept in `state.info["target"]` and written after each physics call into
+the site's position and the frame sensor reading it (`with_episode`), where dm_control's edited
+model puts them (a world site that collides with nothing): every env and every MuJoCo Warp world
+steps the task's one model.
 """
 
 from __future__ import annotations
@@ -34,7 +34,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.core import State
 from envs.mjx_env import mjx
 from envs.tasks.dm_control_suite import DmControlEnv
 
@@ -92,12 +91,7 @@ class DmcFingerTurn(DmcFinger):
         self.mj_model.site_size[self.mj_model.site("target").id, 0] = self.target_radius
         super()._put_on_device(impl)
 
-    def with_target(self, target: jax.Array) -> mjx.Model:
-        """The task's model with the target site at `target` (x, z)."""
-        index = self.mj_model.site("target").id
-        return self.mjx_model.replace(site_pos=self.mjx_model.site_pos.at[index, jnp.array([0, 2])].set(target))
-
-    def reset(self, key: jax.Array) -> State:
+    def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict]:
         key, angle_key = jax.random.split(key)
         angle = jax.random.uniform(angle_key, minval=-jnp.pi, maxval=jnp.pi)
         # The hinge's anchor is its body's position (the spinner turns in place); the radius is cap1's
@@ -105,14 +99,14 @@ class DmcFingerTurn(DmcFinger):
         spinner = self.mj_model.body("spinner").pos[[0, 2]]
         radius = float(self.mj_model.geom_size[self.mj_model.geom("cap1").id].sum())
         target = (spinner + radius * jnp.stack([jnp.sin(angle), jnp.cos(angle)])).astype(self.mjx_model.site_pos.dtype)
-        state = self.reset_with_model(key, self.with_target(target))
-        return state.replace(info={**state.info, "target": target})
+        return key, {"target": target}
 
-    def episode_model(self, info: dict) -> mjx.Model:
-        return self.with_target(info["target"])
-
-    def step(self, state: State, action: jax.Array) -> State:
-        return self.step_with_model(state, action, self.episode_model(state.info))
+    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
+        # A world site: its site_xpos is its site_pos, and the frame sensor on it reads that.
+        site, sensor = self.mj_model.site("target").id, int(self.mj_model.sensor("target").adr[0])
+        xz = jnp.array([0, 2])
+        return data.replace(site_xpos=data.site_xpos.at[site, xz].set(info["target"]),
+                            sensordata=data.sensordata.at[sensor + xz].set(info["target"]))
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""

@@ -12,11 +12,10 @@ MJCF is dm_control's `reacher.xml`, read from the installed package.
   radius is the task's: 0.05 (easy), 0.015 (hard).
 - Episode: 1,000 steps (20 s simulated), never terminated.
 
-The target is a per-episode model edit in dm_control (`geom_pos` of the target, which nothing
-collides with). Here it lives in `state.info["target"]` and each reset and step runs the physics
-with the task's model whose target `geom_pos` is that episode's (`with_target`), so `geom_xpos` (and
-the picture of the scene) have it where dm_control has it. `envs.randomize` steps its own models
-and would drop the target: it is not offered with these two tasks.
+The target is a per-episode model edit in dm_control (`geom_pos` of a world geom nothing collides
+with). Here it lives in `state.info["target"]`, and after each physics call it is written into
+`geom_xpos` (`with_episode`, `MjxEnv`'s per-episode markers), where dm_control's edited model puts
+it: every env and every MuJoCo Warp world steps the task's one model.
 """
 
 from __future__ import annotations
@@ -24,7 +23,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.core import State
 from envs.mjx_env import mjx
 from envs.tasks.dm_control_suite import DmControlEnv, randomize_joints, tolerance
 
@@ -44,24 +42,17 @@ class DmcReacher(DmControlEnv):
         self.mj_model.geom_size[self.mj_model.geom("target").id, 0] = self.target_size
         super()._put_on_device(impl)
 
-    def with_target(self, target: jax.Array) -> mjx.Model:
-        """The task's model with the target geom at `target` (x, y)."""
-        index = self.mj_model.geom("target").id
-        return self.mjx_model.replace(geom_pos=self.mjx_model.geom_pos.at[index, :2].set(target))
-
-    def reset(self, key: jax.Array) -> State:
+    def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict]:
         key, angle_key, radius_key = jax.random.split(key, 3)
         angle = jax.random.uniform(angle_key, minval=0.0, maxval=2 * jnp.pi)
         radius = jax.random.uniform(radius_key, minval=0.05, maxval=0.2)
         target = (radius * jnp.stack([jnp.sin(angle), jnp.cos(angle)])).astype(self.mjx_model.geom_pos.dtype)
-        state = self.reset_with_model(key, self.with_target(target))
-        return state.replace(info={**state.info, "target": target})
+        return key, {"target": target}
 
-    def episode_model(self, info: dict) -> mjx.Model:
-        return self.with_target(info["target"])
-
-    def step(self, state: State, action: jax.Array) -> State:
-        return self.step_with_model(state, action, self.episode_model(state.info))
+    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
+        # A world geom: its geom_xpos is its geom_pos, as dm_control's edited model gives it.
+        index = self.mj_model.geom("target").id
+        return data.replace(geom_xpos=data.geom_xpos.at[index, :2].set(info["target"]))
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
