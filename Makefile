@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: train test test-slow bench clean
+.PHONY: train test test-slow test-heavy bench clean
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -19,7 +19,10 @@ test: $(BIN)/.installed  ## the fast test suite (what CI runs)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once); at most 6 minutes on 2 cores
 
 test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
-	$(BIN)/python -m pytest -q -m slow -n 2 --dist loadfile --durations=30  # two workers, each test file on one (its compiled programs shared); the 30 longest listed
+	$(BIN)/python -m pytest -q -m "slow and not heavy" -n 2 --dist loadfile --durations=30  # two workers, each test file on one (its compiled programs shared); the 30 longest listed
+
+test-heavy: $(BIN)/.installed  ## the largest models' proofs (humanoid, quadruped, ...) and the lifecycle's repeats per agent: out of CI, run when a task's physics or an agent changes
+	$(BIN)/python -m pytest -q -m heavy -n 2 --dist loadfile --durations=30
 
 # `make bench BENCH_TAG=gpu` on a GPU machine
 BENCH_TAG ?= cpu

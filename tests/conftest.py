@@ -45,6 +45,36 @@ else:
     shutil.rmtree(_CACHE_DIR, ignore_errors=True)
 
 
+# Parametrized cases of the heavy run (`make test-heavy`, out of CI: see docs/claims.md), beside the
+# tests marked `heavy` where they are defined: a sibling case of each stays in the slow run.
+HEAVY_CASES = {
+    "tests/test_agents_cli.py::test_kill_9_after_a_checkpoint_then_resume_is_exact[sac]",
+    "tests/test_walkers.py::test_steps_match_gymnasium[walker2d]",
+    "tests/test_gym_vector.py::test_every_gymnasium_task_steps_as_syncvectorenv[Hopper-v5-NEXT_STEP]",
+    "tests/test_gym_vector.py::test_every_gymnasium_task_steps_as_syncvectorenv[HalfCheetah-v5-NEXT_STEP]",
+    "tests/test_gym_vector.py::test_every_gymnasium_task_steps_as_syncvectorenv[HalfCheetah-v5-SAME_STEP]",
+    "tests/test_gym_interop.py::test_check_env_passes_for_every_kind_of_env[cartpole-swingup-mjx]",
+    "tests/test_gym_interop.py::test_check_env_passes_for_every_kind_of_env[half-cheetah]",
+    "tests/test_dqn.py::test_resume_reproduces_the_uninterrupted_run[cartpole-mjx-uniform]",
+    "tests/test_dm_control.py::test_steps_match_dm_control[dmc-cheetah-run]",
+    "tests/test_dm_control.py::test_reset_observation_is_dm_controls[dmc-cheetah-run]",
+    "tests/test_dm_control.py::test_steps_match_dm_control[dmc-hopper-hop]",
+    "tests/test_dm_control.py::test_reset_observation_is_dm_controls[dmc-hopper-hop]",
+    "tests/test_dm_control.py::test_steps_near_the_goal_match_dm_control[dmc-cheetah-run]",
+    "tests/test_dm_control.py::test_steps_near_the_goal_match_dm_control[dmc-hopper-hop]",
+    "tests/test_dm_control.py::test_steps_near_the_goal_match_dm_control[dmc-hopper-stand]",
+    "tests/test_dm_control.py::test_cheetah_reset_distribution_matches_dm_control",
+}
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` selects
+def pytest_collection_modifyitems(config, items):
+    found = {item.nodeid for item in items} & HEAVY_CASES
+    for item in items:
+        if item.nodeid in found:
+            item.add_marker(pytest.mark.heavy)
+
+
 @pytest.fixture(autouse=True)
 def _export_cache_off_between_tests():
     """In-process CLI tests turn on the export cache (`jax_compile_cache.enable()`, as the CLI

@@ -29,7 +29,7 @@ def starts():
     return transitions(NAME, num_envs=16, num_steps=40, keep=200, forward_first=True)
 
 
-@pytest.mark.slow  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
+@pytest.mark.heavy  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
 def test_task_reads_mujocos_data_as_gymnasium_does(starts):
     env = envs.make(NAME).unwrapped
     theirs = gymnasium_env(GYMNASIUM_ID)
@@ -89,7 +89,7 @@ def plane_capsule_as_c(plane, capsule):
     return jax.tree.map(lambda *x: jnp.concatenate(x), *contacts)
 
 
-@pytest.mark.slow  # compiles ant's contact/RK4 step once more (minutes of CPU)
+@pytest.mark.heavy  # compiles ant's contact/RK4 step once more (minutes of CPU)
 def test_the_steps_differ_by_mjxs_plane_capsule_frame(monkeypatch):
     """Why ant's steps differ where a leg touches the floor: with MJX's plane-capsule contacts framed
     as C MuJoCo frames them (this test only), 96% of 200 steps agree to 1e-3 (61.5% with MJX's own

@@ -124,7 +124,7 @@ def test_gym_mujoco_compares_with_brax_only_at_equal_solver_options():
     assert ratios == {("brax", 4096): pytest.approx(2.0), ("gymnasium", 16): pytest.approx(100.0)}
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_gym_mujoco_runs_on_the_cpu_with_tiny_sizes(tmp_path):
     from benchmarks import gym_mujoco
 
@@ -164,7 +164,7 @@ def test_every_learning_case_builds_its_config_and_unknown_cases_are_refused():
         learning.section(["no-such-case"])
 
 
-@pytest.mark.slow  # two tiny trainings, one judged on Gymnasium's own env
+@pytest.mark.heavy  # two tiny trainings, one judged on Gymnasium's own env
 def test_the_learning_section_runs_at_tiny_sizes():
     from benchmarks import learning
 

@@ -60,7 +60,7 @@ def start_states(env, rng):
 # Spin's physics is turn's with one constant changed (the hinge's damping, which
 # test_finger_tasks_are_dm_controls holds to dm_control's): only turn-easy's program is compiled in
 # the slow run, to keep it within its budget; spin's readings are proven in the default run.
-@pytest.fixture(scope="module", params=[pytest.param("dmc-finger-turn-easy", marks=pytest.mark.slow)])
+@pytest.fixture(scope="module", params=[pytest.param("dmc-finger-turn-easy", marks=pytest.mark.heavy)])
 def finger_case(request):
     name = request.param
     env = envs.make(name).unwrapped

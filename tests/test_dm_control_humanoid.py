@@ -82,7 +82,7 @@ def stand_case():
     return env, starts, dm_control_steps(env, starts)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_humanoid_steps_match_dm_control(stand_case):
     env, starts, theirs = stand_case
     within = np.all(np.abs(starts.steps.obs - theirs.obs) <= BOUNDS["obs"] + 1e-4 * np.abs(theirs.obs), axis=1)
@@ -94,14 +94,14 @@ def test_humanoid_steps_match_dm_control(stand_case):
     assert theirs.reward.max() > 0.5 and theirs.reward.min() < 0.1, "the reward must be exercised"
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_humanoid_reset_observation_is_dm_controls(stand_case):
     env, starts, _ = stand_case
     theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
     np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_humanoid_reset_distribution_matches_dm_control(stand_case):
     """The joints and the root's quaternion (a normalised U(0, 1)^4) in distribution; C MuJoCo finds no
     contact at any of our resets, though the randomiser's raw draws touch: the loop rejects."""

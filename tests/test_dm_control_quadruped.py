@@ -75,7 +75,7 @@ def walk_case():
     return env, starts, dm_control_steps(env, starts)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_quadruped_steps_match_dm_control(walk_case):
     env, starts, theirs = walk_case
     Comparison(starts.steps, theirs).assert_within(BOUNDS)
@@ -85,14 +85,14 @@ def test_quadruped_steps_match_dm_control(walk_case):
     assert np.ptp(starts.act, axis=0).min() > 0, "the actuators' filter states must vary"
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_quadruped_reset_observation_is_dm_controls(walk_case):
     env, starts, _ = walk_case
     theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
     np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_quadruped_reset_distribution_matches_dm_control(walk_case):
     """The root's orientation and the height the search stops at, in distribution; C MuJoCo finds no
     contact at any of our resets, and 1 cm lower it does: the lowest free height, as dm_control's."""

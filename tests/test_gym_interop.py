@@ -453,7 +453,7 @@ def test_render_without_gl_is_a_clear_error():
         env.render()
 
 
-@pytest.mark.slow  # compiles the camera's render three times (one env, a batch, make_vec)
+@pytest.mark.heavy  # compiles the camera's render three times (one env, a batch, make_vec)
 def test_camera_tasks_are_gymnasium_envs_of_uint8_images():
     """observation="pixels" through Gymnasium: uint8 frames in a Box(0, 255) of the image's shape,
     from `to_gymnasium` (one env and a batch, final frames included) and `make_vec`, and check_env."""

@@ -96,7 +96,7 @@ def test_a_users_task_has_gymnasiums_spaces_and_hooks():
     assert task.mj_model.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON  # the MJCF's PGS, as for humanoid
 
 
-@pytest.mark.slow  # three compiles of inverted-pendulum's step; gymnasium_mujoco's tests use the same proof by default
+@pytest.mark.heavy  # three compiles of inverted-pendulum's step; gymnasium_mujoco's tests use the same proof by default
 def test_the_public_proof_reports_each_steps_error():
     """The helper on a cheap built-in task: an error per step, within test_inverted_pendulums'
     tolerances; a task that differs from Gymnasium's is caught."""
@@ -116,7 +116,7 @@ def test_the_public_proof_reports_each_steps_error():
 
 # Float32 against float64 from the same state, Newton on both sides (humanoid's tolerances,
 # tests/test_humanoid.py): everything but the contact forces within 1e-2, those within 1 N + 1%.
-@pytest.mark.slow  # compiles a humanoid's contact/RK4 step (minutes on 2 cores), as tests/test_humanoid.py's
+@pytest.mark.heavy  # compiles a humanoid's contact/RK4 step (minutes on 2 cores), as tests/test_humanoid.py's
 def test_a_users_humanoid_standup_steps_as_gymnasiums():
     task = HumanoidStandup()
     report = compare_with_gymnasium(task, "HumanoidStandup-v5", num_envs=8, num_steps=20, keep=80,

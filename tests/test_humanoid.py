@@ -108,7 +108,7 @@ def starts():
 STEP_TOLERANCES = {"qpos[2:]": 1e-4, "qvel": 1e-2, "cinert[1:]": 1e-4, "cvel[1:]": 1e-2, "qfrc_actuator[6:]": 1e-4}
 
 
-@pytest.mark.slow  # issue #29: compiles humanoid's contact/RK4 step and mjx.forward (134 s on 2 cores); out of the default run
+@pytest.mark.heavy  # issue #29: compiles humanoid's contact/RK4 step and mjx.forward (134 s on 2 cores); out of the default run
 def test_steps_match_gymnasium_with_the_same_solver(starts):
     theirs = gymnasium_steps(GYMNASIUM_ID, starts, opt=NEWTON)
     assert (theirs.contacts > 0).mean() > 0.4 and theirs.terminated.mean() > 0.2, "feet on the floor, falls"
@@ -130,7 +130,7 @@ def test_steps_match_gymnasium_with_the_same_solver(starts):
     np.testing.assert_array_equal(ours.terminated, theirs.terminated)
 
 
-@pytest.mark.slow  # issue #29: needs the same compiled step as the test above (shared fixture)
+@pytest.mark.heavy  # needs the same compiled step as the test above (shared fixture)
 def test_the_solver_change_moves_a_step_less_than_float32_does(starts):
     """Gymnasium's own env, unmodified (PGS) against the same with Newton, from the same states
     (C MuJoCo, float64 both): the difference our one change to the model makes."""
@@ -198,7 +198,7 @@ def test_reset_distribution_matches_gymnasium():
     assert np.abs(qvel).max() <= 0.01 + 1e-9 and np.abs(qpos - env.init_qpos).max() <= 0.01 + 1e-7, "U(-0.01, 0.01)"
 
 
-@pytest.mark.slow  # issue #29: compiles the reset's mjx.forward for humanoid's contacts (20 s on 2 cores); out of the default run
+@pytest.mark.heavy  # issue #29: compiles the reset's mjx.forward for humanoid's contacts (20 s on 2 cores); out of the default run
 def test_reset_observation_is_gymnasiums():
     env = envs.make(NAME).unwrapped
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(2), 50))

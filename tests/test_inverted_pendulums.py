@@ -38,7 +38,7 @@ def test_inverted_double_pendulum_steps_match_gymnasium():
     assert set(ours.steps.info) == {"reward_survive", "distance_penalty", "velocity_penalty"}
 
 
-@pytest.mark.slow  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
+@pytest.mark.heavy  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
 def test_inverted_double_pendulum_episodes_match_gymnasium():
     """Whole episodes side by side: the reset's observation (tip site, constraint force) and
     the steps that read what MuJoCo's RK4 leaves behind."""
@@ -56,7 +56,7 @@ def test_options_are_gymnasiums(name, gymnasium_id):
     np.testing.assert_array_equal(env.action_low, [-high]), np.testing.assert_array_equal(env.action_high, [high])
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_steps_match_gymnasium_with_every_option_changed():
     overrides = dict(healthy_reward=3.0, reset_noise_scale=0.2)
     ours = transitions("inverted-double-pendulum", num_envs=8, num_steps=10, keep=80, **overrides)

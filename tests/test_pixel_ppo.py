@@ -145,7 +145,7 @@ def test_pixel_training_keeps_uint8_frames():
     assert judged["eval_episode"].obs.shape == (20, SIZE, SIZE, 3)  # the recorded episode's frames
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_ppo_trains_from_pixels_and_the_saved_policy_acts(tmp_path):
     """A chunk from 8x8 frames on the CPU, saved, and `load_policy` acting on a uint8 frame as the
     env gives it (a float one is refused). The run stops after its first of two chunks: its

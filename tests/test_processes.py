@@ -192,7 +192,7 @@ def test_children_stop_when_their_parent_is_killed(tmp_path):
         assert "Traceback" not in (run / processes.PROCESSES_DIR / str(k) / processes.LOG_FILE).read_text()
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_ppo_in_two_processes_equals_one_process(tmp_path):
     from tests.test_agents_cli import TINY_PPO_ARGS
 

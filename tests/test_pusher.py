@@ -102,7 +102,7 @@ def our_steps(name: str, starts: Transitions, **overrides) -> Steps:
     return Steps(obs, reward, done.astype(bool), metrics)
 
 
-@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); compiles pusher's contact step again (~30 s)
+@pytest.mark.heavy  # issue #29: out of the default run (make test <= 8 min); compiles pusher's contact step again (~30 s)
 def test_steps_while_pushing_differ_as_measured(starts):
     """MJX's capsule-cylinder contact is not C MuJoCo's (docs/tasks.md): C finds one contact at
     the exact depth with a horizontal normal; MJX (`collision_sdf.capsule_cylinder`, gradient
@@ -136,7 +136,7 @@ def test_steps_while_pushing_differ_as_measured(starts):
     np.testing.assert_array_equal(ours.terminated, False), np.testing.assert_array_equal(theirs.terminated, False)
 
 
-@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); compiles its own 100-step episode (~25 s)
+@pytest.mark.heavy  # issue #29: out of the default run (make test <= 8 min); compiles its own 100-step episode (~25 s)
 def test_episodes_match_gymnasium():
     """Whole episodes side by side, from the reset's observation (body positions) on. Two float32
     and float64 trajectories part where a finger meets the table (measured: every step within

@@ -23,7 +23,7 @@ def test_steps_match_gymnasium():
     assert set(ours.steps.info) == {"reward_dist", "reward_ctrl"}
 
 
-@pytest.mark.slow  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
+@pytest.mark.heavy  # compiles its own contact/RK4 step (minutes of CPU): kept out of the default run (issue #29)
 def test_episodes_match_gymnasium():
     """Whole episodes side by side, from the reset's observation (fingertip - target) on."""
     ours, theirs, live = lockstep(NAME, GYMNASIUM_ID, num_episodes=8, num_steps=50)

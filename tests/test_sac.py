@@ -200,7 +200,7 @@ def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after anoth
     return lambda *args: jax.lax.map(lambda a: fn(*a), args)
 
 
-@pytest.mark.slow  # ~20 s: the default run stays under 6 minutes on 2 cores (test_resume keeps SAC exact there)
+@pytest.mark.heavy  # ~20 s: the default run stays under 6 minutes on 2 cores (test_resume keeps SAC exact there)
 def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
     """Seeds mapped (train_run's way on the CPU) are one-seed runs bit for bit. Vmapped (its way on
     accelerators) they agree to the last bits only: XLA rewrites a division by a per-seed scalar

@@ -252,7 +252,7 @@ def test_sweep_refuses_shape_fields_and_resume_of_the_other_kind(tmp_path, capsy
         main(["sweep", "--out", str(run), "--resume"])
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_path):
     tiny = ["--total_steps", "400", "--eval_every", "200", "--learning_starts", "64", "--batch_size", "32",
             "--buffer_size", "256", "--eval_episodes", "2", "--hidden", "16"]
@@ -266,7 +266,7 @@ def test_the_gpu_scaling_benchmark_runs_at_tiny_sizes_on_two_cpu_devices(tmp_pat
     assert all(r["agent_steps_per_s"] > 0 for r in records) and records[0]["ratio_to_one_device"] == 1.0
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_the_whole_process_benchmark_records_a_warm_caches_run_in_processes_with_each_process_breakdown():
     """`--whole-process --warm-cache` times the second of two identical processes, whose first filled the
     compilation cache, and a run in processes records each process's own breakdown."""
@@ -319,7 +319,7 @@ def test_the_whole_process_benchmark_times_each_counts_share_of_the_seeds_on_one
         scaling.with_seeds("--env cartpole", 2)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_the_two_gpu_mjx_reproducer_runs_its_cases_on_two_cpu_devices():
     """benchmarks.two_gpu_mjx's bare case (what goes upstream) compiles and runs where XLA does not crash."""
     from benchmarks import two_gpu_mjx

@@ -30,7 +30,7 @@ def test_steps_match_gymnasium(steps):
                                     "distance_from_origin", "x_velocity", "y_velocity"}
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_steps_match_gymnasium_with_every_option_changed():
     overrides = dict(forward_reward_weight=2.5, ctrl_cost_weight=0.7, reset_noise_scale=0.3,
                      exclude_current_positions_from_observation=False)

@@ -191,7 +191,7 @@ def td3_batch(td3, ts):
 
 
 # ---- seeds and exact resume -----------------------------------------------------------------
-@pytest.mark.slow  # three compiles of pendulum-mjx programs; the resume test below keeps one in the default run
+@pytest.mark.heavy  # three compiles of pendulum-mjx programs; the resume test below keeps one in the default run
 def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
     """Seeds mapped (train_run's way on the CPU) are one-seed runs bit for bit; vmapped (its way on
     accelerators) they agree to float rounding (Brax's normalizer divides by a per-seed count)."""
@@ -234,7 +234,7 @@ TINY = TD3Config(num_timesteps=640, num_envs=8, min_replay_size=128, max_replay_
                  num_atoms=21, v_min=-20.0, v_max=5.0)
 
 
-@pytest.mark.slow  # compiles pendulum-mjx's programs three times (as test_agents_cli's SAC resume)
+@pytest.mark.heavy  # compiles pendulum-mjx's programs three times (as test_agents_cli's SAC resume)
 def test_train_run_stopped_then_resumed_is_the_uninterrupted_run(tmp_path):
     from test_agents_cli import _leaves
 
@@ -249,7 +249,7 @@ def test_train_run_stopped_then_resumed_is_the_uninterrupted_run(tmp_path):
     assert resumed.mean_return == whole.mean_return
 
 
-@pytest.mark.slow  # a compiling subprocess, killed, then resumed
+@pytest.mark.heavy  # a compiling subprocess, killed, then resumed
 def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path):
     """`mjxsuite train --agent td3` killed with SIGKILL once a checkpoint exists, then `--resume`:
     the uninterrupted run's train state, replay included (test_agents_cli's harness)."""

@@ -31,7 +31,7 @@ def test_steps_match_gymnasium(name):
     assert set(ours.steps.info) == METRICS
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 @pytest.mark.parametrize("name", TASKS)
 def test_steps_match_gymnasium_with_every_option_changed(name):
     gymnasium_id, tolerance = TASKS[name]
