@@ -186,7 +186,7 @@ def test_kill_9_after_a_checkpoint_then_resume_is_exact(tmp_path, agent, config)
     kill_9_then_resume(tmp_path, agent, dataclasses.replace(config, num_evals=7))
 
 
-@pytest.mark.slow  # ~20 s: the DQN signal tests (test_faults.py) cover the same lifecycle in the default run
+@pytest.mark.heavy  # ~20 s: the DQN signal tests (test_faults.py) cover the same lifecycle in the default run
 def test_sigterm_stops_a_ppo_run_and_resume_ends_it_as_the_uninterrupted_run(tmp_path, capsys):
     whole = train_run("pendulum-mjx", TINY_PPO, out_dir=tmp_path / "whole", progress=False)
 

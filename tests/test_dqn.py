@@ -308,7 +308,7 @@ def test_a_batch_that_skips_idle_target_copies_copies_the_same():
     assert "stablehlo.case" in jax.jit(jax.vmap(skips)).lower(copy, new, old).as_text()  # one cond, not a select
 
 
-@pytest.mark.slow  # two compiles of a vmapped training chunk (~20 s); the test above checks copy_where itself
+@pytest.mark.heavy  # two compiles of a vmapped training chunk (~20 s); the test above checks copy_where itself
 def test_vmapped_agents_train_the_same_when_the_batch_skips_idle_target_copies(monkeypatch):
     config = dataclasses.replace(GPU_SHAPED, target_update="hard", target_period=3, replay="uniform")
 

@@ -501,6 +501,7 @@ def warp_run(tmp_path_factory):
     return moved
 
 
+@pytest.mark.slow  # a faked Warp run's own compiles
 @pytest.mark.skipif(jax.default_backend() != "cpu", reason="the fallback is for machines that cannot run Warp")
 def test_a_warp_run_gives_its_policy_eval_and_rollout_on_the_cpu(warp_run, tmp_path, capsys):
     from agents import load_policy

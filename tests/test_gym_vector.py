@@ -306,7 +306,7 @@ def test_torch_example_trains_and_plays_gymnasiums_hopper():
     assert np.isfinite(result["eval_mean_return"]) and len(result["eval_returns"]) == 1
 
 
-@pytest.mark.slow  # an MJX compile and Gymnasium's spawned workers
+@pytest.mark.heavy  # an MJX compile and Gymnasium's spawned workers
 def test_gym_vector_benchmark_runs_on_the_cpu():
     from benchmarks import gym_vector
 

@@ -27,7 +27,7 @@ def test_inverted_pendulum_steps_match_gymnasium():
     np.testing.assert_array_equal(theirs.reward, ~theirs.terminated)
 
 
-@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); the double pendulum's own step compile (~33 s); the single pendulum's stays
+@pytest.mark.heavy  # issue #29: out of the default run (make test <= 8 min); the double pendulum's own step compile (~33 s); the single pendulum's stays
 def test_inverted_double_pendulum_steps_match_gymnasium():
     ours = transitions("inverted-double-pendulum", num_envs=32, num_steps=10, keep=320)
     theirs = gymnasium_steps("InvertedDoublePendulum-v5", ours)

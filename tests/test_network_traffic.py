@@ -9,7 +9,7 @@ import pytest
 from benchmarks import network_traffic
 
 
-@pytest.mark.slow  # a benchmark script end to end (make test-slow, which CI runs)
+@pytest.mark.heavy  # a benchmark script end to end (make test-slow, which CI runs)
 def test_network_traffic_counts_at_least_the_arrays_each_program_must_move(tmp_path, capsys):
     target = tmp_path / "traffic.json"
     network_traffic.main(["--agents", "3", "--stream-mib", "4", "--json", str(target)])

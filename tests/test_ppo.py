@@ -237,7 +237,7 @@ def test_judge_keeps_the_best_parameters_and_the_first_solving_step():
     assert int(unsolvable.solve_step) == -1
 
 
-@pytest.mark.slow  # ~10 s: the default run stays under 6 minutes on 2 cores
+@pytest.mark.heavy  # ~10 s: the default run stays under 6 minutes on 2 cores
 def test_a_sweep_agent_is_a_separate_run_of_its_config():
     """`hyperparams` (a sweep's traced values) give each agent the run of its own config, up to
     float rounding: XLA simplifies products with a constant learning rate or discount

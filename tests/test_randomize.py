@@ -190,7 +190,7 @@ def test_env_options_and_ranges_round_trip_through_the_saved_run(tmp_path, capsy
         cli_main(["train", "--env", "cartpole", "--out", str(part), "--resume", "--env-opt", "masspole=0.2"])
 
 
-@pytest.mark.slow  # three MJX programs compiled (make test-slow, which CI runs)
+@pytest.mark.heavy  # three MJX programs compiled (make test-slow, which CI runs)
 def test_randomize_ranges_round_trip_through_the_saved_run(tmp_path, capsys):
     small = ["--steps", "300", "--eval_every", "100", "--learning_starts", "64", "--eval-episodes", "4",
              "--hidden", "16"]

@@ -37,7 +37,7 @@ def test_options_are_gymnasiums():
     np.testing.assert_array_equal(env.action_low, -np.ones(2)), np.testing.assert_array_equal(env.action_high, np.ones(2))
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_steps_match_gymnasium_with_every_option_changed():
     overrides = dict(reward_dist_weight=2.0, reward_control_weight=0.3)
     ours = transitions(NAME, num_envs=8, num_steps=10, keep=80, **overrides)

@@ -103,10 +103,11 @@ def test_every_documented_mjxsuite_command_line_parses():
 
     commands = command_lines("mjxsuite")
     assert len(commands) >= 15 and {"train", "eval", "rollout", "bench"} <= {c.split()[1] for _, c in commands}
+    parser = build_parser()
     for page, command in commands:
         where = f"{page.relative_to(ROOT)}: {command}"
         try:
-            args = build_parser().parse_args(shlex.split(command)[1:])
+            args = parser.parse_args(shlex.split(command)[1:])
             if args.command == "train":
                 config_from_args(registry.config_class(args.agent or "dqn")(), config_fields(args))
         except SystemExit as err:  # argparse's and config_from_args's way to refuse

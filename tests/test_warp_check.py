@@ -8,7 +8,7 @@ import pytest
 from benchmarks import warp_check
 
 
-@pytest.mark.slow  # a benchmark script end to end (make test-slow, which CI runs)
+@pytest.mark.heavy  # a benchmark script end to end (make test-slow, which CI runs)
 def test_warp_check_runs_at_tiny_sizes(tmp_path, capsys):
     target = tmp_path / "warp.json"
     warp_check.main(["--sizes", "4", "--steps", "3", "--repeats", "1", "--json", str(target)])

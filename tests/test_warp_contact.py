@@ -8,7 +8,7 @@ import pytest
 from benchmarks import warp_contact
 
 
-@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); a GPU benchmark's smoke run (~17 s)
+@pytest.mark.heavy  # issue #29: out of the default run (make test <= 8 min); a GPU benchmark's smoke run (~17 s)
 def test_warp_contact_runs_at_tiny_sizes(tmp_path, capsys):
     target = tmp_path / "warp.json"
     warp_contact.main(["--envs", "2", "--steps", "2", "--sizes", "2", "--scan-steps", "2", "--repeats", "1",
