@@ -15,9 +15,10 @@ import envs
 pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
-from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, compare_with_dm_control,  # noqa: E402
-                                     dm_control_observations, dm_control_reset_samples, dm_control_steps, flatten,
-                                     load, shim_mujoco_4, steps_from, transitions)
+from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, assert_resets_touch_nothing,  # noqa: E402
+                                     assert_spec_is_dm_controls, compare_with_dm_control,
+                                     dm_control_observations, dm_control_reset_samples, dm_control_steps, load,
+                                     shim_mujoco_4, steps_from, transitions)
 from envs.tasks.dm_control_suite import tolerance  # noqa: E402
 
 # Every dmc task: (domain, task) of dm_control.
@@ -210,15 +211,8 @@ def test_ball_in_cup_resets_touch_nothing():
     at any of our reset states, though more than a tenth of the raw draws touch."""
     env = envs.make("dmc-ball-in-cup-catch").unwrapped
     qpos, _ = our_reset_draws("dmc-ball-in-cup-catch", 500)
-    data = mujoco.MjData(env.mj_model)
-    contacts = []
-    for q in qpos:
-        data.qpos[:] = q
-        mujoco.mj_forward(env.mj_model, data)
-        contacts.append(data.ncon)
-    assert max(contacts) == 0
     raw = jax.jit(jax.vmap(env._draw))(jax.random.split(jax.random.PRNGKey(0), 200))
-    assert np.mean(jax.jit(jax.vmap(env.touching))(raw)) > 0.1, "the loop must have draws to reject"
+    assert_resets_touch_nothing(env, qpos, np.asarray(raw), raw_touching=0.1)
 
 
 def test_reacher_target_distribution_matches_dm_control():
@@ -266,16 +260,7 @@ def test_cheetah_reset_distribution_matches_dm_control():
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_task_is_dm_controls(name):
     """Action bounds, control timestep, episode length and observation layout equal dm_control's."""
-    env = envs.make(name)
-    theirs = load(*TASKS[name])
-    spec = theirs.action_spec()
-    np.testing.assert_array_equal(env.action_low, spec.minimum), np.testing.assert_array_equal(env.action_high, spec.maximum)
-    assert env.unwrapped.dt == pytest.approx(theirs.control_timestep(), rel=1e-12)
-    assert env.unwrapped.n_substeps == theirs._n_sub_steps
-    assert envs.options(name)["episode_length"] == theirs._step_limit == 1000
-    observation = theirs.reset().observation
-    assert [(key, np.size(value)) for key, value in observation.items()] == list(env.unwrapped.observation_shapes)
-    assert env.observation_size == flatten(observation).size
+    assert_spec_is_dm_controls(name)
 
 
 def test_names_and_gymnasium_ids():

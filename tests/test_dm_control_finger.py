@@ -10,7 +10,6 @@ turn-easy and runs under `slow`; the default run checks the tasks' observation a
 from __future__ import annotations
 
 import jax
-import mujoco
 import numpy as np
 import pytest
 
@@ -19,9 +18,10 @@ import envs
 pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
-from envs.interop.dm_control import (Comparison, compare_readings_with_dm_control,  # noqa: E402
+from envs.interop.dm_control import (Comparison, assert_resets_touch_nothing, assert_spec_is_dm_controls,  # noqa: E402
+                                     compare_readings_with_dm_control,
                                      dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
-                                     dm_control_steps, load, steps_from)
+                                     dm_control_steps, steps_from)
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 
 TASKS = {"dmc-finger-spin": ("finger", "spin"), "dmc-finger-turn-easy": ("finger", "turn_easy"),
@@ -91,18 +91,7 @@ def test_finger_reset_distribution_matches_dm_control(finger_case):
     assert_same_distribution(starts.reset_obs, their_obs, f"{name} reset observation")
     assert not starts.reset_qvel.any() and not their_qvel.any()
     raw = np.asarray(jax.jit(jax.vmap(env.joints_drawn))(jax.random.split(jax.random.PRNGKey(1), 500)))
-    assert contact_counts(env, starts.reset_qpos).max() == 0
-    assert (contact_counts(env, raw) > 0).mean() > 0.05, "the randomiser's raw draws must touch"
-
-
-def contact_counts(env, qpos):
-    data = mujoco.MjData(env.mj_model)
-    counts = []
-    for q in qpos:
-        data.qpos[:] = q
-        mujoco.mj_forward(env.mj_model, data)
-        counts.append(data.ncon)
-    return np.array(counts)
+    assert_resets_touch_nothing(env, starts.reset_qpos, raw)
 
 
 def spin_and_turn(physics, rng):
@@ -126,15 +115,8 @@ def test_finger_observation_and_reward_of_dm_controls_states(name):
 def test_finger_tasks_are_dm_controls():
     """Specs (the action bounds, timestep, substeps, episode, observation layout) and the model edits
     dm_control makes in every episode: spin's hinge damping, turn's target radius."""
-    for name, (domain, task) in TASKS.items():
-        env, theirs = envs.make(name).unwrapped, load(domain, task)
-        spec = theirs.action_spec()
-        np.testing.assert_array_equal(env.action_low, spec.minimum)
-        np.testing.assert_array_equal(env.action_high, spec.maximum)
-        assert env.n_substeps == theirs._n_sub_steps and env.dt == pytest.approx(theirs.control_timestep())
-        assert envs.options(name)["episode_length"] == theirs._step_limit == 1000
-        observation = theirs.reset().observation
-        assert [(key, np.size(value)) for key, value in observation.items()] == list(env.observation_shapes)
+    for name in TASKS:
+        env, theirs = assert_spec_is_dm_controls(name)
         for field in ("dof_damping", "site_size", "site_rgba"):
             np.testing.assert_array_equal(getattr(env.mj_model, field), getattr(theirs.physics.model, field),
                                           err_msg=f"{name} {field}")

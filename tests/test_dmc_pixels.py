@@ -6,13 +6,12 @@ impl="jax" renders with MJX's JAX ray caster on the CPU; depth is checked agains
 """
 
 import jax
-import mujoco
 import numpy as np
 import pytest
 
 import envs
 from agents.env_options import parse_option
-from envs.pixels import camera_rays
+from tests.test_pixels import c_mujoco_depth
 
 pytest.importorskip("dm_control")
 
@@ -53,24 +52,13 @@ def test_reachers_target_is_drawn_where_its_episode_puts_it():
             env.render(state.pipeline_state)[1]
 
     targets, poses, depths, unedited = jax.vmap(draw)(jax.random.split(jax.random.PRNGKey(3), 3))
-    rays = camera_rays(model, env.cam, width, height)
-    groups = np.array([1, 1, 1, 0, 0, 0], np.uint8)
-    hit_geom = np.zeros(1, np.int32)
     target_pixels = 0
     for goal, qpos, depth, plain in zip(np.asarray(targets), np.asarray(poses), np.asarray(depths, np.float64),
                                         np.asarray(unedited)):
         c_model = model.__copy__()
         c_model.geom_pos[target, :2] = goal
-        c_data = mujoco.MjData(c_model)
-        c_data.qpos[:] = qpos
-        mujoco.mj_forward(c_model, c_data)
-        origin, frame = c_data.cam_xpos[env.cam], c_data.cam_xmat[env.cam].reshape(3, 3)
-        expected = np.zeros((height, width))
-        for row in range(height):
-            for col in range(width):
-                dist = mujoco.mj_ray(c_model, c_data, origin, frame @ rays[row, col], groups, 1, -1, hit_geom)
-                expected[row, col] = dist * -rays[row, col, 2] if dist >= 0 else 0.0
-                target_pixels += int(dist >= 0 and hit_geom[0] == target)
+        expected, hits = c_mujoco_depth(c_model, qpos, env.cam, width, height)
+        target_pixels += int((hits == target).sum())
         np.testing.assert_array_equal(depth > 0, expected > 0)
         np.testing.assert_allclose(depth[depth > 0], expected[depth > 0], atol=1e-4, rtol=0)
         assert not np.allclose(plain, depth)  # the unedited model draws the target elsewhere

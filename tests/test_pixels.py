@@ -144,25 +144,32 @@ def test_depth_equals_c_mujoco_mj_ray(task_name, impl):
 
     depth = np.asarray(jax.jit(jax.vmap(render))(jnp.asarray(poses)), np.float64)
 
-    c_data = mujoco.MjData(model)
-    rays = camera_rays(model, env.cam, width, height)
-    groups = np.array([1, 1, 1, 0, 0, 0], np.uint8)
-    geom = np.zeros(1, np.int32)
     both = 0
     for pose, image in zip(poses, depth):
-        c_data.qpos[:] = pose
-        mujoco.mj_forward(model, c_data)
-        origin, frame = c_data.cam_xpos[env.cam], c_data.cam_xmat[env.cam].reshape(3, 3)
-        expected = np.zeros((height, width))
-        for row in range(height):
-            for col in range(width):
-                dist = mujoco.mj_ray(model, c_data, origin, frame @ rays[row, col], groups, 1, -1, geom)
-                expected[row, col] = dist * -rays[row, col, 2] if dist >= 0 else 0.0
+        expected, _ = c_mujoco_depth(model, pose, env.cam, width, height)
         hit, c_hit = image > 0, expected > 0
         np.testing.assert_array_equal(hit, c_hit)
         np.testing.assert_allclose(image[hit], expected[hit], atol=1e-4, rtol=0)
         both += hit.sum()
     assert both > 20  # the pictures are not empty
+
+
+def c_mujoco_depth(model: mujoco.MjModel, qpos: np.ndarray, cam: int, width: int, height: int):
+    """C MuJoCo's picture of `qpos` from camera `cam`: each pixel's planar depth by `mj_ray` (geom
+    groups 0-2, 0 where nothing is hit) and the geom it hits (-1: none), both (height, width)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    rays = camera_rays(model, cam, width, height)
+    origin, frame = data.cam_xpos[cam], data.cam_xmat[cam].reshape(3, 3)
+    groups, geom = np.array([1, 1, 1, 0, 0, 0], np.uint8), np.zeros(1, np.int32)
+    depth, hits = np.zeros((height, width)), np.full((height, width), -1)
+    for row in range(height):
+        for col in range(width):
+            dist = mujoco.mj_ray(model, data, origin, frame @ rays[row, col], groups, 1, -1, geom)
+            if dist >= 0:
+                depth[row, col], hits[row, col] = dist * -rays[row, col, 2], geom[0]
+    return depth, hits
 
 
 @pytest.mark.parametrize("overrides, words", [

@@ -39,7 +39,7 @@ import mujoco
 import numpy as np
 
 from envs.core import Env
-from envs.registry import make
+from envs.registry import make, options
 
 # The fields mujoco 4.0.0 dropped that dm_control 1.0.50's generated `sizes.array_sizes` (built
 # against MuJoCo 3.17's headers) still lists; no suite domain uses flex.
@@ -332,6 +332,42 @@ def compare_readings_with_dm_control(env: Env | str, episodes: int = 8, num_step
     ours_obs, ours_reward = jax.jit(jax.vmap(lambda d: (env.observation(d), env.reward(d, None, d))))(batch)
     ours = Steps(np.asarray(ours_obs), np.asarray(ours_reward), np.ones(len(datas)))
     return Comparison(ours, Steps(np.array(obs), np.array(rewards), np.array(discounts)))
+
+
+def assert_spec_is_dm_controls(name: str):
+    """The task `name`'s action bounds (the model's float32 ctrlrange: dm_control's rounded), control
+    timestep, substeps, episode length and observation layout are those of dm_control's env of its
+    task. Returns (our task, dm_control's env) for further checks."""
+    env = make(name).unwrapped
+    theirs = load(env.domain, env.task)
+    spec = theirs.action_spec()
+    np.testing.assert_array_equal(env.action_low, spec.minimum.astype(np.float32))
+    np.testing.assert_array_equal(env.action_high, spec.maximum.astype(np.float32))
+    assert env.n_substeps == theirs._n_sub_steps
+    assert abs(env.dt - theirs.control_timestep()) <= 1e-12 * theirs.control_timestep()
+    assert options(name)["episode_length"] == theirs._step_limit == 1000
+    observation = theirs.reset().observation
+    assert [(key, np.size(value)) for key, value in observation.items()] == list(env.observation_shapes)
+    assert env.observation_size == flatten(observation).size
+    return env, theirs
+
+
+def c_mujoco_contacts(mj_model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """C MuJoCo's contact count (`mj_forward`'s `ncon`) at each row of `qpos`."""
+    data = mujoco.MjData(mj_model)
+    counts = []
+    for q in qpos:
+        data.qpos[:] = q
+        mujoco.mj_forward(mj_model, data)
+        counts.append(data.ncon)
+    return np.array(counts)
+
+
+def assert_resets_touch_nothing(env: Env, reset_qpos: np.ndarray, raw_qpos: np.ndarray, raw_touching: float = 0.05):
+    """dm_control's resets by rejection: C MuJoCo finds no contact at any of our reset states, while
+    more than `raw_touching` of the randomiser's raw draws touch (so the loop had draws to reject)."""
+    assert c_mujoco_contacts(env.mj_model, reset_qpos).max() == 0
+    assert (c_mujoco_contacts(env.mj_model, raw_qpos) > 0).mean() > raw_touching, "the raw draws must touch"
 
 
 def reset_samples(env: Env | str, count: int, seed: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
