@@ -131,7 +131,7 @@ def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after anoth
     return lambda *args: jax.lax.map(lambda a: fn(*a), args)
 
 
-@pytest.mark.slow
+@pytest.mark.heavy
 def test_seed_i_of_many_is_a_one_seed_run_of_seed_i():
     env = slide(terminate_beyond=1.5)
     ppo = PPO(SMALL, env)

@@ -32,7 +32,7 @@ def starts():
     return transitions(NAME, num_envs=32, num_steps=100, keep=3200)
 
 
-@pytest.mark.slow  # issue #29: out of the default run (make test <= 8 min); compiles pusher's contact step (~40 s on 2 cores)
+@pytest.mark.heavy  # compiles pusher's contact step (~40 s on 2 cores)
 def test_steps_match_gymnasium(starts):
     theirs = gymnasium_steps(GYMNASIUM_ID, starts)
     assert np.abs(theirs.obs[:, 7:14]).max() > 5, "the arm must move fast"

@@ -64,9 +64,9 @@ def test_the_warp_worlds_step_the_model_the_task_steps(warp_faked, task):
 
 
 # Tracing a task's physics takes seconds to a minute on 2 cores: CI's slow run traces the tasks with
-# a hook of their own (Humanoid's and Ant's contact options, reacher's per-episode target) and one
-# plain one; the heavy run traces the rest.
-TRACED_IN_SLOW = ("ant", "humanoid", "dmc-reacher-easy", "hopper")
+# a hook of their own (Humanoid's and Ant's contact options, reacher's per-episode target); the
+# heavy run traces the rest.
+TRACED_IN_SLOW = ("ant", "humanoid", "dmc-reacher-easy")
 
 
 @pytest.mark.parametrize("task", [pytest.param(task, marks=pytest.mark.slow if task in TRACED_IN_SLOW else pytest.mark.heavy)
