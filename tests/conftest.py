@@ -82,9 +82,8 @@ HEAVY_CASES = {
 
 @pytest.hookimpl(tryfirst=True)  # before `-m` selects
 def pytest_collection_modifyitems(config, items):
-    found = {item.nodeid for item in items} & HEAVY_CASES
     for item in items:
-        if item.nodeid in found:
+        if item.nodeid in HEAVY_CASES:
             item.add_marker(pytest.mark.heavy)
 
 
