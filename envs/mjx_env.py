@@ -56,6 +56,12 @@ def physics_steps(model: mjx.Model, data: mjx.Data, substeps: int) -> mjx.Data:
 # step the env (training, judge, final evaluation) trace MJX once (XLA inlines the call).
 compiled_physics_steps = jax.jit(physics_steps, static_argnums=2)
 compiled_forward = jax.jit(lambda model, data: mjx.forward(model, data))
+
+
+def _time_pinned(data: mjx.Data, model: mjx.Model) -> mjx.Data:
+    """`data` with `time` in the timestep's dtype: a weakly typed `time` makes jit(mjx.step) compile
+    twice (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan)."""
+    return data.replace(time=jnp.asarray(data.time, model.opt.timestep.dtype))
 # True while `envs.registry.spec` builds a task to read what it is (its actions, its observation):
 # the task then skips `_put_on_device`, which loads MJX and MuJoCo Warp and starts JAX's backend.
 SPEC_ONLY = contextvars.ContextVar("mjxsuite_spec_only", default=False)
@@ -158,12 +164,18 @@ class MjxEnv(Env):
         # model and refuse any other (`WarpWorlds.run`).
         mjx_model = self.device_model(mjx_model)
         self.mjx_model = mjx_model
-        # A weakly typed `time` makes jit(mjx.step) compile twice; pin its dtype to the
-        # timestep's (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan).
-        self._initial_data: mjx.Data = data.replace(time=jnp.asarray(data.time, self.mjx_model.opt.timestep.dtype))
+        self._initial_data: mjx.Data = _time_pinned(data, mjx_model)
         # Under impl="warp", the batch of worlds every step and forward runs on (None: impl="jax").
         self._warp: WarpWorlds | None = WarpWorlds(mjx_model, data, self.warp_buffers, self.name) \
             if impl == "warp" else None
+        # A reset's own physics (cheetah's settling steps, the rejection test for touching geoms)
+        # runs on MJX's JAX implementation under either impl: MuJoCo Warp offers MJX's step and
+        # forward only (mjx.euler, mjx.collision, ... refuse a Warp model), and only inside the worlds.
+        if impl == "warp":
+            jax_model = mjx.put_model(self.mj_model, impl="jax")  # `device_model` options are Warp's here
+            self.reset_model, self.reset_data = jax_model, _time_pinned(mjx.make_data(jax_model, impl="jax"), jax_model)
+        else:
+            self.reset_model, self.reset_data = mjx_model, self._initial_data
 
     def device_model(self, mjx_model: mjx.Model) -> mjx.Model:
         """The MJX model this task steps with, from MJX's `put_model` for the task's impl (`self.impl`):

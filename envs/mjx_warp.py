@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 import jax
 import jax.numpy as jnp
 
+from envs.batching import all_batched, broadcast, folds_vmap
 from envs.ranges import COUNT
 
 if TYPE_CHECKING:
@@ -230,16 +231,8 @@ class WarpWorlds:
             raise ValueError(f"task {self.task}: impl='warp' steps the task's own model; per-env model values "
                              "(envs.randomize) run with impl='jax'")
 
-        @jax.custom_batching.custom_vmap
-        def step_worlds(data):  # every leaf has a leading world axis
-            return self._step_worlds(physics, data)
-
-        @step_worlds.def_vmap
-        def step_worlds_batched(axis_size, in_batched, data):
-            data = _broadcast(data, in_batched[0], axis_size)  # (axis, worlds, ...)
-            worlds = data.qpos.shape[1]
-            out = step_worlds(jax.tree.map(lambda x: x.reshape((axis_size * worlds,) + x.shape[2:]), data))
-            return jax.tree.map(lambda x: x.reshape((axis_size, worlds) + x.shape[1:]), out), _all_batched(out)
+        # every leaf has a leading world axis; a vmap over it folds its axis into the worlds'
+        step_worlds = folds_vmap(lambda data: self._step_worlds(physics, data))
 
         @jax.custom_batching.custom_vmap
         def step_one(data):
@@ -247,8 +240,8 @@ class WarpWorlds:
 
         @step_one.def_vmap
         def step_one_batched(axis_size, in_batched, data):
-            out = step_worlds(_broadcast(data, in_batched[0], axis_size))
-            return out, _all_batched(out)
+            out = step_worlds(broadcast(data, in_batched[0], axis_size))
+            return out, all_batched(out)
 
         return step_one(data)
 
@@ -278,11 +271,3 @@ class WarpWorlds:
         return (OVERFLOW_CONTACTS * ((bits & CONTACT_OVERFLOW) != 0)
                 + OVERFLOW_CONSTRAINTS * ((bits & CONSTRAINT_OVERFLOW) != 0)).astype(jnp.float32)
 
-
-def _broadcast(tree, batched, axis_size: int):
-    """Every leaf of `tree` with the leading `axis_size` axis (unbatched leaves repeated)."""
-    return jax.tree.map(lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)), tree, batched)
-
-
-def _all_batched(tree):
-    return jax.tree.map(lambda _: True, tree)

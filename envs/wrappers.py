@@ -8,9 +8,12 @@ states, but draws a fresh episode for every env on every step (see `BatchedAutoR
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
+from envs.batching import folds_vmap
 from envs.core import Env, State, Wrapper
 from envs.episode_keys import episode_keys, next_episode_key
 
@@ -138,10 +141,12 @@ class BatchedAutoReset(Wrapper):
     have more elements anyway and the scalar step made the DQN slower at 16 and 256 seeds:
     the same section), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
 
-    An env whose reset is costly (`costly_reset = True`: `envs.pixels.Pixels` renders a frame)
-    resets by index on every backend, so a step renders the fresh frames of the envs that
-    ended rather than a fresh frame for every env; except `under_vmap`, where the switch
-    would run all three branches.
+    An env whose reset is costly (`costly_reset = True`: `envs.pixels.Pixels` renders a frame,
+    dm_control's cheetah settles for 200 physics steps) resets by index on every backend, so a
+    step resets the envs that ended rather than every env. `under_vmap` (the agents vmap their
+    seeds), where a switch would run all three branches, the switch decides once for every env
+    of every seed (`envs.batching.folds_vmap`): a step on which no episode ended anywhere does no
+    reset work, and the states are the same.
     """
 
     def __init__(self, env: Env, num_envs: int, max_resets: int | None = None, reset_by_index: bool | None = None,
@@ -153,10 +158,11 @@ class BatchedAutoReset(Wrapper):
         self.max_resets = max(1, num_envs // 16) if max_resets is None else max_resets
         if not 1 <= self.max_resets <= num_envs:
             raise ValueError(f"max_resets must be in [1, num_envs={num_envs}], got {max_resets}")
+        costly_reset = getattr(env, "costly_reset", False)
         if reset_by_index is None:
-            costly_reset = getattr(env, "costly_reset", False) and not under_vmap
             reset_by_index = jax.default_backend() == "cpu" or costly_reset
         self.reset_by_index = reset_by_index
+        self.reset_across_vmap = reset_by_index and costly_reset and under_vmap
         self.auto_reset = AutoReset(env)
         self.step_unbatched = num_envs == 1 and not (self.reset_by_index or under_vmap) and env.batch_of_one_as_scalars
 
@@ -170,20 +176,29 @@ class BatchedAutoReset(Wrapper):
             return jax.tree.map(lambda x: x[None], one)
         stepped = jax.vmap(self.env.step)(state, action)
         stepped = stepped.replace(info={**stepped.info, **final_entries(self.env, stepped)})
-        every = jax.vmap(self.auto_reset.reset_if_done)
         if not self.reset_by_index:
-            return every(stepped)
-        ended = jnp.sum(stepped.done > 0)
-        if self.max_resets >= self.num_envs:  # picking by index would save nothing
-            return jax.lax.cond(ended > 0, every, lambda s: s, stepped)
-        branch = (ended > 0).astype(jnp.int32) + (ended > self.max_resets).astype(jnp.int32)
-        return jax.lax.switch(branch, [lambda s: s, self._reset_ended, every], stepped)
+            return jax.vmap(self.auto_reset.reset_if_done)(stepped)
+        return (folds_vmap(self._reset_ended) if self.reset_across_vmap else self._reset_ended)(stepped)
 
     def _reset_ended(self, stepped: State) -> State:
+        """`stepped` (a batch of any size) with a fresh episode wherever one ended: no reset work
+        where none did, by index where at most `max_resets` per `num_envs` did, else every env."""
+        every = jax.vmap(self.auto_reset.reset_if_done)
+        batch = stepped.done.shape[0]
+        max_resets = self.max_resets * batch // self.num_envs
+        ended = jnp.sum(stepped.done > 0)
+        if max_resets >= batch:  # picking by index would save nothing
+            return jax.lax.cond(ended > 0, every, lambda s: s, stepped)
+        branch = (ended > 0).astype(jnp.int32) + (ended > max_resets).astype(jnp.int32)
+        return jax.lax.switch(branch, [lambda s: s, functools.partial(self._reset_by_index, max_resets=max_resets),
+                                       every], stepped)
+
+    def _reset_by_index(self, stepped: State, max_resets: int) -> State:
         """Fresh episodes for the envs that ended (at most `max_resets` of them), by index."""
-        # Unused slots hold num_envs: gathered clipped, dropped by the scatter.
-        index = jnp.nonzero(stepped.done > 0, size=self.max_resets, fill_value=self.num_envs)[0]
-        rng = jax.tree.map(lambda words: words[jnp.minimum(index, self.num_envs - 1)], stepped.info["rng"])
+        batch = stepped.done.shape[0]
+        # Unused slots hold the batch size: gathered clipped, dropped by the scatter.
+        index = jnp.nonzero(stepped.done > 0, size=max_resets, fill_value=batch)[0]
+        rng = jax.tree.map(lambda words: words[jnp.minimum(index, batch - 1)], stepped.info["rng"])
         next_rng, episode_key = jax.vmap(next_episode_key)(rng)
         fresh = jax.vmap(self.env.reset)(episode_key)
 

@@ -192,6 +192,36 @@ def test_batched_auto_reset_gives_the_same_states_as_vmapped_auto_reset():
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+class _CostlyReset(envs.Wrapper):
+    costly_reset = True  # as dm_control's cheetah, whose reset runs 200 physics steps
+
+
+def test_a_costly_reset_under_a_vmap_over_seeds_decides_for_every_seed_at_once(monkeypatch):
+    """Under the agents' vmap over seeds, a costly reset's batch switches once over the envs of every
+    seed (none ended: no reset work; a few: by index; many: all), with the states of the select that
+    resets every env on every step, per seed."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    num_envs, seeds = 8, 3
+    env = _CostlyReset(envs.make("cartpole"))
+    across = envs.BatchedAutoReset(env, num_envs, max_resets=1, under_vmap=True)
+    selected = envs.BatchedAutoReset(env, num_envs, reset_by_index=False, under_vmap=True)
+    assert across.reset_across_vmap and not envs.BatchedAutoReset(envs.make("cartpole"), 8, under_vmap=True).reset_by_index
+
+    def run(wrapped, key):
+        def body(state, key):
+            state = wrapped.step(state, jax.random.randint(key, (num_envs,), 0, 2))
+            return state, (state.obs, state.info["final_obs"], state.done)
+
+        return jax.lax.scan(body, wrapped.reset(key), jax.random.split(key, 150))[1]
+
+    keys = jax.random.split(jax.random.PRNGKey(2), seeds)
+    expected = jax.jit(jax.vmap(lambda key: run(selected, key)))(keys)
+    ended = np.asarray(expected[2]).sum(axis=(0, 2))  # over seeds and envs, per step
+    assert (ended == 0).any() and ((ended > 0) & (ended <= seeds)).any() and (ended > seeds).any()
+    for a, b in zip(jax.tree.leaves(jax.jit(jax.vmap(lambda key: run(across, key)))(keys)), jax.tree.leaves(expected)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 @pytest.mark.parametrize("name", ["cartpole", "acrobot", pytest.param("cartpole-mjx", marks=pytest.mark.slow)])
 def test_a_batch_of_one_steps_unbatched_to_the_same_states(name, monkeypatch):
     """Without reset-by-index (the GPU's choice) an analytic env's batch of one steps as

@@ -304,10 +304,10 @@ def test_rerun_recording_logs_the_camera_frames(env, rollout, tmp_path):
 
 def test_a_batch_of_pixel_envs_resets_only_the_envs_that_ended(env, monkeypatch):
     """A reset renders, so on an accelerator too the batch resets the ended envs by index (not a
-    fresh frame for every env on every step); a batch vmapped over seeds keeps the default select."""
+    fresh frame for every env on every step); a batch vmapped over seeds decides over every seed at once."""
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     assert envs.BatchedAutoReset(env, 4).reset_by_index
-    assert not envs.BatchedAutoReset(env, 4, under_vmap=True).reset_by_index
+    assert envs.BatchedAutoReset(env, 4, under_vmap=True).reset_across_vmap
     assert not envs.BatchedAutoReset(envs.make(ROLLOUT_TASK), 4).reset_by_index
 
 

@@ -47,9 +47,32 @@ def warp_faked(monkeypatch):
     monkeypatch.setattr(mjx, "put_model", put_model_faked)
     monkeypatch.setattr(mjx_env, "put_model_and_data", put_model_and_data_faked)
     monkeypatch.setattr(mjx_warp, "shared_buffers", lambda data: {})
-    monkeypatch.setattr(mjx_warp.WarpWorlds, "_step_worlds",  # MJX's Warp step takes a leading world axis
-                        lambda self, physics, data: jax.vmap(lambda world: physics(self.mjx_model, world))(data))
+    in_worlds = []
+
+    def step_worlds_faked(self, physics, data):  # MJX's Warp step takes a leading world axis
+        in_worlds.append(True)
+        try:
+            return jax.vmap(lambda world: physics(self.mjx_model, world))(data)
+        finally:
+            in_worlds.pop()
+
+    monkeypatch.setattr(mjx_warp.WarpWorlds, "_step_worlds", step_worlds_faked)
     monkeypatch.setattr(mjx_warp.WarpWorlds, "overflow", staticmethod(lambda data: jax.numpy.zeros(())))
+    # MJX refuses a Warp model in every function but its step and forward, which run only inside the
+    # worlds (`WarpWorlds.run`): here each of them refuses the Warp-shaped model outside the worlds.
+    for name in [name for name in MJX_PHYSICS if hasattr(mjx, name)]:
+        def refusing(model, *args, _real=getattr(mjx, name), _name=name, **kwargs):
+            if isinstance(model.opt._impl, WarpShapedOption) and not in_worlds:
+                raise ValueError(f"{_name} requires JAX backend implementation (the Warp model outside WarpWorlds.run)")
+            return _real(model, *args, **kwargs)
+        monkeypatch.setattr(mjx, name, refusing)
+
+
+# MJX's functions of a model and its data (the ones that raise "requires JAX backend implementation").
+MJX_PHYSICS = ("step", "forward", "euler", "rk4", "implicit", "kinematics", "collision", "com_pos", "com_vel",
+               "camlight", "crb", "factor_m", "solve_m", "rne", "tendon", "transmission", "fwd_position",
+               "fwd_velocity", "fwd_actuation", "fwd_acceleration", "sensor_pos", "sensor_vel", "sensor_acc",
+               "make_constraint", "solve")
 
 
 TASKS = sorted({task for task, _ in PAIRS})
@@ -64,9 +87,9 @@ def test_the_warp_worlds_step_the_model_the_task_steps(warp_faked, task):
 
 
 # Tracing a task's physics takes seconds to a minute on 2 cores: CI's slow run traces the tasks with
-# a hook of their own (Humanoid's and Ant's contact options, reacher's per-episode target); the
-# heavy run traces the rest.
-TRACED_IN_SLOW = ("ant", "humanoid", "dmc-reacher-easy")
+# a hook of their own (Humanoid's and Ant's contact options, reacher's per-episode target, cheetah's
+# settling steps and ball_in_cup's rejection test at reset); the heavy run traces the rest.
+TRACED_IN_SLOW = ("ant", "humanoid", "dmc-reacher-easy", "dmc-cheetah-run", "dmc-ball-in-cup-catch")
 
 
 @pytest.mark.parametrize("task", [pytest.param(task, marks=pytest.mark.slow if task in TRACED_IN_SLOW else pytest.mark.heavy)
@@ -90,3 +113,12 @@ def test_the_check_refuses_another_model(warp_faked):
     action = jax.ShapeDtypeStruct((env.action_size,), jax.numpy.float32)
     with pytest.raises(ValueError, match="steps the task's own model"):
         jax.eval_shape(lambda s, a: env.step_with_model(s, a, other), state, action)
+
+
+def test_mjx_refuses_the_warp_model_outside_the_worlds(warp_faked):
+    """The fake refuses what MJX refuses under Warp: a reset's own physics on the task's Warp model
+    (dm_control cheetah's settling steps ran `mjx.euler` on it) rather than on `reset_model`."""
+    env = envs.make("dmc-cheetah-run", impl="warp").unwrapped
+    with pytest.raises(ValueError, match="euler requires JAX backend implementation"):
+        jax.eval_shape(lambda d: mjx.euler(env.mjx_model, d), env.reset_data)
+    jax.eval_shape(lambda d: mjx.euler(env.reset_model, d), env.reset_data)

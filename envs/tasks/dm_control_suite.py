@@ -145,6 +145,10 @@ class DmControlEnv(MjxEnv):
     control_timestep: ClassVar[float | None] = None  # the domain's _CONTROL_TIMESTEP (None: one step)
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
+    # A reset that runs physics (cheetah's settling steps) or a rejection loop (collision tests until
+    # nothing touches): an auto-reset batch then resets only where an episode ended
+    # (`envs.BatchedAutoReset`); dm_control's episodes all end at 1,000 steps together.
+    costly_reset: ClassVar[bool] = False
     # `state.info` entries holding per-episode model edits (reacher's target), which
     # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
     episode_info: ClassVar[tuple[str, ...]] = ()
@@ -188,9 +192,10 @@ class DmControlEnv(MjxEnv):
 
     # ---- resets by rejection (ball_in_cup, finger, humanoid, quadruped) --------------------------
     def touching(self, qpos: jax.Array, model: mjx.Model | None = None) -> jax.Array:
-        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`)."""
-        model = self.mjx_model if model is None else model
-        contact = mjx.collision(model, mjx.kinematics(model, self._initial_data.replace(qpos=qpos)))._impl.contact
+        """Whether anything touches at `qpos` (C MuJoCo's `ncon > 0` after `mj_forward`), by MJX's JAX
+        collision under either impl (`reset_model`; `model`: an env's own model values, impl="jax")."""
+        model = self.reset_model if model is None else model
+        contact = mjx.collision(model, mjx.kinematics(model, self.reset_data.replace(qpos=qpos)))._impl.contact
         return jnp.any(contact.dist < contact.includemargin)
 
     def joints_drawn(self, key: jax.Array) -> jax.Array:

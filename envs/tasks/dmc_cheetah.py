@@ -28,6 +28,7 @@ SETTLE_STEPS = 200  # physics steps at reset before the episode starts
 
 
 class DmcCheetahRun(DmControlEnv):
+    costly_reset = True
     domain, task = "cheetah", "run"
     observation_shapes = (("position", 8), ("velocity", 9))
 
@@ -37,9 +38,10 @@ class DmcCheetahRun(DmControlEnv):
         drawn = jnp.asarray(model.qpos0).at[limited].set(jax.random.uniform(key, (len(limited),), minval=low,
                                                                                 maxval=high))
         # dm_control's first settling step is mj_step2 on the forward pass of qpos0 at rest.
-        rest = mjx.forward(self.mjx_model, self._initial_data)
-        first = mjx.euler(self.mjx_model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
-        settled = jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(self.mjx_model, d), first)
+        model = self.reset_model  # MJX's JAX implementation under either impl (mjx.euler is JAX's alone)
+        rest = mjx.forward(model, self.reset_data)
+        first = mjx.euler(model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
+        settled = jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(model, d), first)
         return settled.qpos, settled.qvel
 
     def observations(self, data):

@@ -44,6 +44,7 @@ SPIN_HINGE_DAMPING = 0.03  # Spin.initialize_episode's dof_damping['hinge']
 
 class DmcFinger(DmControlEnv):
     """dm_control's finger domain: the joint randomiser's collision-free reset, the sensors' readings."""
+    costly_reset = True
 
     domain = "finger"
     control_timestep = 0.02  # dm_control's _CONTROL_TIMESTEP

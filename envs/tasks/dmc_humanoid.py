@@ -34,6 +34,7 @@ EXTREMITIES = ("left_hand", "left_foot", "right_hand", "right_foot")
 
 class DmcHumanoid(DmControlEnv):
     """dm_control's `humanoid.Humanoid(move_speed, pure_state=False)`; the tasks below fix the speed."""
+    costly_reset = True
 
     domain = "humanoid"
     control_timestep = 0.025  # dm_control's _CONTROL_TIMESTEP

@@ -47,6 +47,7 @@ def sensor_values(model: mujoco.MjModel, *kinds: int) -> np.ndarray:
 
 class DmcQuadruped(DmControlEnv):
     """dm_control's `quadruped.Move(desired_speed)`; the two tasks below fix it."""
+    costly_reset = True
 
     # DrQ-v2 films the quadruped with camera 2 ("y", tracking it from the side); the rest as every domain.
     pixel_defaults = {**DmControlEnv.pixel_defaults, "camera": 2}
