@@ -114,9 +114,7 @@ def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repea
 
 def _dm_control_worker(args) -> float:
     domain, task, steps, seed = args
-    from envs.interop.dm_control import load
-
-    env = load(domain, task, seed=seed)
+    env = envs.load_dm_control(domain, task, seed=seed)
     spec = env.action_spec()
     rng = np.random.default_rng(seed)
     env.reset()

@@ -78,6 +78,7 @@ _LAZY_API = {
     "BraxEnv": "envs.interop.brax",
     "to_brax": "envs.interop.brax",
     "returns_on_dm_control": "envs.interop.dm_control",  # a policy judged on dm_control's own env
+    "load_dm_control": "envs.interop.dm_control",  # dm_control's own env, on the installed mujoco
 }
 
 # Every task's names are imported on first use (PEP 562 `__getattr__` below), so `envs.make("cartpole")`

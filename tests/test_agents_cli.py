@@ -66,6 +66,10 @@ def test_the_table_holds_valid_recipes_for_tasks_registered_or_not():
                 registry.config_class(agent)(**brax_defaults.settings(task, agent, preset))
     assert brax_defaults.settings("my-own-task", "ppo") == {}  # the base recipe
     assert brax_defaults.presets("cartpole-swingup-mjx", "ppo") == ["default", "pixels", "playground"]
+    # every DeepMind Control Suite task trains with a GPU-sized recipe (a task without a row would
+    # take the base recipe, sized for a CPU: dm_control's finger did, and stood still on a GPU)
+    suite = [name for name in envs.names() if name.startswith("dmc-")]
+    assert [name for name in suite if brax_defaults.settings(name, "ppo").get("num_envs", 0) < 2048] == []
 
 
 def test_default_agent_follows_the_action_space_and_steps_are_per_seed(monkeypatch, capsys):

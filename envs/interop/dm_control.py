@@ -88,6 +88,9 @@ def load(domain: str, task: str, seed: int = 0):
     return suite.load(domain, task, task_kwargs={"random": seed})
 
 
+load_dm_control = load  # as `envs` offers it (dm_control's own env of a task, for a peer or a judge)
+
+
 def flatten(observation: Mapping[str, Any]) -> np.ndarray:
     """dm_control's OrderedDict observation as one vector, in its order (`flatten_observation`)."""
     return np.concatenate([np.ravel(value) for value in observation.values()])
