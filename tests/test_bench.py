@@ -174,3 +174,27 @@ def test_the_learning_section_runs_at_tiny_sizes():
         assert record["solved"] == sum(r >= record["goal"] for r in record["final_returns"])
         assert np.isfinite(record["final_returns"]).all() and record["wall_s"] > 0
     assert records[1]["judge"] == "gymnasium"
+
+
+# ---- benchmarks.dmc_speed ----------------------------------------------------------------
+def test_dmc_speed_compares_with_playground_at_the_same_impl_and_size_only():
+    from benchmarks import dmc_speed
+
+    record = lambda lib, speed, impl="warp", num_envs=4096: {"lib": lib, "env": "dmc-cheetah-run", "impl": impl,
+                                                             "num_envs": num_envs, "steps_per_s": speed}
+    records = [record("mjxsuite", 2e6), record("playground", 4e6), record("playground", 1e6, impl="jax"),
+               record("playground", 9e6, num_envs=32768), record("dm_control", 1e4, impl=None, num_envs=16)]
+    ratios = {r["peer"]: r["ratio"] for r in dmc_speed.ratios(records)}
+    assert ratios == {"playground": pytest.approx(0.5), "dm_control": pytest.approx(200.0)}
+
+
+@pytest.mark.heavy
+def test_dmc_speed_runs_on_the_cpu_with_tiny_sizes(tmp_path):
+    from benchmarks import dmc_speed
+
+    out = tmp_path / "dmc.json"
+    dmc_speed.main(["--tasks", "cheetah-run", "--sizes", "2", "--steps", "3", "--impls", "jax", "--repeats", "1",
+                    "--no-playground", "--json", str(out)])
+    speeds = {r["lib"]: r for r in json.loads(out.read_text()) if r["kind"] == "dmc-speed"}
+    assert set(speeds) == {"mjxsuite", "dm_control"} and all(r["steps_per_s"] > 0 for r in speeds.values())
+    assert speeds["mjxsuite"]["control_timestep"] == 0.01 and speeds["mjxsuite"]["overflow_steps"] == 0
