@@ -16,7 +16,7 @@ train: $(BIN)/.installed  ## train DQN on the MJX CartPole: checkpoint + Rerun r
 	$(BIN)/mjxsuite train --env cartpole-mjx --out runs/cartpole-mjx --rerun runs/cartpole-mjx/train.rrd --overwrite
 
 test: $(BIN)/.installed  ## the fast test suite (what CI runs)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once); at most 6 minutes on 2 cores
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # two workers, each test file on one (its module fixtures built once); at most 5 minutes on 2 cores
 
 test-slow: $(BIN)/.installed  ## long tests: training to solve on every backend, multi-device and two-process runs, pip install, benchmark scripts
 	$(BIN)/python -m pytest -q -m "slow and not heavy" -n 2 --dist loadfile --durations=30  # two workers, each test file on one (its compiled programs shared); the 30 longest listed

@@ -242,6 +242,7 @@ def mjx_and_analytic():
     return [np.asarray(x) for x in mjx_out], [np.asarray(x) for x in analytic_out]
 
 
+@pytest.mark.slow
 def test_mjx_step_matches_analytic(mjx_and_analytic):
     """First transition from 256 random states: MuJoCo's RK4, post_step's clip and wrap."""
     (mjx_obs, mjx_reward, mjx_done, _), (obs, _, done, _) = [[x[:256, 0] for x in out] for out in mjx_and_analytic]

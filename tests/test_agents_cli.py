@@ -92,6 +92,7 @@ def tiny_run(tmp_path_factory):
     return out, result
 
 
+@pytest.mark.slow
 def test_a_ppo_run_writes_dqns_run_directory(tiny_run, tmp_path):
     out, result = tiny_run
     saved = checkpoint.load_config(out)
@@ -127,6 +128,7 @@ def test_the_saved_policy_acts_as_the_agent_does(tiny_run):
         policy(np.zeros(4))
 
 
+@pytest.mark.slow
 def test_eval_and_rollout_read_a_ppo_run(tiny_run, tmp_path, capsys):
     out, _ = tiny_run
     assert cli_main(["eval", "--checkpoint", str(out), "--episodes", "4"]) == 0
@@ -206,6 +208,7 @@ def test_sigterm_stops_a_ppo_run_and_resume_ends_it_as_the_uninterrupted_run(tmp
     assert json.loads((tmp_path / "part" / "eval.json").read_text())["mean_return"] == whole.mean_return
 
 
+@pytest.mark.slow
 def test_ties_between_seeds_are_broken_by_a_longer_evaluation():
     """Seeds tied in the final evaluation are judged again on longer episodes; a clear winner
     needs no second evaluation."""

@@ -19,6 +19,9 @@ import envs
 from envs.assets import asset_path
 from envs.tasks.cartpole_swingup_mjx import gaussian_tolerance, quadratic_tolerance
 
+# Slow run: the RK4 cart-pole's proofs (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 N_ENVS, N_STEPS = 16, 1000
 UPRIGHT_ROW = N_ENVS - 1  # the row that starts exactly upright, centred and still
 

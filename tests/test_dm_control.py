@@ -21,6 +21,9 @@ from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, assert_resets
                                      shim_mujoco_4, steps_from, transitions)
 from envs.tasks.dm_control_suite import tolerance  # noqa: E402
 
+# Slow run: dm_control's step and reset proofs (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 # Every dmc task: (domain, task) of dm_control.
 TASKS = {
     "dmc-ball-in-cup-catch": ("ball_in_cup", "catch"), "dmc-acrobot-swingup": ("acrobot", "swingup"), "dmc-acrobot-swingup-sparse": ("acrobot", "swingup_sparse"),

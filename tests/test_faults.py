@@ -24,6 +24,9 @@ from agents import DQN, DQNConfig, checkpoint, processes, train_run
 from agents.cli import main as cli_main
 from agents.run import seed_keys
 
+# Slow run: subprocess runs stopped by signals and kill -9 (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 CONFIG = DQNConfig(total_steps=600, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                    eval_episodes=4, hidden=(16,))
 CONFIG_ARGS = ["--steps", "600", "--learning_starts", "64", "--batch_size", "32", "--buffer_size", "256",

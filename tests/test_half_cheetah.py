@@ -8,6 +8,9 @@ from gymnasium_mujoco import (assert_resets_match, assert_same_options,
                               assert_steps_match, exact_noise_bounds, gymnasium_kwargs,
                               gymnasium_reset_samples, gymnasium_steps, reset_samples, transitions)
 
+# Slow run: a contact model's step proof (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 NAME, GYMNASIUM_ID = "half-cheetah", "HalfCheetah-v5"
 # float32 (ours) against float64 (Gymnasium), one env step of 5 MuJoCo steps with contacts: positions
 # agree to ~4e-6, joint velocities (up to ~20 rad/s) to ~4e-4, the reward to ~5e-6 (measured).

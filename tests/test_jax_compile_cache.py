@@ -13,6 +13,9 @@ from agents.dqn import DQNConfig
 from agents.jax_compile_cache import ENV_VAR, CompileCounter, configured_dir, default_dir
 from agents.run import train_run
 
+# Slow run: processes that share a compile cache (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -17,6 +17,9 @@ from agents import checkpoint
 from agents.run import load_agent
 from benchmarks.cli import main as cli_main
 
+# Slow run: every task recompiled with other solver options (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 OPT = {"iterations": 3, "ls_iterations": 5, "solver": "cg", "tolerance": 1e-6, "impratio": 2}
 
 

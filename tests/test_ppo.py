@@ -73,6 +73,7 @@ def test_config_rounds_like_brax_and_says_so():
         PPO(SMALL, envs.make("cartpole"))
 
 
+@pytest.mark.slow
 def test_a_training_step_is_braxs():
     """One training step from Brax's own start (its network init, its keys, envs that all begin
     at the same state) gives the parameters and normalizer that `brax...ppo.train` returns."""
@@ -152,6 +153,7 @@ def test_seed_i_of_many_is_a_one_seed_run_of_seed_i():
     assert float(records[-1]["episodes"][0]) > 0  # episodes end (|x| > 1.5 or the time limit) and are counted
 
 
+@pytest.mark.slow
 def test_a_run_resumed_from_a_host_copy_ends_as_an_uninterrupted_one():
     """The train state is the whole run: copied to numpy between chunks (what a checkpoint saves)
     and back, the run goes on as if nothing happened."""

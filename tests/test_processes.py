@@ -20,6 +20,9 @@ from agents import checkpoint, load_policy, processes
 from agents.cli import main as cli_main
 from agents.run import load_agent
 
+# Slow run: child processes per GPU (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 DQN_ARGS = ["--env", "cartpole", "--seeds", "2", "--steps", "600", "--learning_starts", "64", "--batch_size", "32",
             "--buffer_size", "256", "--eval_every", "100", "--eval_episodes", "4", "--hidden", "16",
             "--judge-every", "1", "--checkpoint-seconds", "0"]

@@ -13,6 +13,9 @@ from agents import checkpoint
 from agents.run import load_agent, train_run
 from benchmarks.cli import main as cli_main
 
+# Slow run: per-env models against C MuJoCo (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 RANGES = {
     "body_mass:pole": (0.05, 0.5),
     "body_mass:cart": ("x", 0.5, 2.0),

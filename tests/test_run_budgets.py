@@ -126,6 +126,7 @@ def _cli_run(out, *flags, cache=None):
         out / "best_params.ckpt").read_bytes()
 
 
+@pytest.mark.slow
 def test_cold_warm_and_no_compile_cache_give_the_same_results(tmp_path):
     cache = tmp_path / "cache"
     cold = _cli_run(tmp_path / "cold", cache=cache)

@@ -139,6 +139,7 @@ def brax_first_update(monkeypatch, config, env, seed=0):
     return caught, params, metrics
 
 
+@pytest.mark.slow
 def test_one_update_equals_brax_sac_training_step(monkeypatch):
     """Given what Brax's trainer fed its first gradient step (the parameters, the optimizer states,
     the batch, the keys), our `SAC.learn` gives Brax's losses and new parameters: the temperature,

@@ -16,6 +16,9 @@ from agents import jax_compile_cache, traced_programs
 from agents.dqn import DQN, DQNConfig
 from agents.run import key_parts as agent_key_parts, seed_keys, train_run
 
+# Slow run: processes that load each other's traced programs (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 TINY = DQNConfig(total_steps=200, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                  eval_episodes=4, hidden=(16,))
 
