@@ -17,6 +17,9 @@ from brax.training.agents.ppo import train as ppo
 
 import envs
 
+# Slow run: Brax's wrappers and trainers on our envs (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 EPISODE = 20  # a short episode so that one rollout crosses the time limit
 N_ENVS = 8
 

@@ -103,6 +103,7 @@ def test_train_is_deterministic_and_vmaps_over_seeds():
 
 @pytest.mark.parametrize("name,replay", [("cartpole", "uniform"), ("cartpole", "prioritized"),
                                          pytest.param("cartpole-mjx", "uniform", marks=pytest.mark.slow)])
+@pytest.mark.slow
 def test_resume_reproduces_the_uninterrupted_run(tmp_path, name, replay):
     config = DQNConfig(**{**SMALL.__dict__, "replay": replay})
     whole = train_run(name, config, seeds=2, out_dir=tmp_path / "whole", progress=False)

@@ -9,6 +9,9 @@ from agents import device_options, fused_mlp
 from agents.dqn import DQN, DQNConfig
 from agents.networks import QNetwork
 
+# Slow run: the fused network kernels against Flax (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 
 @pytest.mark.parametrize("hidden,rows,features,actions", [
     ((64, 64), 64, 4, 2),  # the default network on its replayed batch

@@ -13,6 +13,9 @@ from agents import DQN, DQNConfig, train_run
 from agents import env_options
 from envs import mjx_warp
 
+# Slow run: Warp overflow through a DQN run (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 CONFIG = DQNConfig(total_steps=400, learning_starts=64, batch_size=32, buffer_size=256, eval_every=100,
                    eval_episodes=2, hidden=(16,))
 

@@ -12,6 +12,9 @@ from gymnasium.envs.classic_control.pendulum import PendulumEnv
 import envs
 from envs.tasks.pendulum_mjx import DISCRETE_TORQUE_BINS
 
+# Slow run: the MJX pendulum's proofs against Gymnasium (the fast run is `make test`'s five minutes; docs/claims.md).
+pytestmark = pytest.mark.slow
+
 EPISODE = 200
 G, M, L, DT, MAX_SPEED, MAX_TORQUE = 10.0, 1.0, 1.0, 0.05, 8.0, 2.0
 

@@ -202,6 +202,7 @@ def test_action_repeat_keeps_the_tasks_seconds_unless_episode_length_is_given():
     assert envs.make("cartpole-balance-mjx").episode_length == 1000
 
 
+@pytest.mark.slow
 def test_action_repeat_steps_the_task_k_times_and_sums_their_rewards():
     """An env step of `action_repeat=k` is k steps of the task with the same action: the state
     after the k-th (whose frame `Pixels.step` then renders, as without a repeat), the k rewards

@@ -216,6 +216,7 @@ def test_logged_pole_pose_follows_theta(analytic_file):
     np.testing.assert_allclose(rotation, expected_rotation, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
     _, _, analytic = analytic_file
     write_rollout(tmp_path / "mjx.rrd", envs.make("cartpole-mjx"), num_envs=2, steps=50)
@@ -226,6 +227,7 @@ def test_both_backends_draw_the_same_scene(tmp_path, analytic_file):
 
 
 # ---- training and the command line ---------------------------------------------------
+@pytest.mark.slow
 def test_cli_train_and_rollout_write_readable_files(tmp_path, capsys):
     out, train_file, rollout_file = tmp_path / "run", tmp_path / "train.rrd", tmp_path / "rollout.rrd"
     assert cli_main(["train", "--env", "cartpole", "--out", str(out), "--rerun", str(train_file), "--rerun-every", "1",

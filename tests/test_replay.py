@@ -451,6 +451,7 @@ def test_masked_add_under_vmap_and_scan(kind):
 # --------------------------------------------------------------------------- #
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["uniform", "prioritized"])
 def test_vectorized_buffer_equals_the_loops_bit_for_bit(kind):
     """Masked adds through wrap-around, samples and priority updates with duplicate
