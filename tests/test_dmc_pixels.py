@@ -35,6 +35,7 @@ def test_pixels_default_to_drqv2s_protocol():
         envs.make("dmc-cheetah-run", width=32)
 
 
+@pytest.mark.slow
 def test_reachers_target_is_drawn_where_its_episode_puts_it():
     """Reacher's target moves every episode (a `geom_pos` edit, as dm_control's): the camera draws
     it there. Depth from camera 0 equals C MuJoCo's mj_ray with the same edit, for three episodes,

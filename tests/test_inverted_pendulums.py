@@ -78,6 +78,7 @@ def test_inverted_pendulum_reset_distribution_matches_gymnasium():
     exact_noise_bounds(qpos, 0.0, 0.01, "qpos"), exact_noise_bounds(qvel, 0.0, 0.01, "qvel")
 
 
+@pytest.mark.slow
 def test_inverted_double_pendulum_reset_distribution_matches_gymnasium():
     qpos, qvel, obs = reset_samples("inverted-double-pendulum", 4000)
     their_qpos, their_qvel, their_obs = gymnasium_reset_samples("InvertedDoublePendulum-v5", 4000)

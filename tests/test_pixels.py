@@ -122,6 +122,7 @@ DEPTH_CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("impl", ["jax", "warp"])
 @pytest.mark.parametrize("task_name", ["cartpole-swingup-mjx", "half-cheetah"])  # a fixed camera, a tracking one
 def test_depth_equals_c_mujoco_mj_ray(task_name, impl):

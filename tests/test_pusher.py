@@ -166,6 +166,7 @@ def test_bad_options_are_refused(option, value):
         envs.make(NAME, **{option: value})
 
 
+@pytest.mark.slow
 def test_reset_distribution_matches_gymnasium():
     qpos, qvel, obs = reset_samples(NAME, 4000)
     their_qpos, their_qvel, their_obs = gymnasium_reset_samples(GYMNASIUM_ID, 4000)

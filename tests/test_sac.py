@@ -289,6 +289,7 @@ def test_the_policy_is_brax_deterministic_policy_on_brax_parameter_layout():
     assert ours.shape == (32, env.action_size) and np.all(np.abs(np.asarray(ours)) <= 1.0)
 
 
+@pytest.mark.slow
 def test_evaluate_returns_deterministic_episodes_and_records_the_first():
     env = drift(episode_length=20)
     sac = SAC(SMALL, env)
