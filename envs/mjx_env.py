@@ -62,6 +62,8 @@ def _time_pinned(data: mjx.Data, model: mjx.Model) -> mjx.Data:
     """`data` with `time` in the timestep's dtype: a weakly typed `time` makes jit(mjx.step) compile
     twice (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan)."""
     return data.replace(time=jnp.asarray(data.time, model.opt.timestep.dtype))
+
+
 # True while `envs.registry.spec` builds a task to read what it is (its actions, its observation):
 # the task then skips `_put_on_device`, which loads MJX and MuJoCo Warp and starts JAX's backend.
 SPEC_ONLY = contextvars.ContextVar("mjxsuite_spec_only", default=False)
