@@ -24,10 +24,14 @@ On a CPU it is a smoke test (`--sizes 4 --steps 3 --impls jax`).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import multiprocessing
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
@@ -47,8 +51,31 @@ PLAYGROUND_NAMES = {"cheetah-run": "CheetahRun", "walker-walk": "WalkerWalk", "w
 _DROPPED = envs.mjx_warp.CONTACT_OVERFLOW | envs.mjx_warp.CONSTRAINT_OVERFLOW
 
 
-def playground_rollout(task: str, impl: str, num_envs: int, steps: int):
-    """`run(key) -> (total reward, final observations, overflowed env-steps)` of Playground's look-alike."""
+# A task's episode in control steps: dm_control's 1,000 (20 s at cheetah's 0.01 s steps), and
+# Playground's `episode_length` for its look-alikes. The reset runs once per episode.
+EPISODE_STEPS = 1000
+
+
+def _parts(env, actions, overflow, num_envs: int, steps: int):
+    """(reset(key) -> state, run(state, key) -> (total reward, overflowed env-steps)), jitted: the
+    reset apart, as an agent pays it once an episode; `steps` control steps from a reset state."""
+
+    def body(carry, _):
+        state, key, total, overflowed = carry
+        key, action_key = jax.random.split(key)
+        state = env.step(state, actions(action_key))
+        return (state, key, total + state.reward.sum(), overflowed + overflow(state)), None
+
+    def run(state, key):
+        (state, _, total, overflowed), _ = jax.lax.scan(body, (state, key, jnp.zeros(()), jnp.zeros((), jnp.int32)),
+                                                         None, steps)
+        return total, overflowed
+
+    return jax.jit(env.reset), jax.jit(run)
+
+
+def playground_parts(task: str, impl: str, num_envs: int, steps: int):
+    """`_parts` of Playground's look-alike in its Brax training wrapper, with its settings."""
     try:
         from mujoco_playground import registry, wrapper
     except ImportError as err:
@@ -60,37 +87,46 @@ def playground_rollout(task: str, impl: str, num_envs: int, steps: int):
         env._mjx_model = env.mjx_model.tree_replace({"opt._impl.warn_overflow": 0})
     wrapped = wrapper.wrap_for_brax_training(env, episode_length=int(config.episode_length))
 
-    def body(carry, _):
-        state, key, total, overflowed = carry
-        key, action_key = jax.random.split(key)
-        action = jax.random.uniform(action_key, (num_envs, env.action_size), minval=-1.0, maxval=1.0)
-        state = wrapped.step(state, action)
-        if impl == "warp":
-            overflowed += ((state.data._impl.overflow & _DROPPED) != 0).sum()
-        return (state, key, total + state.reward.sum(), overflowed), None
+    def actions(key):
+        return jax.random.uniform(key, (num_envs, env.action_size), minval=-1.0, maxval=1.0)
 
-    @jax.jit
-    def run(key):
-        key, reset_key = jax.random.split(key)
-        start = (wrapped.reset(jax.random.split(reset_key, num_envs)), key, jnp.zeros(()), jnp.zeros((), jnp.int32))
-        (state, _, total, overflowed), _ = jax.lax.scan(body, start, None, steps)
-        return total, state.obs, overflowed
+    def overflow(state):
+        if impl != "warp":
+            return jnp.zeros((), jnp.int32)
+        return ((state.data._impl.overflow & _DROPPED) != 0).sum()
 
-    return run, {"control_timestep": float(config.ctrl_dt), "sim_dt": float(config.sim_dt),
-                 "solver": gym_mujoco.solver_options(env.mj_model.opt), "playground_env": name}
+    reset, run = _parts(wrapped, actions, overflow, num_envs, steps)
+    return (lambda key: reset(jax.random.split(key, num_envs))), run, {
+        "control_timestep": float(config.ctrl_dt), "sim_dt": float(config.sim_dt),
+        "episode_steps": int(config.episode_length), "solver": gym_mujoco.solver_options(env.mj_model.opt),
+        "playground_env": name}
 
 
-def our_rollout(task: str, impl: str, num_envs: int, steps: int):
-    name = f"dmc-{task}"
-    unwrapped = envs.make(name).unwrapped
-    return env_throughput.rollout_fn(name, num_envs, steps, {"impl": impl}), {
-        "control_timestep": float(unwrapped.dt), "solver": gym_mujoco.solver_options(unwrapped.mj_model.opt)}
+def our_parts(task: str, impl: str, num_envs: int, steps: int, opt: dict | None = None):
+    """`_parts` of ours, in the wrappers an agent trains in (no episode statistics, as the peer);
+    `opt` overrides MuJoCo's solver options (`envs.mjx_options`), which makes it no longer dm_control."""
+    base = envs.make(f"dmc-{task}", impl=impl, **({"opt": opt} if opt else {}))
+    env = envs.wrap_for_training(base, num_envs, episode_stats=False)
+    reset, run = _parts(env, lambda key: env_throughput.random_env_actions(key, env, num_envs),
+                        lambda state: (state.info["overflow"] > 0).sum(), num_envs, steps)
+    return reset, run, {"control_timestep": float(base.unwrapped.dt), "episode_steps": EPISODE_STEPS,
+                        "solver": gym_mujoco.solver_options(base.unwrapped.mj_model.opt)}
 
 
-def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repeats: int) -> list[dict]:
-    """Ours and Playground's at one batch size and each impl, their timed runs alternating."""
+def _timed(function, *args) -> tuple[float, object]:
+    start = time.perf_counter()
+    out = jax.block_until_ready(function(*args))
+    return time.perf_counter() - start, out
+
+
+def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repeats: int,
+            opt: dict | None = None) -> list[dict]:
+    """Ours and Playground's at one batch size and each impl, their timed runs alternating. Each
+    record gives the reset's seconds, the steps/s of stepping alone, and `episode_steps_per_s`:
+    one episode of every env, its reset included, which is what an agent waits for."""
+    ours = functools.partial(our_parts, opt=opt)
     jobs = [(lib, impl, maker) for impl in impls for lib, maker in
-            [("mjxsuite", our_rollout), ("playground", playground_rollout)] if lib == "mjxsuite" or playground]
+            [("mjxsuite", ours), ("playground", playground_parts)] if lib == "mjxsuite" or playground]
     records, runs = [], []
     for lib, impl, maker in jobs:
         record = {"kind": "dmc-speed", "lib": lib, "env": f"dmc-{task}", "impl": impl, "num_envs": num_envs,
@@ -98,17 +134,29 @@ def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repea
                   "steps_per_s": None, "compile_s": None}
         if lib == "playground":
             record["version"] = version("playground")
-        result = gym_mujoco._compiled(lambda: maker(task, impl, num_envs, steps))
-        if isinstance(result, str):
-            record["skipped"] = result
+        elif opt:
+            record["opt"] = opt
+        try:
+            reset, run, settings = maker(task, impl, num_envs, steps)
+            key = jax.random.PRNGKey(0)
+            compile_s, state = _timed(reset, key)  # the first calls compile
+            run_compile_s, (_, overflowed) = _timed(run, state, key)
+        except PeerMissing as missing:
+            record["skipped"] = str(missing)
         else:
-            run, settings, record["compile_s"], record["overflow_steps"] = result
-            record.update(settings)
-            runs.append((run, record))
+            record.update(settings, compile_s=compile_s + run_compile_s, overflow_steps=int(overflowed))
+            runs.append((reset, run, record))
         records.append(record)
-    for (_, record), spent in zip(runs, env_throughput.time_side_by_side([run for run, _ in runs], repeats)):
-        record["steps_per_s"] = num_envs * steps / statistics.median(spent)
-        record["run_s"] = spent
+    for i in range(repeats):  # A B A B ...: a change in the machine's speed hits both alike
+        key = jax.random.PRNGKey(i + 1)
+        for reset, run, record in runs:
+            reset_s, state = _timed(reset, key)
+            record.setdefault("reset_s", []).append(reset_s)
+            record.setdefault("run_s", []).append(_timed(run, state, key)[0])
+    for _, _, record in runs:
+        record["steps_per_s"] = num_envs * steps / statistics.median(record["run_s"])
+        episode = num_envs * record["episode_steps"]
+        record["episode_steps_per_s"] = episode / (statistics.median(record["reset_s"]) + episode / record["steps_per_s"])
     return records
 
 
@@ -135,17 +183,65 @@ def dm_control_speed(task: str, steps: int = 1000) -> dict:
             "steps_per_s": float(sum(rates)), "cpu_count": cores, "note": "one process per core, C MuJoCo"}
 
 
+def _episode_speed(record: dict) -> float:
+    """Env-steps/s over whole episodes, resets included (dm_control's loop resets as it goes)."""
+    return record.get("episode_steps_per_s") or record["steps_per_s"]
+
+
 def ratios(records: list[dict]) -> list[dict]:
-    """Ours against Playground's look-alike (same impl and size) and against dm_control's own env."""
+    """Ours against Playground's look-alike (same impl and size) and against dm_control's own env,
+    over whole episodes (`ratio`) and stepping alone (`step_ratio`)."""
     found = []
     for ours in (r for r in records if r["lib"] == "mjxsuite" and r["steps_per_s"]):
         for peer in (r for r in records if r["lib"] != "mjxsuite" and r["steps_per_s"] and r["env"] == ours["env"]):
             if peer["lib"] == "playground" and (peer["impl"], peer["num_envs"]) != (ours["impl"], ours["num_envs"]):
                 continue
             found.append({"kind": "dmc-speed-ratio", "env": ours["env"], "impl": ours["impl"],
-                          "num_envs": ours["num_envs"], "peer": peer["lib"], "ratio": ours["steps_per_s"] / peer["steps_per_s"],
+                          "num_envs": ours["num_envs"], "peer": peer["lib"],
+                          "ratio": _episode_speed(ours) / _episode_speed(peer),
+                          "step_ratio": ours["steps_per_s"] / peer["steps_per_s"],
                           "overflow_steps": ours.get("overflow_steps"), "peer_overflow_steps": peer.get("overflow_steps")})
     return found
+
+
+def _each_task_alone(argv: list[str], tasks: list[str], json_file: str | None) -> None:
+    """Every task in a process of its own: MuJoCo Warp's CUDA-graph captures of one task's programs
+    must not meet the next task's (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for task in tasks:
+            out = os.path.join(tmp, f"{task}.json")
+            subprocess.run([sys.executable, "-m", "benchmarks.dmc_speed", *argv, "--tasks", task, "--json", out],
+                           check=False)
+            if os.path.exists(out):
+                with open(out) as f:
+                    records += json.load(f)
+            if json_file:
+                _write(json_file, records)
+
+
+def _write(json_file: str, records: list[dict]) -> None:
+    with open(json_file + ".tmp", "w") as f:
+        json.dump(records, f, indent=1)
+    os.replace(json_file + ".tmp", json_file)
+
+
+def _number(text: str):
+    try:
+        return float(text) if "." in text or "e" in text else int(text)
+    except ValueError:
+        return text
+
+
+def _without(argv: list[str], options: tuple[str, ...]) -> list[str]:
+    """`argv` less the given options and their values."""
+    kept, skipping = [], False
+    for arg in argv:
+        if arg.startswith("--"):
+            skipping = arg.split("=")[0] in options
+        if not skipping:
+            kept.append(arg)
+    return kept
 
 
 def main(argv=None) -> None:
@@ -158,24 +254,36 @@ def main(argv=None) -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-playground", action="store_true")
     parser.add_argument("--no-dm-control", action="store_true")
+    parser.add_argument("--opt", action="append", default=[], metavar="FIELD=VALUE",
+                        help="a solver option of ours (e.g. iterations=4), to measure what dm_control's settings cost")
     parser.add_argument("--json", help="also write the records to this file")
     args = parser.parse_args(argv)
-    records = []
-    for task in args.tasks:
-        found = [dm_control_speed(task)] if not args.no_dm_control else []
-        for num_envs in args.sizes:
-            found += measure(task, num_envs, args.impls, not args.no_playground,
-                             args.steps or gym_mujoco.steps_for(num_envs), args.repeats)
-        records += found + ratios(found)
-        for r in found:
-            figure = f"{r['steps_per_s']:>14,.0f}" if r["steps_per_s"] else f"  skipped: {r.get('skipped')}"
-            print(f"{r['lib']:<11}{r['env']:<20}{r.get('impl', 'C'):<6}{r['num_envs']:>7}{figure}"
-                  f"{env_throughput.overflow_note(r)}", flush=True)
-        for r in ratios(found):
-            print(f"{r['env']} impl={r['impl']} {r['num_envs']} envs / {r['peer']}: {r['ratio']:.2f}x", flush=True)
-        if args.json:  # after every task: a run stopped part-way keeps what it measured
-            with open(args.json, "w") as f:
-                json.dump(records, f, indent=1)
+    opt = envs.mjx_options.check_opt({k: _number(v) for k, v in (o.split("=", 1) for o in args.opt)}, "--opt")
+    if len(args.tasks) > 1:
+        argv = sys.argv[1:] if argv is None else argv
+        return _each_task_alone(_without(argv, ("--tasks", "--json")), args.tasks, args.json)
+    task = args.tasks[0]
+    found = [dm_control_speed(task)] if not args.no_dm_control else []
+    _print(found, [])
+    for num_envs in args.sizes:
+        measured = measure(task, num_envs, args.impls, not args.no_playground,
+                           args.steps or gym_mujoco.steps_for(num_envs), args.repeats, opt)
+        found += measured
+        _print(measured, [r for r in ratios(found) if r["num_envs"] == num_envs])
+        if args.json:  # after every size: a run stopped part-way keeps what it measured
+            _write(args.json, found + ratios(found))
+
+
+def _print(records: list[dict], found_ratios: list[dict]) -> None:
+    for r in records:
+        figure = (f"{r['steps_per_s']:>14,.0f} stepping{_episode_speed(r):>14,.0f} over episodes"
+                  if r["steps_per_s"] else f"  skipped: {r.get('skipped')}")
+        print(f"{r['lib']:<11}{r['env']:<20}{r.get('impl', 'C'):<6}{r['num_envs']:>7}{figure}"
+              f"{env_throughput.overflow_note(r)}", flush=True)
+    for r in found_ratios:
+        print(f"{r['env']} impl={r['impl']} {r['num_envs']} envs / {r['peer']}: {r['ratio']:.2f}x over episodes,"
+              f" {r['step_ratio']:.2f}x stepping", flush=True)
+
 
 if __name__ == "__main__":
     main()
