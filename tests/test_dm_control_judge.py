@@ -113,3 +113,12 @@ def test_gym_training_judges_each_task_on_its_reference_env(tmp_path, capsys):
     assert "not found here" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         gym_training.main(["--judge", str(records), "--run", "--env dmc-cartpole-balance"])
+
+
+def test_solver_options_other_than_dm_controls_say_so():
+    """Playground's fewer solver iterations are allowed on a dmc task, with a warning: the proof and
+    the judge assume dm_control's settings."""
+    env = envs.make("dmc-pendulum-swingup").unwrapped
+    with pytest.warns(UserWarning, match="no longer dm_control's physics"):
+        fast = envs.make("dmc-pendulum-swingup", opt={"iterations": 4}).unwrapped
+    assert fast.mj_model.opt.iterations == 4 and env.mj_model.opt.iterations == 100
