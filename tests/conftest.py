@@ -71,6 +71,11 @@ HEAVY_CASES = {
     "tests/test_dm_control.py::test_steps_near_the_goal_match_dm_control[dmc-cartpole-swingup-sparse]",
     "tests/test_dm_control.py::test_steps_near_the_goal_match_dm_control[dmc-acrobot-swingup-sparse]",
     "tests/test_agents_cli.py::test_kill_9_after_a_checkpoint_then_resume_is_exact[ppo]",
+    # Gymnasium's hopper steps (half-cheetah, ant, swimmer, reacher and the inverted pendulum's stay in
+    # the slow run), and reacher's target under auto-reset (a compile of its own; its distribution and
+    # its drawing stay)
+    "tests/test_walkers.py::test_steps_match_gymnasium[hopper]",
+    "tests/test_dm_control.py::test_reacher_target_moves_with_each_episode_under_auto_reset",
     "tests/test_readme_task.py::test_python_blocks_marked_run_run[docs/randomization.md:4]",
     # the signal handler under the other signal at each moment (each moment's first signal runs by default)
     "tests/test_faults.py::test_a_signal_stops_the_run_cleanly_and_resume_continues_it[during compile-SIGTERM]",

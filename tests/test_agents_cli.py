@@ -110,6 +110,7 @@ def test_a_ppo_run_writes_dqns_run_directory(tiny_run, tmp_path):
     assert summary["agent"] == "ppo" and len(summary["mean_return"]) == 2 and summary["best_seed"] == result.best_seed
 
 
+@pytest.mark.slow  # tiny_run is trained for the slow run's tests beside it
 def test_the_saved_policy_acts_as_the_agent_does(tiny_run):
     """load_policy(DIR, seed_index=i) against the agent's own policy on seed i's returned
     parameters, through the env's own action_to_ctrl: the same float32 torques."""

@@ -86,10 +86,10 @@ def test_the_warp_worlds_step_the_model_the_task_steps(warp_faked, task):
     assert env.impl == "warp" and env._warp.mjx_model is env.mjx_model
 
 
-# Tracing a task's physics takes seconds to a minute on 2 cores: CI's slow run traces the tasks with
-# a hook of their own (Humanoid's and Ant's contact options, reacher's per-episode target, cheetah's
-# settling steps and ball_in_cup's rejection test at reset); the heavy run traces the rest.
-TRACED_IN_SLOW = ("ant", "humanoid", "dmc-reacher-easy", "dmc-cheetah-run", "dmc-ball-in-cup-catch")
+# Tracing a task's physics takes seconds to a minute on 2 cores: CI's slow run traces one task per
+# hook (Ant's contact options, reacher's per-episode target, cheetah's physics at reset); the heavy
+# run traces the rest (Humanoid's contact options and ball_in_cup's rejection test among them).
+TRACED_IN_SLOW = ("ant", "dmc-reacher-easy", "dmc-cheetah-run")
 
 
 @pytest.mark.parametrize("task", [pytest.param(task, marks=pytest.mark.slow if task in TRACED_IN_SLOW else pytest.mark.heavy)
