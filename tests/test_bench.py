@@ -186,6 +186,13 @@ def test_dmc_speed_compares_with_playground_at_the_same_impl_and_size_only():
                record("playground", 9e6, num_envs=32768), record("dm_control", 1e4, impl=None, num_envs=16)]
     ratios = {r["peer"]: r["ratio"] for r in dmc_speed.ratios(records)}
     assert ratios == {"playground": pytest.approx(0.5), "dm_control": pytest.approx(200.0)}
+    # A reset that costs (cheetah's settling steps) counts once an episode: the ratio is over whole
+    # episodes, the stepping alone beside it.
+    records[0]["episode_steps_per_s"] = 1e6
+    found = {r["peer"]: r for r in dmc_speed.ratios(records)}
+    assert found["playground"]["ratio"] == pytest.approx(0.25) and found["playground"]["step_ratio"] == pytest.approx(0.5)
+    assert dmc_speed._without(["--sizes", "4", "8", "--tasks", "a", "b", "--json", "f", "--no-playground"],
+                              ("--tasks", "--json")) == ["--sizes", "4", "8", "--no-playground"]
 
 
 @pytest.mark.heavy
