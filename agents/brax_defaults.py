@@ -17,8 +17,8 @@ Where each row comes from:
   MJCF and reward), as published; sized for an accelerator (thousands of envs).
 - "Playground": MuJoCo Playground's `dm_control_suite_params.py` (`brax_ppo_config`,
   `brax_sac_config`, `brax_vision_ppo_config`) for the dm_control look-alike; every dmc-* task's
-  rows (`_DMC_TASKS`) are Playground's recipe for its look-alike of that task (quadruped, which
-  Playground lacks: its base recipes).
+  rows (`_DMC_TASKS`) are Playground's recipe for its look-alike of that task (quadruped and fish
+  upright, which Playground lacks: its base recipes).
 - "FastTD3": FastTD3's hyperparams.py (`_FASTTD3`), for a GPU.
 Rows run on a GPU (`python -m benchmarks.gym_training`) say "run"; docs/agents.md, "Per-task
 recipes", has each run (machine, time, steps, score on Gymnasium's env; records "gym-training" in
@@ -205,6 +205,8 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-finger-spin": (dict(discounting=0.95), dict(num_timesteps=10_000_000), 900.0),
     "dmc-finger-turn-easy": ({}, dict(num_timesteps=10_000_000), 700.0),
     "dmc-finger-turn-hard": ({}, dict(num_timesteps=10_000_000), None),
+    "dmc-fish-swim": ({}, {}, None),
+    "dmc-fish-upright": ({}, {}, None),  # Playground registers no fish upright: its base recipes
     "dmc-hopper-hop": ({}, dict(num_timesteps=10_000_000), None),
     "dmc-hopper-stand": ({}, dict(num_timesteps=10_000_000), 700.0),
     "dmc-humanoid-run": ({}, {}, None),
@@ -216,6 +218,7 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-quadruped-walk": ({}, {}, 700.0),
     "dmc-reacher-easy": ({}, {}, 900.0),
     "dmc-reacher-hard": ({}, {}, None),
+    "dmc-swimmer-swimmer6": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
     "dmc-walker-stand": ({}, {}, 900.0),
     "dmc-walker-walk": ({}, {}, 900.0),
     "dmc-walker-run": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), 700.0),
