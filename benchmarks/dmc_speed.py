@@ -46,7 +46,8 @@ from benchmarks.peers import PeerMissing, version
 PLAYGROUND_NAMES = {"cheetah-run": "CheetahRun", "walker-walk": "WalkerWalk", "walker-run": "WalkerRun",
                     "humanoid-walk": "HumanoidWalk", "hopper-hop": "HopperHop", "cartpole-swingup": "CartpoleSwingup",
                     "finger-spin": "FingerSpin", "reacher-easy": "ReacherEasy", "ball-in-cup-catch": "BallInCup",
-                    "acrobot-swingup": "AcrobotSwingup", "pendulum-swingup": "PendulumSwingup"}
+                    "acrobot-swingup": "AcrobotSwingup", "pendulum-swingup": "PendulumSwingup",
+                    "fish-swim": "FishSwim", "swimmer-swimmer6": "SwimmerSwimmer6"}
 # MuJoCo Warp's overflow bits that mean dropped contacts or constraint rows (`envs.mjx_warp`).
 _DROPPED = envs.mjx_warp.CONTACT_OVERFLOW | envs.mjx_warp.CONSTRAINT_OVERFLOW
 

@@ -22,9 +22,10 @@ never copied here) and its task's rules:
   raveled, as `control.flatten_observation`), in the physics' dtype (float32 unless x64).
 - **Reward**: in [0, 1], built from `tolerance`, dm_control's `rewards.tolerance` in JAX.
 
-One edit is made to dm_control's models, here and nowhere else: the `energy` flag (acrobot,
-cartpole, pendulum) is cleared, because MJX refuses it; it only fills `data.energy`, which no task
-reads. `envs.interop.dm_control.compare_with_dm_control` proves a task step for step against
+Every task makes one edit to dm_control's models, here: the `energy` flag (acrobot, cartpole,
+pendulum) is cleared, because MJX refuses it; it only fills `data.energy`, which no task reads.
+Fish and swimmer make the other (`dmc_fish`, `dmc_swimmer`): their geoms' contype and conaffinity are
+zeroed, exactly neutral while their MJCF disables constraints or contacts by flag. `envs.interop.dm_control.compare_with_dm_control` proves a task step for step against
 dm_control's own env.
 """
 
