@@ -196,8 +196,8 @@ def without_gloo_logs(stdout: str) -> str:
     """`stdout` less the lines JAX's CPU collectives (Gloo) print from their own threads, such
     as `[Gloo] Rank 2 is connected to 3 peer ranks. ...`; they can arrive split in two and
     interleaved with the process's own lines, so they are cut out piece by piece."""
-    for piece in (r"\[Gloo\] Rank ", r"\d+ is connected to \d+ peer ranks\. ?",
-                  r"Expected number of connected peer ranks is : ?\d*"):  # seen split after each, the number too
+    for piece in (r"Expected number of connected peer ranks is : ?\d*", r"\[Gloo\] Rank ",
+                  r"\d* ?is connected to ?\d*", r" ?peer ranks\. ?"):  # seen split after each, the numbers too
         stdout = re.sub(piece, "", stdout)
     return stdout
 
