@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from agents.env_options import parse_opt_field
 from benchmarks import env_throughput, gym_mujoco
 from benchmarks.peers import PeerMissing, version
 
@@ -227,13 +228,6 @@ def _write(json_file: str, records: list[dict]) -> None:
     os.replace(json_file + ".tmp", json_file)
 
 
-def _number(text: str):
-    try:
-        return float(text) if "." in text or "e" in text else int(text)
-    except ValueError:
-        return text
-
-
 def _without(argv: list[str], options: tuple[str, ...]) -> list[str]:
     """`argv` less the given options and their values."""
     kept, skipping = [], False
@@ -259,7 +253,8 @@ def main(argv=None) -> None:
                         help="a solver option of ours (e.g. iterations=4), to measure what dm_control's settings cost")
     parser.add_argument("--json", help="also write the records to this file")
     args = parser.parse_args(argv)
-    opt = envs.mjx_options.check_opt({k: _number(v) for k, v in (o.split("=", 1) for o in args.opt)}, "--opt")
+    fields = [o.partition("=")[::2] for o in args.opt]
+    opt = envs.mjx_options.check_opt({k: parse_opt_field(k, v, "--opt") for k, v in fields}, "--opt")
     if len(args.tasks) > 1:
         argv = sys.argv[1:] if argv is None else argv
         return _each_task_alone(_without(argv, ("--tasks", "--json")), args.tasks, args.json)

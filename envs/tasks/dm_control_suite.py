@@ -24,9 +24,10 @@ never copied here) and its task's rules:
 
 Every task makes one edit to dm_control's models, here: the `energy` flag (acrobot, cartpole,
 pendulum) is cleared, because MJX refuses it; it only fills `data.energy`, which no task reads.
-Fish and swimmer make the other (`dmc_fish`, `dmc_swimmer`): their geoms' contype and conaffinity are
-zeroed, exactly neutral while their MJCF disables constraints or contacts by flag. `envs.interop.dm_control.compare_with_dm_control` proves a task step for step against
-dm_control's own env.
+Fish and swimmer make the other (`dmc_fish`, `dmc_swimmer`): their geoms' contype and conaffinity
+are zeroed, exactly neutral while their MJCF disables constraints or contacts by flag.
+`envs.interop.dm_control.compare_with_dm_control` proves a task step for step against dm_control's
+own env.
 """
 
 from __future__ import annotations
