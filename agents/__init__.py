@@ -4,9 +4,8 @@
 
 import importlib
 
-# Every name is imported on first use (PEP 562 `__getattr__` below): `import agents.signals`, the
-# first line of the `mjxsuite` command, loads no JAX, and DQN's command line starts without PPO
-# and SAC; `from agents import PPOConfig` works as ever.
+# Every name is imported on first use (PEP 562): `import agents.signals`, the `mjxsuite` command's
+# first line, loads no JAX.
 _LAZY = {"DQN": "agents.dqn", "DQNConfig": "agents.dqn", "train": "agents.dqn", "load_policy": "agents.run",
          "train_run": "agents.run", "PPO": "agents.ppo", "PPOConfig": "agents.ppo", "SAC": "agents.sac",
          "SACConfig": "agents.sac"}

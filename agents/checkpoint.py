@@ -1,28 +1,10 @@
 """Saving and loading training runs: the full train state (to resume) and the best parameters (to act).
 
-A run directory (`mjxsuite train --out DIR`) holds:
-- config.json: the agent ("dqn", "ppo", "sac"), env, env options, seeds, seed and the agent's
-  config (DQNConfig, PPOConfig, SACConfig), written when the run starts;
-- train_state.ckpt: the whole seed-batched train state of any agent (parameters, optimizer
-  states, normalizer, envs, replay buffer, key) and the number of chunks it has done:
-  everything an exact resume needs. A finished run's (all its chunks done) leaves the replay
-  buffer out (`without_replay`): nothing reads it after the last chunk, since a resume must keep
-  the run's config, and it is most of the bytes (18.8 GB for 8,192 DQN agents);
-- best_params.ckpt: the best parameters of each seed and their greedy returns (eval, rollout);
-- metrics.jsonl: one record per chunk (its training steps, then an evaluation); progress.json:
-  chunks done and best returns, for people;
-- processes.json, for a run trained by several processes (`agents.processes`): which run
-  directory under processes/ holds which seeds; the two .ckpt files then live there, and
-  `load_best_params` and `load_best_returns` read every seed from them.
-
-Every file is written to a temporary file, flushed to disk and renamed over the old one, so a
-kill at any moment leaves the previous complete file. Each .ckpt file is self-contained: a JSON
-header (format version, kind, env, chunk count, and each array's dtype, shape, offset and CRC32,
-under a CRC32 of its own) followed by the arrays' raw bytes. So a truncated, garbled or foreign
-file is refused with a message that names it, never loaded as nonsense. The arrays are written
-straight from memory and read back in place: no copy into one serialized blob, and no size
-limit (msgpack, the earlier format, copied every array twice and stops at 4 GiB, which 8,192
-DQN replay buffers pass).
+A run directory (`mjxsuite train --out DIR`) holds config.json, train_state.ckpt (all an exact resume
+needs), best_params.ckpt, metrics.jsonl and progress.json; a run of several processes adds
+processes.json, naming each process's directory under processes/. Every file is written atomically.
+A .ckpt file is a JSON header under its own CRC32, describing each array, followed by the arrays'
+raw bytes, so a damaged or foreign file is refused by name (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -72,8 +54,7 @@ class SavedRun(NamedTuple):
     sweep: dict | None = None  # `mjxsuite sweep`'s grid ({field: [values]}); the run holds configs x seeds agents
     agent: str = "dqn"
     judge_every: int | None = None  # chunks between greedy judges (`run_steps.judge_every`); None: not yet resolved
-    # (start, stop): this directory trains seeds start..stop-1 of the `seeds` (one process of several,
-    # `agents.processes`), with the keys the whole run gives them; None: every seed
+    # (start, stop): the seeds this directory trains, of a run of several processes; None: every seed
     seed_slice: tuple[int, int] | None = None
 
     @property
@@ -98,8 +79,7 @@ def check_writable(out_dir: str | os.PathLike) -> Path:
 
 
 def atomic_write(path: Path, data: bytes | Callable[[BinaryIO], None]) -> None:
-    """Write a temporary file (`data`, or what `data(file)` writes), flush it to disk, then rename
-    it over `path`: a kill or a full disk at any moment leaves the previous `path` whole."""
+    """Write `data` (or what `data(file)` writes) to a temporary file, fsync it and rename it over `path`."""
     tmp = path.with_name(path.name + ".tmp")
     try:
         with open(tmp, "wb") as f:
@@ -115,20 +95,16 @@ def atomic_write(path: Path, data: bytes | Callable[[BinaryIO], None]) -> None:
 
 
 def start_run(out_dir: Path, run: SavedRun) -> None:
-    """Write config.json for a new run, first removing the checkpoint an earlier run left in
-    `out_dir`: a resume must never continue a run other than this one."""
+    """Write config.json for a new run, first removing an earlier run's checkpoint (never resumed as this one)."""
     if (out_dir / PROCESSES_FILE).is_file():  # a run of several processes replaced: their directories too
         shutil.rmtree(out_dir / PROCESSES_DIR, ignore_errors=True)
     for stale in (STATE_FILE, POLICY_FILE, *OLDER_FILES.values(), PROGRESS_FILE, "eval.json", PROCESSES_FILE):
         (out_dir / stale).unlink(missing_ok=True)
     record = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "seed": run.seed,
               "env_options": run.env_options or {}, "config": dataclasses.asdict(run.config)}
-    if run.sweep:
-        record["sweep"] = run.sweep
-    if run.judge_every is not None:
-        record["judge_every"] = run.judge_every
-    if run.seed_slice is not None:
-        record["seed_slice"] = list(run.seed_slice)
+    optional = {"sweep": run.sweep or None, "judge_every": run.judge_every,
+                "seed_slice": None if run.seed_slice is None else list(run.seed_slice)}
+    record.update({name: value for name, value in optional.items() if value is not None})
     atomic_write(out_dir / CONFIG_FILE, json.dumps(record, indent=2).encode())
 
 
@@ -149,12 +125,8 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
 
 
 def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[str, Any, dict]:
-    """`(env_name, env, env_options)` of a run directory, on this machine: the saved env options
-    with those `given` on top (eval's and rollout's --impl, --env-opt, --randomize).
-
-    A run trained with impl="warp" on a GPU is usable anywhere: where MuJoCo Warp cannot run,
-    its physics falls back to impl="jax" (MuJoCo Warp's buffer sizes dropped) with a one-line
-    note. A policy needs no physics to act, and the Gymnasium tasks are proven equal under both."""
+    """`(env_name, env, env_options)` of a run directory, the options `given` on top of the saved ones;
+    impl="warp" falls back to impl="jax" where Warp cannot run (docs/reliability.md, "Run directories are portable")."""
     import sys
 
     import envs
@@ -181,8 +153,7 @@ def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[st
 
 
 def has_state(out_dir: Path) -> bool:
-    """Whether the run directory holds a train state to resume from (an older mjxsuite's too:
-    `load_state` then refuses it by name, rather than a resume silently starting over)."""
+    """Whether the run directory holds a train state (an older mjxsuite's too: `load_state` refuses it by name)."""
     return any((Path(out_dir) / name).is_file() for name in (STATE_FILE, OLDER_FILES[STATE_FILE]))
 
 
@@ -218,8 +189,7 @@ def config_from_record(config_class: type, fields: dict) -> Any:
 
 
 def _write_arrays(path: Path, kind: str, tree: Any, meta: dict) -> None:
-    """Any pytree (an `mjx.Data` env state included) as its leaves' raw bytes, in order, after a
-    header that describes them and carries `meta` (see the module docstring); atomically."""
+    """Any pytree's leaves as raw bytes after a header that describes them and carries `meta`; atomically."""
     leaves = [np.asarray(x, order="C") for x in jax.tree.leaves(tree)]  # (ascontiguousarray makes scalars 1-D)
     specs, offset = [], 0
     for x in leaves:
@@ -244,8 +214,7 @@ def _bytes_of(x: np.ndarray) -> memoryview:
 
 
 def _read(path: Path, kind: str, env: str | None, fix: str) -> tuple[dict, bytearray]:
-    """The checked header of a file `_write_arrays` wrote (for `env`; None: any), and the bytes
-    of its arrays; CheckpointError saying what is wrong and `fix`."""
+    """The checked header and array bytes of a `_write_arrays` file (for `env`; None: any), else a CheckpointError."""
     if not path.is_file():
         older = path.with_name(OLDER_FILES.get(path.name, path.name))
         if older != path and older.is_file():
@@ -312,19 +281,14 @@ POLICY_FIX = "train the agent again, or use another run directory"
 
 
 def without_replay(train_state: Any) -> Any:
-    """`train_state` without its replay buffer (an agent's replay, where it has one, is its train
-    state's `buffer`): what a finished run's checkpoint holds. Works on templates too."""
+    """`train_state` (or a template) without its replay `buffer`: what a finished run's checkpoint holds."""
     return train_state.replace(buffer=None) if hasattr(train_state, "buffer") else train_state
 
 
 def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, finished: bool = False,
                clock: dict | None = None) -> None:
-    """The whole (seed-batched) train state, buffer included, so a resumed run continues
-    exactly, and the best parameters for eval; a `finished` run's state without its replay
-    buffer (`without_replay`; `train_state` may already lack it). A kill between the renames
-    leaves the two files one save apart, each whole: a resume reads only the train state (with
-    its own chunk count) and rewrites the policy file at its next save. `clock`: the run's seconds
-    so far (`saved_clock`), in the train state's header."""
+    """The whole train state (a `finished` run's `without_replay`), with its own chunk count, and the best
+    parameters. `clock`: the run's seconds so far (`saved_clock`)."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
     _write_arrays(out_dir / POLICY_FILE, "best_params", train_state.best_params, {"env": env, "best_return": best_return})
     if finished:
@@ -335,11 +299,8 @@ def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, fini
 
 
 class BackgroundSaves:
-    """`save_state` on a thread of its own while other work goes on (a run's next chunks, its
-    final evaluation), one save at a time: `save` first waits for the previous one (raising its
-    error), `wait` before the files are read or the run returns. Each save is still atomic, so a
-    kill mid-write leaves the previous checkpoint. The thread is not a daemon: a run that dies of
-    an error still finishes the write under way. `written_s`: the last finished write's seconds."""
+    """`save_state` on a non-daemon thread of its own, one save at a time: `save` and `wait` wait for the
+    previous one, raising its error. `written_s`: the last write's seconds."""
 
     def __init__(self):
         self._thread: threading.Thread | None = None
@@ -348,8 +309,7 @@ class BackgroundSaves:
 
     def save(self, out_dir: Path, env: str, host_state: Any, chunks_done: int, finished: bool = False,
              clock: dict | None = None) -> None:
-        """Write `host_state` (numpy arrays that nothing else changes, or a function that makes
-        them on the writing thread) in the background, as `save_state` does."""
+        """Write `host_state` (numpy arrays, or a function that makes them on the writing thread)."""
         self.wait()
 
         def write():
@@ -374,8 +334,7 @@ class BackgroundSaves:
 
 
 def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any, int]:
-    """The saved train state, shaped like `template` (a finished run's without its replay
-    buffer: `buffer` None), and the chunks it has done."""
+    """The saved train state, shaped like `template` (a finished run's `without_replay`), and its chunks done."""
     path = Path(out_dir) / STATE_FILE
     record = _read(path, "train_state", env, RESUME_FIX)
     meta = record[0]["meta"]
@@ -385,24 +344,20 @@ def load_state(out_dir: str | os.PathLike, env: str, template: Any) -> tuple[Any
 
 
 def saved_clock(out_dir: str | os.PathLike) -> dict:
-    """The run's clock when its checkpoint was saved, every session's until then: `wall_s`,
-    `wall_parts_s` and `solve_wall_s` (`agents.run.RunResult`), which a --resume goes on from; {}
-    for a checkpoint written without one. Reads the train state's header alone."""
+    """The run's clock at its checkpoint (`agents.run.RunResult`'s `wall_s`, ...; {}: none), for a --resume."""
     with open(Path(out_dir) / STATE_FILE, "rb") as f:
         _, header_size, _ = PREFIX.unpack(f.read(PREFIX.size))
         return json.loads(f.read(header_size))["meta"].get("clock") or {}
 
 
 def check_saved(out_dir: str | os.PathLike, env: str) -> None:
-    """Read the run directory's checkpoint files through, as a resume and `eval` would: a
-    CheckpointError naming the file that is truncated, corrupted or of another version."""
+    """Read both checkpoint files through, as a resume and `eval` would (CheckpointError naming a bad one)."""
     _read(Path(out_dir) / STATE_FILE, "train_state", env, RESUME_FIX)
     _read(Path(out_dir) / POLICY_FILE, "best_params", env, POLICY_FIX)
 
 
 def process_dirs(out_dir: str | os.PathLike) -> list[tuple[Path, tuple[int, int]]] | None:
-    """The run directories of a run trained by several processes, each with the seeds (start,
-    stop) it trains, in seed order (processes.json); None for a run trained by one."""
+    """Each process's run directory and seeds (start, stop), in seed order; None for a run of one process."""
     path = Path(out_dir) / PROCESSES_FILE
     if not path.is_file():
         return None
@@ -422,9 +377,7 @@ def load_best_returns(out_dir: str | os.PathLike) -> list[float]:
 
 
 def best_seed(out_dir: str | os.PathLike) -> int:
-    """The seed a run's policy acts with by default: the finished run's choice (eval.json's
-    `best_seed`: the best final evaluation, ties broken by a longer one), else, for a run still
-    under way, the seed with the best evaluation during training."""
+    """The seed a run's policy acts with by default: eval.json's `best_seed`, else the best so far."""
     finished = Path(out_dir) / "eval.json"
     if finished.is_file():
         try:
@@ -435,8 +388,7 @@ def best_seed(out_dir: str | os.PathLike) -> int:
 
 
 def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:
-    """The best parameters of every seed, shaped like `template` (leading seed axis); a run of
-    several processes gathers them from each process's directory, in seed order."""
+    """Every seed's best parameters, shaped like `template` (leading seed axis), across processes."""
     out = Path(out_dir)
     parts = process_dirs(out)
     if parts is not None:
@@ -449,9 +401,7 @@ def load_best_params(out_dir: str | os.PathLike, template: Any) -> Any:
 
 
 def keep_metrics(out_dir: Path, chunks_done: int) -> None:
-    """Keep the metrics of the chunks a resumed train state has done, dropping those a killed
-    run wrote after its last checkpoint: the resumed run appends them again, so its file ends
-    as an uninterrupted run's (timings aside)."""
+    """Keep the metrics of the chunks the resumed train state has done (the resumed run writes the rest)."""
     path = out_dir / METRICS_FILE
     lines = path.read_text().splitlines(keepends=True) if path.is_file() else []
     atomic_write(path, "".join(lines[:chunks_done]).encode())

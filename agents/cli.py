@@ -1,15 +1,11 @@
 """The `mjxsuite` command's parser: train, sweep, eval and rollout (`bench` is added by `benchmarks.cli`).
 
-Every option is generated from a dataclass: a command's own settings (`TrainOptions`, ...) and
-every field of the agents' configs (DQNConfig, PPOConfig, SACConfig, TD3Config) as `--FIELD VALUE`
-(or `--FIELD-NAME`), each with the help its class's source gives it (the comment on or above the
-field). `agents.commands` runs the commands, with JAX's persistent compilation cache
-(`agents.jax_compile_cache`, `agents.traced_programs`) unless `--no-compile-cache`.
+Every option is generated from a dataclass field: a command's own settings (`TrainOptions`, ...) and
+every field of the agents' configs as `--FIELD VALUE`, with the help the comment on or above the field
+gives. `agents.commands` runs the commands.
 
-Exit status: 0 done, 2 a command that cannot run as given (bad option or value, unknown
-env, unusable --out, nothing or something else to --resume), 1 a failure while running
-(a damaged checkpoint, a full disk), 130 stopped by Ctrl-C (SIGINT), 143 stopped by SIGTERM. A stopped
-run saves its checkpoint first (it says what it saved); a second signal exits at once without saving.
+Exit status: 0 done, 2 a command that cannot run as given, 1 a failure while running (a damaged
+checkpoint, a full disk), 130 stopped by SIGINT, 143 by SIGTERM (after saving the checkpoint).
 """
 
 from __future__ import annotations
@@ -31,22 +27,19 @@ from envs.ranges import COUNT, NON_NEGATIVE, NON_NEGATIVE_COUNT, Range
 
 @dataclasses.dataclass(kw_only=True)
 class Common:
-    # do not use JAX's persistent compilation cache nor its traced programs (default: on, in
-    # $XDG_CACHE_HOME/mjxsuite/jax; MJXSUITE_COMPILE_CACHE=0 also turns it off, a path moves it)
+    # do not use JAX's compilation cache (default: on, in $XDG_CACHE_HOME/mjxsuite/jax; also MJXSUITE_COMPILE_CACHE=0)
     no_compile_cache: bool = False
     imports: list[str] = field(default_factory=list)  # a module or .py file that registers your tasks; repeatable
 
 
 @dataclasses.dataclass(kw_only=True)
 class EnvOverrides:  # given to eval or rollout, they change the saved env's options
-    # an envs.make override, e.g. integrator=semi_implicit or episode_length=200 (envs.options(NAME) lists them);
-    # an MJX task's solver option as opt.FIELD=VALUE (opt.solver=CG), MuJoCo Warp's buffers as nconmax=N,
-    # naconmax=N, njmax=N; repeatable
+    # an envs.make override (envs.options(NAME) lists them), e.g. episode_length=200, an MJX task's solver
+    # option opt.solver=CG or MuJoCo Warp's buffers nconmax=N, naconmax=N, njmax=N; repeatable
     env_opts: list[str] = field(default_factory=list)
     # an MJX task's implementation: jax (default) or warp (MuJoCo Warp, NVIDIA GPU, pip install 'mjxsuite[warp]')
     impl: typing.Literal["jax", "warp"] | None = None
-    # draw an mjx.Model value per env: body_mass:pole=0.05:0.2 (uniform), body_mass:pole=x0.8:1.2 (scale of the
-    # compiled value), dof_damping:slider=0.05 (fixed); repeatable (docs/randomization.md)
+    # draw an mjx.Model value per env: body_mass:pole=0.05:0.2 (uniform), =x0.8:1.2 (scale), =0.05 (fixed); repeatable
     randomize: list[str] = field(default_factory=list)
     randomize_per: typing.Literal["episode", "env"] | None = None  # draw again every episode (default) or once per env
 
@@ -54,41 +47,34 @@ class EnvOverrides:  # given to eval or rollout, they change the saved env's opt
 @dataclasses.dataclass(kw_only=True)
 class RunOptions(Common):
     env: str | None = None  # registered env name, e.g. cartpole or cartpole-mjx (with --resume: the saved one)
-    # dqn for discrete tasks, ppo, sac or td3 for continuous ones (default: dqn, or for a continuous task ppo
-    # or its choice in agents/brax_defaults.py: sac for half-cheetah and walker2d)
+    # dqn for discrete tasks, ppo, sac or td3 for continuous ones (default: dqn, or agents/brax_defaults.py's choice)
     agent: typing.Literal["dqn", "ppo", "sac", "td3"] | None = None
     seeds: int | None = None  # agents trained at once (default 1)
     seed: int | None = None  # random seed (default 0)
-    # env steps per seed, for every agent (DQNConfig.total_steps; PPO/SAC/TD3: num_timesteps), rounded up to
-    # whole training steps per chunk, as the run says before it compiles
+    # env steps per seed (DQN's total_steps, the others' num_timesteps), rounded up to whole training steps
     steps: int | None = None
     replay: typing.Literal["uniform", "prioritized"] | None = None  # DQN's replay (DQNConfig.replay)
-    # a named config that --FIELD options then change (default: default). DQN: default, quick (one seed on a
-    # CPU) or many-envs (GPUs; docs/training.md); PPO/SAC/TD3: the task's recipes in agents/brax_defaults.py
+    # a named config that --FIELD options change: DQN's default, quick or many-envs; the task's others (brax_defaults)
     preset: str | None = None
     out: str | None = None  # directory for config.json, metrics.jsonl, checkpoint and eval.json
     resume: bool = False  # continue the run saved in --out from its last checkpoint, with its env, seeds, config
     checkpoint_every: int = CHECKPOINT_EVERY  # chunks between checkpoints in --out (default %(default)s)...
     # ...and at least this many seconds between them, or a multiple of the last save's duration if longer
     checkpoint_seconds: float = CHECKPOINT_SECONDS
-    # judge the policy (keep the best parameters, find the solve step) every this many chunks and after the last
-    # (default: PPO, SAC and TD3 every chunk, DQN by a cost model; saved in config.json; docs/training.md)
+    # chunks between judges of the policy, and after the last (default: every chunk, DQN's by a cost model)
     judge_every: int | None = None
     rerun: str | None = None  # a Rerun file (FILE.rrd) to log training curves and greedy rollouts to
     overwrite: bool = False  # replace the run --out holds (else refused: --resume continues it) and --rerun's file
     devices: int | None = None  # local devices to spread the agents over (default: all that split them evenly)
-    # bit-for-bit repeatable runs on a GPU: XLA's deterministic ops (also MJXSUITE_DETERMINISTIC=1); MuJoCo
-    # Warp is not deterministic (docs/reliability.md)
+    # bit-for-bit repeatable runs on a GPU, but not of MuJoCo Warp (docs/reliability.md; also MJXSUITE_DETERMINISTIC=1)
     deterministic: bool = False
-    # join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1): agents spread over every
-    # device of every process, process 0 writes (docs/scaling.md)
+    # join a multi-host run (jax.distributed.initialize; also MJXSUITE_DISTRIBUTED=1; docs/scaling.md)
     distributed: bool = False
 
 
 @dataclasses.dataclass(kw_only=True)
 class TrainOptions(EnvOverrides, RunOptions):
-    # train the seeds in this many child processes, one device each, merged into --out (default: for an MJX task
-    # on several GPUs, one per --devices; else 1; also MJXSUITE_PROCESSES=K; docs/scaling.md)
+    # child processes training the seeds, one device each (default: one per GPU for an MJX task; docs/scaling.md)
     processes: int | None = None
     rerun_every: int = 1  # chunks (PPO/SAC: evaluations) between logged evaluation rollouts (0: none)
 
@@ -128,8 +114,7 @@ RANGES = {"seeds": COUNT, "steps": COUNT, "checkpoint_every": COUNT, "checkpoint
 
 
 def field_help(cls: type) -> dict[str, str]:
-    """Each field's meaning as its class's source states it: the comment after the field, else the
-    comment lines right above it (the classes' bases too)."""
+    """Each field's help: the comment after it in its class's source, else the comment lines above it."""
     helps, above = {}, []
     for klass in reversed(cls.__mro__[:-1]):
         for line in inspect.getsource(klass).splitlines():
@@ -158,8 +143,7 @@ def ranged(kind: type, valid: Range):
 
 
 def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
-    """A flag per field of the dataclass `cls`: a bool is a switch, a list repeatable, a Literal a
-    choice; a field without a default is required."""
+    """A flag per field of the dataclass `cls`: a bool a switch, a list repeatable, a Literal a choice."""
     helps = field_help(cls)
     for spec in dataclasses.fields(cls):
         kind = typing.get_type_hints(cls)[spec.name]
@@ -181,9 +165,8 @@ def add_options(parser: argparse.ArgumentParser, cls: type) -> None:
 
 
 def add_config_fields(parser: argparse.ArgumentParser, agents=AGENTS, sweep: bool = False) -> None:
-    """Every field of the `agents`' configs as `--FIELD VALUE` (also `--FIELD-NAME`), read as text and
-    by the chosen agent's config (`commands.config_from_args`). In a sweep, the sweepable fields take
-    comma-separated values."""
+    """Every field of the `agents`' configs as `--FIELD VALUE`, read as text (`commands.config_from_args`);
+    in a sweep, the sweepable fields take comma-separated values."""
     from agents import registry
 
     taken = {option for action in parser._actions for option in action.option_strings}
@@ -230,8 +213,7 @@ def build_parser(more: Mapping[str, Command] | None = None) -> argparse.Argument
 
 
 def joined_negative_values(argv: list[str]) -> list[str]:
-    """`--FIELD -1,2` as `--FIELD=-1,2`: argparse reads a value that starts with '-' as an option
-    unless it is a plain negative number."""
+    """`--FIELD -1,2` as `--FIELD=-1,2`: argparse takes any other value starting with '-' for an option."""
     joined = []
     for word in argv:
         if joined and re.fullmatch(r"--[\w-]+", joined[-1]) and re.match(r"-[\d.]", word) and \
@@ -258,8 +240,7 @@ def _refuse_unknown(parser: argparse.ArgumentParser, command: str, extra: list[s
 
 
 def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = None) -> int:
-    """Run one `mjxsuite` command. `more` adds subcommands by name; the `mjxsuite` script
-    (`benchmarks.cli.main`) adds `bench` this way, so this package never imports `benchmarks`."""
+    """Run one `mjxsuite` command; `more` adds subcommands by name (`bench`, so agents never import benchmarks)."""
     more = more or {}
     parser = build_parser(more)
     args, extra = parser.parse_known_args(joined_negative_values(sys.argv[1:] if argv is None else argv))

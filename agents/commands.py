@@ -21,8 +21,7 @@ CONFIG = "field."  # the namespace prefix of the agents' config fields (`agents.
 
 
 class UsageError(SystemExit):
-    """A command that cannot run as given: exit status 2, as argparse's own errors. `main`
-    prints the message; in-process callers see it as the exception's text."""
+    """A command that cannot run as given: exit status 2, as argparse's own errors; `str()` is the message."""
 
     def __init__(self, message: str):
         super().__init__(2)
@@ -58,8 +57,7 @@ def _parse_value(kind: type, text: str):
 
 
 def config_from_args(base, fields: dict[str, str], **given):
-    """`base` with the config `fields` given as text (`agents.cli.config_fields`), then the fields
-    `given` by the command's own options (None: not given), with clear errors."""
+    """`base` with the config `fields` given as text, then the command's own options `given` (None: not given)."""
     from agents.registry import SAME_FIELD
 
     kinds = typing.get_type_hints(type(base))
@@ -80,8 +78,7 @@ def config_from_args(base, fields: dict[str, str], **given):
 
 
 def choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
-    """--agent, by default dqn for a discrete task and the table's choice (ppo or sac) for a continuous one;
-    a mismatch is refused."""
+    """--agent, by default dqn or the table's choice for a continuous task; a mismatch is refused."""
     import envs
 
     from agents import brax_defaults, registry
@@ -96,9 +93,7 @@ def choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
 
 def agent_config(env_name: str, agent: str, preset: str | None, fields: dict[str, str], steps: int | None,
                  replay: str | None, observation: str = "state"):
-    """The agent's config: DQN's preset, or PPO's/SAC's/TD3's base recipe with the task's row of
-    agents/brax_defaults.py (`--preset` picks another; without it, camera images take the task's
-    "pixels" recipe where it has one); then the config `fields` and `--steps` (env steps per seed)."""
+    """DQN's preset or the task's recipe (agents/brax_defaults.py), with the config `fields` and `--steps`."""
     from agents import brax_defaults, registry
     from agents.dqn import PRESETS
 
@@ -125,8 +120,7 @@ def say_rounding(config) -> None:
 
 
 def say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]) -> None:
-    """Say, before anything compiles, when a run on a machine without a GPU is sized for one, and
-    which preset fits a CPU (`brax_defaults.gpu_sized_note`)."""
+    """Say, before anything compiles, when a run without a GPU is sized for one (`brax_defaults.gpu_sized_note`)."""
     from agents import brax_defaults
 
     note = None if gpus else brax_defaults.gpu_sized_note(env_name, agent, config.total_steps, seeds)
@@ -180,9 +174,7 @@ def import_tasks(modules: list[str]) -> None:
 
 
 def train_env_options(args) -> dict:
-    """A new run's `envs.make` overrides: the --env-opt/--impl/--randomize ones, and on camera
-    images the task's own defaults for what they leave out (`brax_defaults.pixel_env_options`:
-    e.g. the frame stack of cartpole-balance-mjx); config.json saves them all."""
+    """A new run's `envs.make` overrides, the task's on camera images (`brax_defaults.pixel_env_options`)."""
     from agents import brax_defaults
 
     return brax_defaults.pixel_env_options(args.env, env_options.from_args(args.env, args))
@@ -200,10 +192,8 @@ def cmd_train(args, extra: list[str]) -> int:
             held = len(parts or [None])
             raise UsageError(f"--processes {args.processes}: {args.out} holds a run of {held} process"
                              f"{'es' * (held > 1)}; resume it without --processes")
-        if parts is None:
-            result = _train(args, saved.config, resume=True, env_options=saved.env_options, seed_slice=saved.seed_slice)
-        else:
-            result = _train_in_processes(args, saved, fresh=False)
+        result = (_train(args, saved.config, resume=True, env_options=saved.env_options, seed_slice=saved.seed_slice)
+                  if parts is None else _train_in_processes(args, saved, fresh=False))
         return _report(args, saved.config, result)
     if args.env is None:
         raise UsageError("train needs --env (or --resume with the --out of a saved run)")
@@ -226,9 +216,7 @@ def cmd_train(args, extra: list[str]) -> int:
 
 
 def _train_in_processes(args, run, fresh: bool, count: int = 0, gpus: list[str] | None = None):
-    """The run's seeds trained by child processes, one per GPU (`agents.processes`): a new run
-    (`fresh`, `count` processes) or the one `args.out` holds. Without --out the children write
-    to a temporary directory, removed at the end."""
+    """The run's seeds trained by child processes, one per GPU (`agents.processes`), new (`fresh`) or resumed."""
     import contextlib
     import tempfile
 
@@ -258,9 +246,7 @@ def _train_in_processes(args, run, fresh: bool, count: int = 0, gpus: list[str] 
 
 
 def _saved_run(args, sweep: bool):
-    """The run in --out that `--resume` continues (a sweep or not, as `sweep` says); its env,
-    seeds, seed and config come from there (train_run refuses any given that differ), so
-    config options (its fields, swept or not, --steps, ...) are refused."""
+    """The run in --out that `--resume` continues (a sweep or not), with its own config: config options are refused."""
     from agents import checkpoint
 
     saved = checkpoint.load_config(args.out)
@@ -307,9 +293,7 @@ def _train(args, config, **kwargs):
 
 
 def _finished(args, saved) -> bool:
-    """Whether the run in `out` has finished (every chunk saved and its eval.json written); then say
-    so with its results, and leave every file as it is: a resume of a finished run has nothing to do
-    (once its identity and its files are checked, as any resume's are)."""
+    """Whether the run in --out has finished; then say so with its results (once it is checked), changing no file."""
     from agents import checkpoint
 
     out = Path(args.out)
@@ -344,8 +328,7 @@ def _report(args, config, result) -> int:
 
 
 def _report_stop(args, result, command: str = "train") -> int:
-    """What a run stopped by a signal says (only what was saved), and its exit status: 130 after
-    SIGINT, 143 after SIGTERM."""
+    """What a run stopped by a signal says (what was saved), and its exit status (130 or 143)."""
     import signal
 
     from agents import sharding
@@ -374,9 +357,7 @@ def process_age_s() -> float | None:
 
 
 def wall_line(result) -> str:
-    """Where the process's wall time went: start-up (Python, imports, setting the run up),
-    compile, training, checkpoint saves, the final evaluation, and the rest (host work
-    between chunks: metrics, the Rerun logger, progress)."""
+    """Where the process's wall time went: start-up, compile, training, saves, the final evaluation, the rest."""
     parts, age = result.wall_parts(), process_age_s()
     wall = result.wall_s if age is None else max(age + result.earlier_wall_s, result.wall_s)
     parts["start-up"] += wall - result.wall_s  # the process's start before the run's
@@ -408,17 +389,16 @@ def float_list(name: str, text: str) -> list[float]:
 
 
 def sweep_grid(agent: str, fields: dict[str, str]) -> dict[str, list[float]]:
-    """The swept fields, taken out of the config `fields`: the sweepable ones, and any other given
-    a list (`registry.sweep_configs` then names what can be swept instead)."""
+    """The swept fields, taken out of the config `fields`: the sweepable ones, and any other given a list."""
     from agents import registry
 
-    if not registry.sweepable(agent):
+    sweepable = registry.sweepable(agent)
+    if not sweepable:
         raise UsageError(f"--agent {agent} runs cannot be swept in one program (its training has no per-agent "
                          "hyperparameters); run one `mjxsuite train` per config")
     kinds = typing.get_type_hints(registry.config_class(agent))
     swept = [name for name, text in fields.items() if any(name in registry.sweepable(a) for a in AGENTS)
              or ("," in text and kinds.get(name) != tuple[int, ...])]
-    sweepable = registry.sweepable(agent)
     for name in swept:
         if name in kinds and name not in sweepable:
             raise UsageError(f"--{name} cannot be swept: one compiled program has one set of array shapes and "
@@ -427,7 +407,7 @@ def sweep_grid(agent: str, fields: dict[str, str]) -> dict[str, list[float]]:
     grid = {name: float_list(name, fields.pop(name)) for name in swept}
     if not grid:
         raise UsageError("sweep needs at least one field with several values, e.g. --learning_rate 5e-4,1e-3; "
-                         f"sweepable fields of --agent {agent}: {', '.join(registry.sweepable(agent))}")
+                         f"sweepable fields of --agent {agent}: {', '.join(sweepable)}")
     return grid
 
 
@@ -473,8 +453,7 @@ def cmd_sweep(args, extra: list[str]) -> int:
 
 
 def agent_label(index: int, seeds: int, sweep: dict | None) -> str:
-    """Agent `index` of a run as `--seeds` counts: a seed, or in a sweep config `index // seeds` with
-    seed `index % seeds` (eval.json's lists and `load_policy(seed_index=...)` count agents)."""
+    """Agent `index` of a run: a seed, or in a sweep config `index // seeds` with seed `index % seeds`."""
     return f"agent {index} (config {index // seeds}, seed {index % seeds})" if sweep else f"seed {index}"
 
 
@@ -522,18 +501,18 @@ def cmd_rollout(args, extra: list[str]) -> int:
         saved = checkpoint.load_config(args.checkpoint)
         other_env = args.env is not None and args.env != saved.env
         # The saved env, with the options given (e.g. --randomize ranges, --impl jax) on top.
-        trained_on, env, options = checkpoint.saved_env(args.checkpoint,
-                                                        None if other_env else env_options.from_args(saved.env, args))
+        env_name, env, options = checkpoint.saved_env(args.checkpoint,
+                                                      None if other_env else env_options.from_args(saved.env, args))
         _, env, policy, params = load_greedy(args.checkpoint, env=env)
         policy_name = {POLICY_NAMES[saved.agent]: saved.config}
-        env_name = trained_on
         if other_env:
-            other = envs.make(args.env, **env_options.from_args(args.env, args))
+            options = env_options.from_args(args.env, args)
+            other = envs.make(args.env, **options)
             spaces = lambda e: (e.observation_size, e.num_actions, e.action_size)  # noqa: E731
             if spaces(other) != spaces(env):
-                raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {trained_on}, "
+                raise UsageError(f"rollout: the policy in {args.checkpoint} was trained on {env_name}, "
                                  f"whose observations/actions do not match {args.env}'s")
-            env, env_name, options = other, args.env, env_options.from_args(args.env, args)
+            env, env_name = other, args.env
     elif args.env is None:
         raise UsageError("rollout: give --env (random policy) and/or --checkpoint (greedy policy)")
     else:

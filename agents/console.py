@@ -1,11 +1,6 @@
-"""The `mjxsuite` console script. Its first line catches SIGINT and SIGTERM
-(`agents.signals.catch_early`): the imports that follow (JAX, CUDA's plugin, MuJoCo) take seconds
-in which a Ctrl-C would otherwise raise anywhere. Then it runs `agents.cli` with the subcommands
-that installed packages add through the `mjxsuite.commands` entry-point group (the benchmarks
-package adds `bench`), so the agents never import the benchmarks.
-
-`run` is the script itself: `main`, then an exit without the interpreter's teardown (`exit_now`);
-`agents.processes.MJXSUITE` runs it as a program of this interpreter."""
+"""The `mjxsuite` console script: it catches signals first (`agents.signals.catch_early`: the imports
+that follow are slow), then runs `agents.cli` with the subcommands installed packages add through
+the `mjxsuite.commands` entry points (benchmarks adds `bench`, so the agents never import it)."""
 
 from __future__ import annotations
 
@@ -37,18 +32,13 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run() -> None:
-    """The `mjxsuite` console script (pyproject.toml's entry point): `main`'s status as the process's.
-    An exception leaves as it would from any script, with its traceback and the usual exit."""
+    """The `mjxsuite` console script (pyproject.toml's entry point): `main`'s status as the process's."""
     exit_now(main())
 
 
 def exit_now(status: int | None) -> None:
-    """End the process with `status` once everything it wrote is safe, as the interpreter's own exit
-    makes it: every thread that is not a daemon joined (the checkpoint writer finishes its write),
-    the atexit handlers run (JAX's, Rerun's, logging's), stdout and stderr flushed. Then `os._exit`
-    skips what the interpreter would still do: free every module's objects one by one, XLA's compiled
-    programs, buffers and thread pools among them, which saves nothing and keeps the user waiting.
-    Every file the commands write is closed before they return (`with` blocks, atomic writes)."""
+    """End the process with `status` once all it wrote is safe (threads joined, atexit run, streams flushed),
+    then `os._exit`: freeing every object one by one saves nothing."""
     for thread in threading.enumerate():
         if thread is not threading.current_thread() and not thread.daemon:
             thread.join()

@@ -1,13 +1,6 @@
-"""The command line's env overrides (`agents.cli.EnvOverrides`): `--env-opt KEY=VALUE`, `--impl`, `--randomize`,
-`--randomize-per`;
-their text read as `envs.make` values (`parse_option`), and the overflow report that names them.
-
-They become the `envs.make` overrides a run saves in config.json (`env_options`; the
-`--env-opt opt.FIELD=VALUE` pairs as one `opt` mapping), so
-`eval`, `rollout` and `--resume` rebuild the same env. `--randomize FIELD:ELEMENT=RANGE`
-takes `LOW:HIGH` (a uniform range), `xLOW:HIGH` (a scale of the compiled value) or
-`VALUE` (a fixed value); see `envs.randomize`.
-"""
+"""The command line's env overrides (`agents.cli.EnvOverrides`) read as the `envs.make` values a run
+saves in config.json, so `eval`, `rollout` and `--resume` rebuild the same env; and the overflow
+report that names them."""
 
 from __future__ import annotations
 
@@ -74,9 +67,8 @@ def parse_randomize(entry: str) -> tuple[str, list | float]:
 
 
 def parse_option(name: str, option: str, text: str) -> Any:
-    """An override of env `name` from text (the command line's `--env-opt option=text`), read
-    as its default's type: true/false for a bool, a number for an int or float, text for a str.
-    `opt.FIELD` is one field of an MJX task's `opt` (`parse_opt_field`)."""
+    """`--env-opt option=text` for env `name`, read as the option's default's type; `opt.FIELD` is
+    one field of an MJX task's `opt` (`parse_opt_field`)."""
     valid = options(name)
     if option.startswith("opt.") and "opt" in valid:
         return parse_opt_field(option.removeprefix("opt."), text, f"env {name!r}")
@@ -111,9 +103,8 @@ def parse_option(name: str, option: str, text: str) -> Any:
 
 
 def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
-    """One `opt` field from the command line (`--env-opt opt.FIELD=TEXT`): an enum by name, a vector
-    as comma-separated numbers, an integer or a float by the field's type (`envs.mjx_options`
-    checks the value itself)."""
+    """`--env-opt opt.FIELD=TEXT`: an enum by name, a vector as comma-separated numbers, else a number
+    of the field's type (`envs.mjx_options` checks the value)."""
     if field not in opt_defaults():
         raise ValueError(f"{task}: unknown opt field {field!r}; valid fields (mujoco.MjOption): {list(opt_fields())}")
     default = opt_defaults()[field]
@@ -129,9 +120,7 @@ def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
 
 
 def overflow_report(env, contact_steps: int, constraint_steps: int, steps: int, unit: str = "env-steps") -> str:
-    """One line for a training log: which of MuJoCo Warp's buffers ran out on how many of `steps`
-    env-steps (counted from info["overflow"]; or of another `unit`) and the `--env-opt` override
-    (and `envs.make` keyword) that fixes it."""
+    """One log line: which of MuJoCo Warp's buffers ran out how often, and the `--env-opt` that fixes it."""
     task = env
     while getattr(task, "warp_buffers", None) is None and hasattr(task, "env"):  # through the wrappers
         task = task.env

@@ -1,6 +1,5 @@
-"""What every agent's evaluation shares: fresh episodes of its deterministic policy (DQN's greedy
-one, PPO's and SAC's mode), the first recorded step by step for loggers, and the judge that keeps
-the best parameters and the step that solved the task."""
+"""What every agent's evaluation and chunk loop share: fresh episodes of its deterministic policy,
+the judge that keeps the best parameters and the solve step, and a chunk's training steps."""
 
 from __future__ import annotations
 
@@ -14,8 +13,7 @@ from envs import Env, VmapWrapper
 
 
 class EvalEpisode(NamedTuple):
-    """One evaluation episode; row t: the observation seen, the action taken, the reward it
-    earned and the pose (`env.scene_qpos`) shown. Rows from `length` on are padding."""
+    """One evaluation episode, a row per step (the pose: `env.scene_qpos`); rows from `length` on are padding."""
 
     obs: jax.Array
     action: jax.Array
@@ -26,16 +24,11 @@ class EvalEpisode(NamedTuple):
 
 def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
              action: jax.ShapeDtypeStruct, record: bool = False):
-    """The return of each of `num_episodes` fresh episodes of `env` (its time limit included) under
-    `act(obs batch) -> action batch`. With `record`, also the first episode step by step as an
-    `EvalEpisode` (its `action` rows shaped like `action`), so a logger can show it without running
-    (and compiling) a rollout of its own."""
+    """The return of each of `num_episodes` fresh episodes of `env` under `act(obs batch) -> action batch`;
+    with `record`, also the first episode as an `EvalEpisode` (actions shaped like `action`), for loggers."""
     batch = VmapWrapper(env, num_episodes)
     horizon = getattr(env, "episode_length", 1000)
     scene_qpos = getattr(env, "scene_qpos", None)
-
-    def running(carry):
-        return ~carry[2].all()
 
     def step(carry):
         state, returns, finished, episode = carry
@@ -66,14 +59,12 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
             scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
             length=jnp.zeros((), jnp.int32),
         )
-    _, returns, _, episode = jax.lax.while_loop(running, step, (state, zeros, zeros > 0, episode))
+    _, returns, _, episode = jax.lax.while_loop(lambda carry: ~carry[2].all(), step, (state, zeros, zeros > 0, episode))
     return (returns, episode) if record else returns
 
 
 def step_stats(info: dict) -> tuple[jax.Array, dict]:
-    """MuJoCo Warp's overflow code of the steps in `info` (`envs.mjx_env`: 1 contact pool, 2
-    constraint rows, 3 both; zeros where the env has none) and the steps' episode statistics, as
-    every agent sums them over a chunk (`episode_metrics` reports the sums)."""
+    """MuJoCo Warp's overflow code of the steps in `info` (`envs.mjx_env`) and their episode statistics."""
     overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
     return overflow, {
         "episodes": info["episode_done"].sum(),
@@ -85,10 +76,7 @@ def step_stats(info: dict) -> tuple[jax.Array, dict]:
 
 
 def episode_metrics(totals: dict) -> dict:
-    """A chunk's training episodes from its running totals (`episodes`, `return_sum`,
-    `nan_episodes`, `overflow_*`), as every agent reports them: episodes ended, their mean
-    return, and those that NaN physics ended; env-steps whose physics MuJoCo Warp could not hold
-    (they ended their episodes and never reached a learner; `agents.run` says which buffer to raise)."""
+    """A chunk's training-episode metrics from the running totals of `step_stats`."""
     episodes = totals["episodes"]
     return {"episodes": episodes, "train_return": totals["return_sum"] / jnp.maximum(episodes, 1),
             "nan_episodes": totals["nan_episodes"], "overflow_contacts": totals["overflow_contacts"].astype(jnp.int32),
@@ -96,12 +84,9 @@ def episode_metrics(totals: dict) -> dict:
 
 
 class ChunkLoop(NamedTuple):
-    """A chunk's training steps as pure pieces, so that `agents.run` can run a long chunk as several
-    programs (`chunk_part`, for the bar and signals between them) with the result of one
-    (`whole_chunk`): `start(ts) -> (ts, pending)` splits the chunk's keys (`pending`: arrays the
-    chunk hands on, its evaluation key under "eval_key"); `step(ts) -> (ts, stats)` is one of
-    `iterations` iterations; `finish(ts, pending, totals) -> (ts, metrics)` ends the chunk from
-    the running totals of the stats (`totals`: each stat's name and dtype)."""
+    """A chunk's training steps as pure pieces, to run as one program (`whole_chunk`) or several (`chunk_part`):
+    `start(ts) -> (ts, pending)` (with "eval_key"), `step(ts) -> (ts, stats)` `iterations` times, and
+    `finish(ts, pending, totals) -> (ts, metrics)` (`totals`: each stat's name and dtype)."""
 
     iterations: int
     start: Callable
@@ -121,8 +106,7 @@ def _zero_totals(loop: ChunkLoop) -> dict:
 
 
 def whole_chunk(loop: ChunkLoop, ts: Any) -> tuple[Any, dict, jax.Array]:
-    """A chunk's training steps in one program: the train state, its metrics and the key of the
-    evaluation that follows (an agent's `train_steps`)."""
+    """A chunk's training steps in one program: the train state, metrics and evaluation key (`train_steps`)."""
     ts, pending = loop.start(ts)
     (ts, totals), _ = jax.lax.scan(partial(_add_up, loop), (ts, _zero_totals(loop)), None, length=loop.iterations)
     ts, metrics = loop.finish(ts, pending, totals)
@@ -130,11 +114,8 @@ def whole_chunk(loop: ChunkLoop, ts: Any) -> tuple[Any, dict, jax.Array]:
 
 
 def chunk_part(loop: ChunkLoop, parts: int, ts: Any, carry: tuple) -> tuple:
-    """Part `carry[0]` of `parts` of a chunk (`loop.iterations` split evenly): the first starts the
-    chunk, the last finishes it, and every part runs its share of the iterations in between, so the
-    parts in turn end with `whole_chunk`'s train state and metrics, to the bit. `carry`:
-    `(index, pending, totals)`, zeros before the first part (`part_carry`). Returns the train
-    state, the next carry, and the metrics and evaluation key (zeros before the last part)."""
+    """Part `carry[0]` of `parts` of a chunk, the parts in turn ending as `whole_chunk` does, to the bit: the
+    train state, the next carry (`part_carry`), the metrics and evaluation key (zeros before the last part)."""
     index, pending, totals = carry
     ts, pending, totals = jax.lax.cond(index == 0, lambda: (*loop.start(ts), _zero_totals(loop)),
                                        lambda: (ts, pending, totals))
@@ -146,8 +127,7 @@ def chunk_part(loop: ChunkLoop, parts: int, ts: Any, carry: tuple) -> tuple:
 
 
 def part_carry(loop_of: Callable[[Any], ChunkLoop], ts: Any) -> tuple:
-    """The carry of a chunk's first part (`chunk_part`) for the train state `ts` (arrays or shapes):
-    zeros shaped as what `loop_of(ts).start` hands on."""
+    """The zero carry of a chunk's first part (`chunk_part`) for the train state `ts` (arrays or shapes)."""
     loop = loop_of(ts)
     pending = jax.eval_shape(lambda t: loop.start(t)[1], ts)
     return (jnp.zeros((), jnp.int32), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), pending),
@@ -156,10 +136,7 @@ def part_carry(loop_of: Callable[[Any], ChunkLoop], ts: Any) -> tuple:
 
 def keep_best(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
               solve_return: float | None) -> tuple[Any, dict]:
-    """A chunk's evaluation of `ts.params` applied to a train state with `best_params`,
-    `best_return`, `solve_step` and `env_steps`: the best parameters so far, and the first env
-    step whose mean return reached `solve_return` (None: never solved). Returns the state and the
-    chunk's evaluation metrics (the episode is for loggers, not a scalar metric)."""
+    """Keep the best parameters and the first env step whose evaluation reached `solve_return`; and metrics."""
     eval_return = eval_returns.mean()
     better = eval_return > ts.best_return
     solved_now = (ts.solve_step < 0) & (False if solve_return is None else eval_return >= solve_return)
@@ -180,9 +157,7 @@ def evaluate_and_keep_best(agent: Any, ts: Any, eval_key: jax.Array, record: boo
 
 
 def whole_run(agent: Any, key: jax.Array):
-    """A whole run of `agent` as one pure function: `(best_params, metrics)` (its `train`); vmap it
-    over keys for seeds. `metrics` holds one entry per evaluation (leading axis: chunk) plus
-    `solve_step` (-1 if never solved) and `final_params`."""
+    """A whole run of `agent` as one pure function (its `train`): `(best_params, metrics)`."""
     ts = agent.init(key)
     ts, metrics = jax.lax.scan(lambda ts, _: agent.chunk(ts, record=False), ts, None, agent.config.num_chunks)
     metrics.pop("eval_episode")

@@ -1,20 +1,7 @@
-"""JAX's persistent compilation cache, on by default for the `mjxsuite` command.
-
-An MJX training chunk takes seconds to compile on a CPU; with the cache a second
-`mjxsuite train` or `rollout` loads the compiled program from disk instead.
-
-Where and how it is switched: `envs.compile_cache` (`~/.cache/mjxsuite/jax`; the environment
-variable `MJXSUITE_COMPILE_CACHE`: `0`/`off`/`false` turns it off, a path puts it there), which
-Gymnasium's entry points use too; or pass `--no-compile-cache` to a command. A cache directory
-set through JAX itself (`JAX_COMPILATION_CACHE_DIR`) wins. Delete the directory to clear it.
-
-`enable()` also turns on `agents.traced_programs` in a subdirectory, which keeps the traced
-programs of `train`, `eval` and `rollout`, so a second run skips tracing too; `disable()`
-turns both off.
-
-Python users call `enable()` themselves (importing the suite changes no global state).
-`CompileCounter` counts traces, compiles and cache hits, to check that nothing
-recompiles between training chunks.
+"""JAX's persistent compilation cache, on by default for the `mjxsuite` command (`--no-compile-cache`
+or `MJXSUITE_COMPILE_CACHE`, `envs.compile_cache`, turn it off), with `agents.traced_programs` in a
+subdirectory, so a second run skips compiling and tracing. Python users call `enable()` themselves.
+`CompileCounter` counts traces, compiles and cache hits.
 """
 
 from __future__ import annotations
@@ -31,9 +18,7 @@ from envs import compile_cache
 from envs.compile_cache import ENV_VAR, configured_dir, default_dir  # noqa: F401  (kept as this module's names)
 
 def enable(path: str | os.PathLike | None = None) -> Path | None:
-    """Turn the persistent cache on (call before the first compile; `envs.compile_cache.enable`,
-    which Gymnasium's entry points call too) and the export cache in a subdirectory; returns the
-    directory, or None when `MJXSUITE_COMPILE_CACHE` turns it off (a given `path` overrides that)."""
+    """Turn the persistent and export caches on, before the first compile: the directory, or None if off."""
     directory = compile_cache.enable(path)
     if directory is not None:
         traced_programs.enable(directory / traced_programs.SUBDIR)
@@ -48,13 +33,7 @@ def disable() -> None:
 
 
 class CompileCounter:
-    """Counts, while active, the functions traced to jaxprs, the programs handed to
-    the compiler (`compiles`, cache loads included) and the persistent-cache hits.
-
-        with CompileCounter() as counter:
-            ...
-        counter.traces, counter.compiles, counter.cache_hits
-    """
+    """Counts, inside `with CompileCounter() as counter:`, traces, compiles and persistent-cache hits."""
 
     _TRACE = "/jax/core/compile/jaxpr_trace_duration"
     _COMPILE = "/jax/core/compile/backend_compile_duration"

@@ -1,11 +1,6 @@
-"""The agents by name ("dqn", "ppo", "sac", "td3"): the name config.json records, the config class and
-the agent class behind it. Every agent has DQN's interface (`agents.dqn.DQN`):
-`init(key)`, `train_steps(ts)`, `evaluate_and_keep_best(ts, eval_key)`, `evaluate(params, key)` and
-`policy(params, obs)`, all pure; its config has `eval_every`, `num_chunks`, `total_steps`,
-`eval_episodes` and `solve_return`. `agents.run` drives any of them the same way.
-
-The modules load on first use: DQN's command line starts without Brax.
-"""
+"""The agents by name ("dqn", "ppo", "sac", "td3"), as config.json records them: their config and agent
+classes, loaded on first use (DQN's command line starts without Brax). Every agent has DQN's pure
+interface (`agents.dqn.DQN`; docs/agents.md), so `agents.run` drives any of them the same way."""
 
 from __future__ import annotations
 
@@ -42,15 +37,13 @@ def name_of(config: Any) -> str:
     raise TypeError(f"{type(config).__name__} is not the config of an agent ({', '.join(AGENTS)})")
 
 
-# Which agents train which tasks: DQN discrete actions, the others continuous ones; only PPO has a
-# network for camera images (Brax's vision networks), so no agent trains a discrete task from pixels.
+# The agents with a network for camera images (Brax's vision networks): no agent trains a discrete task from pixels.
 PIXEL_AGENTS = ("ppo",)
 
 
 def misfit(agent: str, env_name: str, num_actions: int | None, action_size: int | None, pixels: bool) -> str | None:
-    """Why `agent` cannot train `env_name` (discrete actions where `num_actions` is given, camera
-    images where `pixels`), naming what can; None where it can. One message for the command line
-    and the Python API, checked before anything compiles."""
+    """Why `agent` cannot train `env_name` (discrete where `num_actions` is given; camera images where
+    `pixels`), naming what can; None where it can. For the command line and the Python API alike."""
     discrete = num_actions is not None
     if pixels and discrete:
         return (f"{env_name} with observation=pixels: no agent trains camera images with discrete actions "
@@ -84,9 +77,7 @@ SAME_FIELD = {"gamma": "discounting", "discounting": "gamma"}
 
 
 def sweep_configs(base: Any, sweep: dict[str, list[float]] | None) -> list[Any]:
-    """Every combination of `sweep`'s values over `base` (the last field varying fastest);
-    `[base]` without a sweep. ValueError for a field outside the agent's `SWEEPABLE` or a value
-    out of range."""
+    """Every combination of `sweep`'s values over `base`, the last field varying fastest (ValueError: unsweepable)."""
     if not sweep:
         return [base]
     name = name_of(base)
@@ -112,7 +103,6 @@ def sweep_configs(base: Any, sweep: dict[str, list[float]] | None) -> list[Any]:
 
 
 def per_agent(configs: list[Any], seeds: int) -> Any:
-    """Each config's sweepable values repeated for its `seeds` agents (config-major): the
-    agent's `Hyperparams` with one entry per agent."""
+    """The agent's `Hyperparams`, one entry per agent: each config's values for its `seeds` agents."""
     stacked = module(name_of(configs[0])).Hyperparams.stacked(configs)
     return jax.tree.map(lambda values: jnp.repeat(values, seeds), stacked)

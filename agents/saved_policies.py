@@ -14,13 +14,8 @@ from envs import rollouts
 
 
 def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None, env: envs.Env | None = None):
-    """The env and jittable policy of a run directory, whatever the agent: `(env_name, env,
-    policy, params)`, `policy(params, obs, key)` for `envs.rollouts.collect_rollout` (DQN's greedy
-    action; PPO's and SAC's deterministic one, in [-1, 1] as our envs take it).
-
-    With several trained seeds it takes the run's best seed unless `seed_index` picks one.
-    `env`: the saved env made here (`agents.checkpoint.saved_env`, the default) or one with other options.
-    """
+    """`(env_name, env, policy, params)` of a run directory: its deterministic `policy(params, obs, key)`, the
+    best seed's parameters unless `seed_index` picks one; `env`: default the saved env (`checkpoint.saved_env`)."""
     from agents.run import load_agent, pick_seed
 
     env_name, env, agent, params = load_agent(out_dir, env)
@@ -30,9 +25,8 @@ def load_greedy(out_dir: str | os.PathLike, seed_index: int | None = None, env: 
 def collect_rollout_cached(env: envs.Env, env_name: str, env_options: dict | None, policy_fn: rollouts.PolicyFn,
                            policy: Any, key: jax.Array, num_envs: int, steps: int, params: Any = None,
                            scene_envs: int = 1) -> rollouts.Rollout:
-    """`envs.rollouts.collect_rollout`, its traced program kept in the export cache when that
-    is on (`mjxsuite rollout`), so a second rollout of the same env and policy traces nothing.
-    `policy` names `policy_fn` in the cache key: "random", or the DQN config of a greedy policy."""
+    """`envs.rollouts.collect_rollout` through the export cache (`mjxsuite rollout`). `policy` names
+    `policy_fn` in the cache key: "random", or the config of a trained policy."""
     program = rollouts.rollout_program(env, policy_fn, num_envs, steps, scene_envs)
     sizes = {"num_envs": num_envs, "steps": steps, "scene_envs": scene_envs}
     compiled = traced_programs.compile_env_program("rollout", program, (key, params), env, env_name, env_options,

@@ -1,11 +1,6 @@
-"""`mjxsuite sweep`'s results: a hyperparameter grid times seeds, trained as one program by
-`agents.run.train_run(..., sweep=grid)`, summarised per config.
-
-Agent `c * seeds + s` of the run is config `c` of the grid (`agents.registry.sweep_configs`: every
-combination, the last field varying fastest) with seed `s`'s key, the key seed `s` of
-`mjxsuite train --seeds SEEDS` gets: that agent ends with the parameters of that separate run's
-seed `s` (tests/test_sharding.py).
-"""
+"""`mjxsuite sweep`'s results, summarised per config. Agent `c * seeds + s` of the one program is
+config `c` of the grid (`agents.registry.sweep_configs`) with the key seed `s` of `mjxsuite train`
+gets, so it ends as that run's seed `s` does (tests/test_sharding.py)."""
 
 from __future__ import annotations
 
@@ -23,9 +18,8 @@ PLOT_FILE = "sweep.png"
 
 
 def summarize(env: str, config: Any, grid: dict[str, list[float]], seeds: int, result) -> dict:
-    """One record per config: its swept values, per seed the final greedy return of its best
-    parameters, the best evaluation seen in training and the first step that reached
-    `solve_return` (None: never); then the medians and spreads over seeds."""
+    """One record per config: its swept values; per seed the final return of its best parameters, the
+    best evaluation in training and the solve step (None: never); the medians and spreads over seeds."""
     records = []
     best = result.history[-1]["best_return"] if result.history else [math.nan] * len(result.mean_return)
     for c, member in enumerate(sweep_configs(config, grid)):
@@ -72,13 +66,8 @@ def markdown_table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def config_label(record: dict, swept: list[str]) -> str:
-    return ", ".join(f"{name}={record[name]:g}" for name in swept)
-
-
 def plot(summary: dict, path: str | Path) -> Path | None:
-    """Solve rate and median steps to solve per config, as a PNG; None when matplotlib (the
-    `sweep` extra) is not installed."""
+    """Solve rate and median steps to solve per config, as a PNG; None without matplotlib."""
     try:
         import matplotlib
 
@@ -87,7 +76,7 @@ def plot(summary: dict, path: str | Path) -> Path | None:
     except ImportError:
         return None
     records, swept = summary["configs"], summary["swept"]
-    labels = [config_label(r, swept) for r in records]
+    labels = [", ".join(f"{name}={r[name]:g}" for name in swept) for r in records]
     positions = np.arange(len(records))
     figure, (rate, steps) = plt.subplots(2, 1, sharex=True, figsize=(max(6.0, 0.5 * len(records) + 2), 6))
     rate.bar(positions, [r["solve_rate"] for r in records], color="tab:blue")

@@ -1,20 +1,7 @@
-"""Rerun logging of training (DQN, PPO, SAC): curves per seed and greedy evaluation rollouts.
+"""Rerun logging of training: curves per seed and evaluation rollouts (docs/recording.md).
 
-`TrainingLogger` is an `on_chunk(index, train_state, record)` callback for
-`agents.run.train_run`. After every chunk it sends, on the `train_step` timeline,
-
-  train/seed_<s>/loss, mean_q, epsilon, eval_return, train_return, env_steps_per_s  (DQN)
-  train/env_steps_per_s                     all seeds together
-
-and every `rollout_every` chunks the first episode of that chunk's greedy
-evaluation, per seed (recorded inside the training chunk by `DQN.evaluate`, so
-logging it costs no extra rollout or compile), drawn like `mjxsuite rollout` under
-`eval/seed_<s>/` (env/0/..., world/env_0/...). Successive evaluations follow each
-other on that prefix's `step` timeline; `eval/seed_<s>/train_step` marks where each
-one starts and the train step it shows.
-
-PPO and SAC log the same way with their own curves (`CURVES[agent]`: their losses instead of
-DQN's loss, mean_q and epsilon) and their deterministic policy's episodes.
+`TrainingLogger`, an `on_chunk` callback of `agents.run.train_run`, logs each seed's curves and, every
+`rollout_every` chunks, its first evaluation episode (recorded inside the chunk: no extra rollout).
 """
 
 from __future__ import annotations
@@ -32,32 +19,23 @@ from agents.evaluation import EvalEpisode
 from envs import recording
 
 # Each agent's curves: {record key: curve name}; every agent's chunk also records its evaluation.
+_RETURNS = {"eval_return": "eval_return", "train_return": "train_return"}
 CURVES = {
-    "dqn": {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", "eval_return": "eval_return",
-            "train_return": "train_return"},
-    "ppo": {"eval_return": "eval_return", "train_return": "train_return", "policy_loss": "policy_loss",
-            "v_loss": "v_loss", "entropy_loss": "entropy_loss"},
-    "sac": {"eval_return": "eval_return", "train_return": "train_return", "actor_loss": "actor_loss",
-            "critic_loss": "critic_loss", "alpha": "alpha"},
-    "td3": {"eval_return": "eval_return", "train_return": "train_return", "actor_loss": "actor_loss",
-            "critic_loss": "critic_loss", "target_q": "target_q"},
+    "dqn": {"loss": "loss", "q": "mean_q", "epsilon": "epsilon", **_RETURNS},
+    "ppo": {**_RETURNS, "policy_loss": "policy_loss", "v_loss": "v_loss", "entropy_loss": "entropy_loss"},
+    "sac": {**_RETURNS, "actor_loss": "actor_loss", "critic_loss": "critic_loss", "alpha": "alpha"},
+    "td3": {**_RETURNS, "actor_loss": "actor_loss", "critic_loss": "critic_loss", "target_q": "target_q"},
 }
-SEED_CURVES = CURVES["dqn"]
 
 
 class TrainingLogger:
-    """Writes a training run to `path` (checked before any training starts; see module docstring).
-
-    Use as `train_run(..., on_chunk=logger)` and call `logger.close()` in a `finally`,
-    so an interrupted run still leaves a readable file.
-    """
+    """Writes a training run to `path`: `train_run(..., on_chunk=logger)`, then `logger.close()` in a `finally`."""
 
     def __init__(self, path: str | os.PathLike, env_name: str, config: DQNConfig | Any, *, seeds: int = 1,
                  env_options: dict | None = None, overwrite: bool = False, rollout_every: int = 1,
-                 agent_paths: tuple[list[str], list[str]] | None = None, curves: dict[str, str] = SEED_CURVES):
-        """`agent_paths`: (entity path, series label) of every agent, for a sweep's
-        `config_<c>/seed_<s>` (`agents.sweep.agent_paths`); default `seed_<s>`, "seed <s>".
-        `curves`: {record key: curve name} (default DQN's; `CURVES[agent]` for the others)."""
+                 agent_paths: tuple[list[str], list[str]] | None = None, curves: dict[str, str] = CURVES["dqn"]):
+        """`agent_paths`: (entity paths, series labels) of the agents (`agents.sweep.agent_paths`);
+        default `seed_<s>`, "seed <s>". `curves`: `CURVES[agent]` (default DQN's)."""
         if rollout_every < 0:
             raise ValueError(f"rollout_every must be >= 0 (0: no evaluation rollouts), got {rollout_every}")
         self.rec = recording.open_recording(path, overwrite)
