@@ -1,22 +1,7 @@
-"""Seeds of a run trained by several processes, one per GPU, started by `mjxsuite train` itself.
-
-Why processes: XLA's GPU compiler crashes compiling a batched MJX step spread over several GPUs in
-one program (`agents.sharding.MJX_OVER_GPUS`, docs/upstream-two-gpu-mjx.md). Each child here is an
-ordinary one-device `mjxsuite train` that sees one GPU (CUDA_VISIBLE_DEVICES), so it compiles the
-program every one-GPU run compiles and nothing multi-device is ever compiled. The seeds never talk
-to each other, so nothing is lost by keeping them apart.
-
-The run directory D (`--out`) stays the user's one run:
-
-    D/config.json       the whole run (every seed), as a one-process run writes it
-    D/processes.json    which directory trains which seeds (`agents.checkpoint.process_dirs`)
-    D/processes/K/      an ordinary run directory of seeds start..stop-1, trained with the keys the
-                        whole run gives them (`train_run`'s `seed_slice`), and log.txt, its output
-    D/eval.json         written when every process finished: one row per seed, in seed order
-
-`load_policy`, `mjxsuite eval` and `rollout` read every seed's parameters from the processes'
-directories (`agents.checkpoint.load_best_params`); `mjxsuite train --out D --resume` resumes each
-unfinished process in its own directory, exactly, as every run resumes.
+"""Seeds of a run trained by several processes, one per GPU, started by `mjxsuite train` itself: XLA's
+GPU compiler crashes on a batched MJX step spread over GPUs in one program (`agents.sharding.MJX_OVER_GPUS`),
+so each child is an ordinary one-GPU `mjxsuite train --resume` of `D/processes/K/`, with the keys the
+whole run gives its seeds. The layout and lifecycle: docs/scaling.md, "An MJX task's seeds over every GPU".
 """
 
 from __future__ import annotations
@@ -35,11 +20,9 @@ from agents import checkpoint, run_steps, sharding, signals
 PROCESSES_DIR = checkpoint.PROCESSES_DIR
 LOG_FILE = "log.txt"
 PROGRESS_SECONDS = 10.0  # between the parent's lines of progress
-# The environment's variable that asks for N processes where --processes is not given (e.g. in a
-# job script); `--processes` wins.
+# Asks for N processes where --processes is not given (e.g. in a job script).
 PROCESSES_ENV = "MJXSUITE_PROCESSES"
-# `mjxsuite` as a program of this interpreter: its console script (pyproject.toml), run as the user
-# runs it, also where mjxsuite is a checkout that was never installed.
+# `mjxsuite` as a program of this interpreter, also from a checkout that was never installed.
 MJXSUITE = [sys.executable, "-c", "from agents.console import run; run()"]
 # A child's `mjxsuite`: the same, ended with its parent (`signals.die_with_parent`).
 CHILD_MJXSUITE = [sys.executable, "-c",
@@ -63,9 +46,8 @@ class Child(NamedTuple):
 
 
 def local_gpus() -> list[str]:
-    """This host's NVIDIA GPUs as CUDA_VISIBLE_DEVICES names them, found without starting JAX's
-    backend: a started backend would hold memory on every GPU while the children train there.
-    Empty where JAX_PLATFORMS leaves CUDA out or no NVIDIA driver answers."""
+    """This host's NVIDIA GPUs as CUDA_VISIBLE_DEVICES names them, found without starting JAX's backend
+    (which would hold memory on every GPU the children train on). Empty where there is no CUDA."""
     platforms = os.environ.get("JAX_PLATFORMS", "")
     if platforms and not any(name in platforms for name in ("cuda", "gpu")):
         return []
@@ -81,10 +63,8 @@ def local_gpus() -> list[str]:
 
 
 def count(env_name: str, seeds: int, devices: int | None, processes: int | None, gpus: list[str]) -> int:
-    """How many processes train a new run's seeds: `processes` when given (any task, also on a CPU);
-    for an MJX task on a host with several GPUs, `devices` (None: as many GPUs as split the seeds
-    evenly, the rule of `agents.sharding.choose_devices`); else 1: this process trains them, as ever.
-    ValueError when the seeds do not split, naming the option, its value and the fix."""
+    """How many processes train a new run's seeds: `processes` when given; for an MJX task on a host with
+    several GPUs, `devices` (None: as many as split the seeds evenly); else 1. ValueError if none split."""
     from envs.registry import makes_mjx_task
 
     if processes is None and os.environ.get(PROCESSES_ENV):
@@ -110,26 +90,21 @@ def count(env_name: str, seeds: int, devices: int | None, processes: int | None,
 
 
 def keep_off_the_gpus(gpus: list[str]) -> None:
-    """This (the parent) process's JAX on the first GPU only, taking memory as it needs it, where it
-    starts at all: the parent reads the task's spec without a device (`envs.spec`; a task with
-    `randomize` or camera images is made) and may break ties between seeds at the end, beside the
-    children that train there. Must run before JAX starts its backend."""
+    """The parent's JAX (if it starts: a task's spec, a tie-break at the end) on the first GPU only,
+    taking memory as it needs it, beside the children. Must run before JAX starts its backend."""
     if gpus:
         os.environ["CUDA_VISIBLE_DEVICES"] = gpus[0]
         os.environ["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
 
 
 def children_of(out: Path, gpus: list[str]) -> list[Child]:
-    """The processes of the run in `out` (processes.json), each given a GPU in turn (several share
-    one where there are fewer GPUs than processes; none on a CPU)."""
+    """The processes of the run in `out` (processes.json), each given a GPU in turn (none on a CPU)."""
     return [Child(index, directory, seed_slice, gpus[index % len(gpus)] if gpus else None)
             for index, (directory, seed_slice) in enumerate(checkpoint.process_dirs(out))]
 
 
 def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) -> None:
-    """A new run in `out` for `processes` processes: its config.json, each process's own run
-    directory (config.json with its `seed_slice`) and processes.json. Checked as a one-process
-    run's directory is (`run_steps.open_run_dir`)."""
+    """A new run in `out` for `processes` processes: its files and each process's run directory."""
     run_steps.open_run_dir(out, run, resume=False, writer=True, overwrite=overwrite)
     shutil.rmtree(out / PROCESSES_DIR, ignore_errors=True)  # an overwritten run's processes
     checkpoint.start_run(out, run)
@@ -145,8 +120,7 @@ def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) 
 
 
 def child_command(child: Child, options: list[str]) -> list[str]:
-    """The child's `mjxsuite train`: --resume of its own directory (which start() wrote, or an
-    earlier run left), on one device."""
+    """The child's `mjxsuite train`: --resume of its own directory, on one device."""
     return [*CHILD_MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
 
 
@@ -154,7 +128,7 @@ def child_environment(child: Child) -> dict[str, str]:
     env = dict(os.environ)
     if child.gpu is not None:
         env["CUDA_VISIBLE_DEVICES"] = child.gpu
-    # mjxsuite as this process imported it (a checkout too), and no second round of processes
+    # mjxsuite as this process imported it, and no second round of processes
     package_root = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (package_root, env.get("PYTHONPATH")) if p)
     env.pop(PROCESSES_ENV, None)
@@ -177,8 +151,7 @@ def chunks_done(child: Child) -> int:
 
 
 def run_children(children: list[Child], options: list[str], total_chunks: int) -> tuple[dict[int, int], str | None]:
-    """Start the unfinished children, pass signals on to them, say how they progress, and wait
-    for them all: (exit status by child index, the name of the signal that stopped the run)."""
+    """Start the unfinished children and wait for them: (exit status by index, the stopping signal's name)."""
     pending = [child for child in children if not finished(child)]
     running: dict[int, subprocess.Popen] = {}
     statuses: dict[int, int] = {child.index: 0 for child in children if finished(child)}
@@ -187,9 +160,7 @@ def run_children(children: list[Child], options: list[str], total_chunks: int) -
             return statuses, forwarding.name
         for child in pending:
             log = open(child.directory / LOG_FILE, "a")
-            # A session of its own: a Ctrl-C in the terminal reaches this process alone, which passes
-            # it on once; sent to the whole group it would reach each child twice (the second exits
-            # without saving).
+            # A session of its own: a terminal's Ctrl-C reaches each child once, passed on by this process.
             running[child.index] = subprocess.Popen(child_command(child, options), stdout=log, stderr=subprocess.STDOUT,
                                                     env=child_environment(child), start_new_session=True)
             log.close()
@@ -228,19 +199,15 @@ def failure(children: list[Child], statuses: dict[int, int]) -> ProcessFailed:
 
 
 def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time: float):
-    """The finished run's eval.json in `out` from its processes' ones: every seed in seed order,
-    the best seed by the rule of a one-process run (`agents.run.break_ties`, over every seed), and
-    the same keys; the `RunResult` the command reports (without parameters: every seed's are in
-    the processes' directories, where `load_policy` reads them)."""
+    """The finished run's eval.json from its processes' ones (every seed in order, the best by
+    `agents.run.break_ties` over every seed), and the `RunResult` the command reports (no parameters)."""
     from agents.run import RunResult, break_ties, load_agent, unmeasured_ties
 
     evals = [json.loads((child.directory / "eval.json").read_text()) for child in children]
     mean_return = [value for e in evals for value in e["mean_return"]]
     tie_break = [value for e in evals for value in e.get("tie_break_return") or [None] * len(e["mean_return"])]
     measured = {i: v for i, v in enumerate(tie_break) if v is not None}
-    # The processes' own tie-breaks measured their tied seeds as this would: only seeds tied over the
-    # whole run but not within their process are measured here, the only reason to make the env
-    # and load every seed's parameters (MJX, MuJoCo Warp, a device: seconds after the processes end).
+    # The processes measured their own ties as this would: only seeds tied across processes load here.
     agent = params = None
     if unmeasured_ties(mean_return, measured):
         _, _, agent, params = load_agent(out)
@@ -256,23 +223,17 @@ def merge(out: Path, run: checkpoint.SavedRun, children: list[Child], start_time
                        judges=max(e["judged_chunks"] for e in evals), chunks_done=max(e["chunks"] for e in evals),
                        devices=len(children), processes=len(children), best_seed=best_seed,
                        diverged=[d for e in evals for d in e.get("diverged_seeds", [])])
-    # The parent's wall time, at least the slowest process's (every session's, `RunResult.finish`);
-    # what its processes' parts leave is "other"
+    # The parent's wall time, at least the slowest process's; what its parts leave is "other"
     result.finish(start_time, {"wall_s": max(0.0, slowest["wall_s"] - (time.perf_counter() - start_time))})
-    summary = {"agent": run.agent, "env": run.env, "seeds": run.seeds, "best_seed": best_seed,
-               "mean_return": mean_return, "solve_step": result.solve_step, "solve_wall_s": result.solve_wall_s,
-               "wall_s": result.wall_s, "compile_s": result.compile_s, "devices": result.devices,
-               "wall_parts_s": result.wall_parts(), "judged_chunks": result.judges, "chunks": result.chunks_done,
-               "tie_break_return": [tie_break_now.get(i) for i in range(len(mean_return))], "processes": len(children),
-               "diverged_seeds": result.diverged}
+    summary = result.summary(run.agent, run.env, run.seeds, [tie_break_now.get(i) for i in range(len(mean_return))],
+                             processes=len(children))
     checkpoint.atomic_write(out / "eval.json", json.dumps(summary, indent=2).encode())
     return result
 
 
 def train(out: Path, run: checkpoint.SavedRun, total_chunks: int, options: list[str], gpus: list[str]):
-    """Train (or, after `start` or a stop, go on training) the processes of the run in `out` and
-    merge their results: the `RunResult` to report, interrupted when a signal stopped them.
-    ProcessFailed when one failed."""
+    """Train (or go on training) the processes of the run in `out` and merge their results: the
+    `RunResult` to report, interrupted when a signal stopped them. ProcessFailed when one failed."""
     from agents.run import RunResult
 
     start_time = time.perf_counter()

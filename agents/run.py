@@ -1,9 +1,6 @@
-"""The run lifecycle, one for every agent (DQN, PPO, SAC): `train_run` drives an agent's pure
-chunks (`init`, then `train_steps` and `evaluate_and_keep_best` as two programs) under jit(vmap) for many seeds
-(spread over devices by `agents.sharding`, several configs at once for a sweep), and between
-chunks owns the run directory, the progress bar, metrics, checkpoints, signals and the final
-evaluation (`agents.run_steps` holds those steps). `load_agent` and `load_policy` read any
-run directory back."""
+"""The run lifecycle of every agent: `train_run` runs an agent's pure chunks under jit(vmap) for many
+seeds (spread over devices by `agents.sharding`) and between chunks owns the run directory, metrics,
+checkpoints, signals and the final evaluation (`agents.run_steps`). `load_policy` reads a run back."""
 
 from __future__ import annotations
 
@@ -32,9 +29,7 @@ from envs.ranges import COUNT
 from envs.registry import is_mjx_task
 
 
-# The parts of a run's wall time, named as eval.json's `wall_parts_s` and the command's last line
-# (`agents.commands.wall_line`) both say them: start-up (setup_s), compile, train, judge, saves,
-# evaluation, and other (host_s, the host's work between chunks).
+# The parts of a run's wall time, as eval.json's `wall_parts_s` and the command's last line name them.
 WALL_PARTS = ("start-up", "compile", "train", "judge", "saves", "evaluation", "other")
 
 
@@ -45,43 +40,16 @@ class RunResult:
     history: list[dict] = field(default_factory=list)  # one record per evaluation
     mean_return: list[float] = field(default_factory=list)  # final greedy evaluation per seed
     solve_step: list[int | None] = field(default_factory=list)
-    # Seconds from the run's start (compile included) to the judge that first reached solve_return;
-    # wall_s: the run's whole time. Both span every session of a resumed run: each checkpoint saves
-    # the clock so far (`_Run.clock_now`), which a --resume goes on from (the seconds a killed
-    # session spent after its last checkpoint are not counted: their work is done again).
-    solve_wall_s: list[float | None] = field(default_factory=list)
+    solve_wall_s: list[float | None] = field(default_factory=list)  # seconds to the first judge at solve_return
     wall_s: float = 0.0  # train_run's whole call, every session's; the parts below add up to it
     compile_s: float = 0.0
-    # Where the rest of wall_s went: setting up (the env, the first JAX calls, placing the agents,
-    # loading a checkpoint), the training chunks, their greedy judges (`run_steps.JudgeClock`),
-    # checkpoint saves, the final greedy evaluation (its compile included), and the rest
-    # (`host_s`): the host's work between chunks (metrics files, `on_chunk`, e.g. the Rerun logger).
-    setup_s: float = 0.0
+    setup_s: float = 0.0  # the env, the first JAX calls, placing the agents, loading a checkpoint
     train_s: float = 0.0
-    judge_s: float = 0.0
+    judge_s: float = 0.0  # the greedy judges (`run_steps.JudgeClock`)
     judges: int = 0  # chunks judged
     save_s: float = 0.0
-    eval_s: float = 0.0
-    host_s: float = 0.0
-
-    def wall_parts(self) -> dict[str, float]:
-        """wall_s's parts by name, in the order they happen: eval.json's `wall_parts_s`, under the
-        names the command's last line prints (`WALL_PARTS`)."""
-        return dict(zip(WALL_PARTS, (self.setup_s, self.compile_s, self.train_s, self.judge_s, self.save_s,
-                                     self.eval_s, self.host_s)))
-
-    def finish(self, start: float, earlier: dict | None = None) -> None:
-        """Set wall_s to the time since `start` plus the earlier sessions' (`earlier`: the clock the
-        checkpoint a --resume began from saved, `checkpoint.saved_clock`), each part to its own
-        plus theirs, and host_s to what the other parts leave of wall_s."""
-        earlier = earlier or {}
-        before = earlier.get("wall_parts_s", {})
-        for name, part in zip(WALL_PARTS[:-1], ("setup_s", "compile_s", "train_s", "judge_s", "save_s", "eval_s")):
-            setattr(self, part, getattr(self, part) + before.get(name, 0.0))
-        self.earlier_wall_s = earlier.get("wall_s", 0.0)
-        self.wall_s = time.perf_counter() - start + self.earlier_wall_s
-        self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.judge_s - self.save_s
-                          - self.eval_s)
+    eval_s: float = 0.0  # the final evaluation, its compile included
+    host_s: float = 0.0  # the rest: the host's work between chunks (metrics files, `on_chunk`)
     earlier_wall_s: float = 0.0  # the earlier sessions' share of wall_s (0 but after a --resume)
     interrupted: bool = False  # SIGINT or SIGTERM; like `stop_after_chunks`, leaves params None and a checkpoint
     stop_signal: str | None = None  # "SIGINT" or "SIGTERM" when interrupted
@@ -95,6 +63,29 @@ class RunResult:
     best_seed: int = 0  # the seed `load_policy` acts with (`break_ties`)
     diverged: list[int] = field(default_factory=list)  # seeds whose losses became non-finite
 
+    def wall_parts(self) -> dict[str, float]:
+        return dict(zip(WALL_PARTS, (self.setup_s, self.compile_s, self.train_s, self.judge_s, self.save_s,
+                                     self.eval_s, self.host_s)))
+
+    def finish(self, start: float, earlier: dict | None = None) -> None:
+        """wall_s and its parts, each plus the earlier sessions' (the clock a --resume began from)."""
+        earlier = earlier or {}
+        before = earlier.get("wall_parts_s", {})
+        for name, part in zip(WALL_PARTS[:-1], ("setup_s", "compile_s", "train_s", "judge_s", "save_s", "eval_s")):
+            setattr(self, part, getattr(self, part) + before.get(name, 0.0))
+        self.earlier_wall_s = earlier.get("wall_s", 0.0)
+        self.wall_s = time.perf_counter() - start + self.earlier_wall_s
+        self.host_s = max(0.0, self.wall_s - self.setup_s - self.compile_s - self.train_s - self.judge_s - self.save_s
+                          - self.eval_s)
+
+    def summary(self, agent: str, env: str, seeds: int, tie_break_return: list, **extra) -> dict:
+        """eval.json: the same keys for every agent (docs/training.md); `extra` goes before diverged_seeds."""
+        return {"agent": agent, "env": env, "seeds": seeds, "best_seed": self.best_seed,
+                "mean_return": self.mean_return, "solve_step": self.solve_step, "solve_wall_s": self.solve_wall_s,
+                "wall_s": self.wall_s, "compile_s": self.compile_s, "devices": self.devices,
+                "wall_parts_s": self.wall_parts(), "judged_chunks": self.judges, "chunks": self.chunks_done,
+                "tie_break_return": tie_break_return, **extra, "diverged_seeds": self.diverged}
+
 
 def seed_keys(seed: int, seeds: int) -> jax.Array:
     """Independent keys for `seeds` agents (split, never reused)."""
@@ -103,10 +94,7 @@ def seed_keys(seed: int, seeds: int) -> jax.Array:
 
 @partial(jax.jit, static_argnums=(0, 1))
 def run_keys(seed: int, seeds: int) -> tuple[jax.Array, jax.Array]:
-    """A run's keys for `seeds` agents: their training keys (`seed_keys`) and the keys of the
-    final evaluation, the same as five random ops each run by itself give, from one small
-    program: on a GPU each of those ops compiled its own, which slowed every run's start
-    (docs/bench-gpu.json, "dqn-run-keys")."""
+    """A run's training and final evaluation keys, from one program (docs/bench-gpu.json, "dqn-run-keys")."""
     seed_key = jax.random.PRNGKey(seed)
     return jax.random.split(seed_key, seeds), jax.random.split(jax.random.fold_in(seed_key, 1), seeds)
 
@@ -115,11 +103,8 @@ SEED_AXES = ("vmap", "map")
 
 
 def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Callable:
-    """`fn` over a leading seed axis, as `seed_axis` says: "vmap" runs the seeds as one
-    batched program, "map" one after another (`lax.map`), each as the unbatched program.
-    None picks "vmap" on accelerators and "map" on the CPU, whose XLA runs the plain
-    matmuls of one network faster than batched ones (docs/bench-cpu.json, "dqn-seed-scaling").
-    One seed is always run unbatched."""
+    """`fn` over a leading seed axis, batched ("vmap") or one seed after another ("map"; None: by device,
+    docs/bench-cpu.json "dqn-seed-scaling"). One seed runs unbatched."""
     seed_axis = seed_axis or default_seed_axis()
     if seed_axis not in SEED_AXES:
         raise ValueError(f"unknown seed_axis {seed_axis!r}; choose one of {SEED_AXES}")
@@ -134,17 +119,8 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
 
 
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:
-    """`work()` on another thread, once `after` is set if given. XLA compiles, and a program runs,
-    without holding Python's lock, so the run's inputs are made (on a GPU with the process's first
-    allocation) while the programs compile, a fresh run's init program compiles while this thread
-    traces and lowers the training chunk and while XLA compiles the chunk, and the final
-    evaluation's program compiles while the agents train: each of those is seconds of a short
-    run's start. The programs and options are those that compiling them here would give: the
-    same results, bit for bit.
-
-    Runs of MuJoCo Warp envs compile beside nothing that runs: their compiles wait (`after`, from
-    `envs.mjx_warp.CompileRules.tracing`) until every program is traced, and the run waits for them
-    all (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
+    """`work()` on another thread (XLA compiles without Python's lock), once `after` is set if given: on
+    MuJoCo Warp, once every program is traced (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
     def waited():
         if after is not None:
             after.wait()
@@ -159,10 +135,7 @@ def _in_background(work: Callable[[], Any], name: str, after: threading.Event | 
 
 def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: int, env_name: str,
                  env_options: dict | None, donate: bool = False) -> traced_programs.LoweredProgram:
-    """An agent's program (`fn`, for `seeds` seeds of the agent `learner`) lowered for `args`, to compile with the
-    training programs' XLA options; with the export cache on (`agents.jax_compile_cache.enable()`),
-    its traced program comes from there when an earlier run left it: tracing (`mjx.step` inside
-    the training chunk and the evaluation) is most of a warm start."""
+    """An agent's program lowered for `args` through the export cache (`agents.traced_programs`)."""
     return traced_programs.lower_env_program(program, fn, args, learner.env, env_name, env_options,
                                           extra=key_parts(learner, seeds), donate=donate,
                                           compiler_options=training_compiler_options(env=learner.env))
@@ -170,11 +143,7 @@ def lower_cached(program: str, fn: Callable, args: tuple, learner: Any, seeds: i
 
 def lower_evaluation_cached(learner: Any, params: Any, keys: Any, env_name: str, env_options: dict | None,
                             episodes: int | None = None) -> traced_programs.LoweredProgram:
-    """Every seed's evaluation over `episodes` fresh episodes (the config's `eval_episodes` when not
-    given), lowered through the export cache (`lower_cached`): `(params, keys) -> returns per seed
-    and episode`. A run's final evaluation and `mjxsuite eval` of its directory lower the same
-    program under the same key, so the command's first call after a run loads the program that the
-    run traced and compiled, from the export cache and JAX's compilation cache."""
+    """Every seed's evaluation through the export cache, shared by a run and `mjxsuite eval` of it."""
     episodes = episodes or learner.config.eval_episodes
     seeds = jax.tree.leaves(params)[0].shape[0]
     return lower_cached(f"{type(learner).__name__}.evaluate, {episodes} episodes",
@@ -183,12 +152,7 @@ def lower_evaluation_cached(learner: Any, params: Any, keys: Any, env_name: str,
 
 
 def key_parts(learner: Any, seeds: int) -> dict:
-    """What an agent's program's export-cache key holds besides the env and the arguments' shapes."""
     return {"config": learner.config, "seeds": seeds}
-
-
-def _host(tree) -> dict:
-    return {k: np.asarray(v).tolist() for k, v in tree.items()}
 
 
 def train_run(
@@ -213,25 +177,10 @@ def train_run(
     judge_every: int | None = None,  # judge every this many chunks; None: `run_steps.judge_every`'s cadence
     seed_slice: tuple[int, int] | None = None,  # (start, stop): train only these of the `seeds` (`agents.processes`)
 ) -> RunResult:
-    """Train `seeds` agents (DQN, PPO, SAC or TD3, as `config` says) on `env_name` at once; see
-    docs/training.md for the files written to `out_dir`.
-
-    With `resume`, continue the run in `out_dir` (the same env, seeds, seed, config and env
-    options, else ValueError) from its last checkpoint, or from the start if it was killed
-    before its first: it ends with the parameters of an uninterrupted run.
-
-    The agents (seeds, or with `sweep` every config of the grid times `seeds`, config-major:
-    agent `c * seeds + s` is config c with seed s's key) are spread over `devices` devices
-    (`agents.sharding`; in a multi-host run every device of every process). One device runs
-    the same program as ever; several give every agent the same result.
-
-    With `seed_slice` (start, stop) the run trains seeds start..stop-1 of `seeds`, each with the
-    keys a run of all `seeds` gives it, so it ends as that run's seeds do: `agents.processes`
-    trains a run's seeds in several processes this way.
-
-    The run's steps, in order (`_Run`): check the settings and open the run directory; compile the
-    programs (in the background); train the chunks, each judged on the config's cadence and saved
-    on the save clock; then the final evaluation, the tie-break, the final save and eval.json."""
+    """Train `seeds` agents (as `config` says) on `env_name` at once (docs/training.md). With `resume`,
+    continue the run in `out_dir` from its last checkpoint: it ends as an uninterrupted run would. With
+    `sweep`, agent `c * seeds + s` is config c with seed s's key; with `seed_slice`, seeds keep the keys
+    a run of all `seeds` gives them. The steps are `_Run`'s methods, in order."""
     with signals.StopSignals() as stop:  # SIGINT/SIGTERM: stop between chunks, save, return
         run = _Run(stop, env_name, config, seeds, seed, out_dir, resume, env_options, sweep, judge_every, seed_slice,
                    devices, overwrite, run_steps.SaveClock(checkpoint_every, checkpoint_seconds))
@@ -247,8 +196,7 @@ def train_run(
 
 
 class _Run:
-    """One `train_run`: its checked settings, and what each of its steps hands the next (the
-    programs, the train state, the clocks, the result). Its methods are the steps, in order."""
+    """One `train_run`: its checked settings and what each step (a method, in order) hands the next."""
 
     def __init__(self, stop: signals.StopSignals, env_name: str, config: Any, seeds: int, seed: int, out_dir,
                  resume: bool, env_options: dict | None, sweep: dict | None, judge_every: int | None,
@@ -287,8 +235,7 @@ class _Run:
         self.lock = run_steps.RunDirLock(self.out if self.writer else None)
         self.saves = checkpoint.BackgroundSaves()
 
-    def not_started(self) -> RunResult:
-        """The result of a run that a signal stopped before anything compiled."""
+    def not_started(self) -> RunResult:  # a signal before anything compiled
         saved = checkpoint.chunks_saved(self.out) if self.out is not None and self.resume else 0
         return RunResult(params=None, train_state=None, interrupted=True, stop_signal=self.stop.name,
                          saved_chunks=None if self.out is None else saved, total_chunks=self.config.num_chunks,
@@ -296,17 +243,12 @@ class _Run:
 
     # ---- the programs ------------------------------------------------------------------------
     def compile_programs(self, progress: bool, record_episode: bool, seed_axis: str | None, evaluates: bool) -> None:
-        """Every program the run needs, compiled in the background (`_in_background`): the inputs
-        and the init program (or the checkpoint, on resume), a chunk's training steps and its judge,
-        the final evaluation and, on a GPU, the tie-break over every seed. Without `on_chunk` nobody
-        sees the judge's episode (`record_episode` False): the chunk records none (less to compile;
-        the same train state and metrics). In a multi-host run the final evaluation's arrays are
-        gathered and placed anew: it compiles at the end. MuJoCo Warp's rules:
-        `envs.mjx_warp.CompileRules` (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
+        """Every program the run needs, compiled in the background; a multi-host run's final evaluation
+        compiles at the end. Warp's rules: `CompileRules` (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
         self.learner = registry.make(self.config, self.env, agents=self.agents // self.placement.count)
         self.rules = CompileRules(runs_warp(self.learner.env))
         self.parts = run_steps.chunk_parts(self.config) if hasattr(self.learner, "chunk_loop") else 1
-        if progress and self.writer:  # the bar comes once the programs are compiled: seconds, a minute or two on a GPU
+        if progress and self.writer:  # the bar comes once the programs are compiled
             builds = " (MuJoCo Warp also builds its kernels once per machine)" if self.rules.on_warp else ""
             print(f"{self.env_name}: compiling{builds}...", file=sys.stderr, flush=True)
         self.evaluates = evaluates and jax.process_count() == 1
@@ -330,8 +272,7 @@ class _Run:
         if self.evaluates and not self.rules.on_warp:
             self._compile_final_beside_training()
 
-    def _run_inputs(self):
-        """The init program's arguments and the final evaluation's keys."""
+    def _run_inputs(self):  # the init program's arguments and the final evaluation's keys
         keys, eval_keys = run_keys(self.seed, self.seeds)
         if self.sweep is None:  # every seed's keys made, these seeds' kept: the same keys whatever the slice
             return (keys[self.first:self.stop_seed],), eval_keys[self.first:self.stop_seed]
@@ -339,10 +280,7 @@ class _Run:
         return (jnp.tile(keys, (configs, 1)), per_agent(self.configs, self.seeds)), jnp.tile(eval_keys, (configs, 1))
 
     def _lower_state(self, after_traces):
-        """The inputs, made on another thread while the programs compile from their shapes (making
-        them runs the keys' program, and on a GPU the first allocation, where XLA reserves most of
-        the device's memory; on several devices, their placement too); the train state's shapes
-        from the checkpoint (resume) or from the init program, compiling on another thread."""
+        """The inputs, made on another thread, and the train state: the checkpoint's, or the init program's."""
         placement = self.placement
         inputs = _in_background(lambda: placement.put(self._run_inputs()), "inputs", after=after_traces)
         init = jax.jit(placement.spread(jax.vmap(self.learner.init)), compiler_options=init_compiler_options())
@@ -366,75 +304,43 @@ class _Run:
         return inputs, init_program, init_args
 
     def _lower_chunk(self, record_episode: bool, seed_axis: str, after_traces):
-        """A chunk's two programs, its training steps (compiling on another thread) and its judge
-        (lowered, compiled by the caller). One device: each holds a copy of the env's step, and
-        together were one program that XLA compiled alone; tracing and lowering hold Python's
-        lock, XLA's compile does not, so the training steps are traced first and compile while this
-        thread traces the judge. Several devices: two sharded programs are faster than one
-        (docs/bench-gpu.json, "dqn-sharded-programs"). A finished run (resumed to evaluate) has none."""
+        """A chunk's training steps, compiling on another thread while this one lowers its judge (two programs:
+        docs/bench-gpu.json, "dqn-sharded-programs"). A finished run has none."""
         if self.chunks_done >= self.config.num_chunks:
             return None, None
         learner, ts, per_device = self.learner, self.ts, self.agents // self.placement.count
+        kind = type(learner).__name__  # names its programs in the export cache
         if self.parts > 1:  # a chunk in parts (`_in_parts`): the first part's state is kept, so none is donated
-            return self._lower_parts(per_device, seed_axis, after_traces), self._lower_judge(
-                per_device, seed_axis, record_episode)
-        train_fn = seed_batched(partial(_train_steps, learner), per_device, seed_axis)
+            part_fn = seed_batched(partial(_train_part, learner, self.parts), per_device, seed_axis)
+            self.carry_shapes = jax.eval_shape(jax.vmap(partial(evaluation.part_carry, learner.chunk_loop)), ts)
+            train = self._lower(f"{kind}.chunk_part of {self.parts} over seeds by {seed_axis}", part_fn,
+                                (ts, self.placement.abstract(self.carry_shapes)))
+        else:
+            train = self._lower(f"{kind}.train_steps over seeds by {seed_axis}",
+                                seed_batched(partial(_train_steps, learner), per_device, seed_axis), (ts,), donate=True)
+        train_program = _in_background(train.compile, "train", after=after_traces)
         judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
-        if self.placement.mesh is None:
-            kind = type(learner).__name__  # names its programs in the export cache
-            judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
-                      + ("" if record_episode else ", no episode recorded"))
-            lowered = lower_cached(f"{kind}.train_steps over seeds by {seed_axis}", train_fn, (ts,), learner,
-                                   self.agents, self.env_name, self.env_options, donate=True)
-            train_program = _in_background(lowered.compile, "train", after=after_traces)
-            return train_program, lower_cached(judged, judge_fn, (ts, ts.key), learner, self.agents, self.env_name,
-                                               self.env_options, donate=True)
-        # sharded programs skip the traced-program cache (JAX's compilation cache still applies)
-        options = training_compiler_options(env=learner.env)
-        spread = self.placement.spread
-        train_program = _in_background(partial(jax.jit(spread(train_fn), donate_argnums=0).lower(ts).compile, options),
-                                       "train", after=after_traces)
-        return train_program, traced_programs.LoweredProgram(
-            jax.jit(spread(judge_fn), donate_argnums=0).lower(ts, ts.key), options)
+        judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
+                  + ("" if record_episode else ", no episode recorded"))
+        return train_program, self._lower(judged, judge_fn, (ts, ts.key), donate=True)
 
-    def _lower_parts(self, per_device: int, seed_axis: str, after_traces) -> Future:
-        """The program of one part of a chunk (`evaluation.chunk_part`), compiling on another thread,
-        and the carry its first part starts from."""
-        learner, ts, parts = self.learner, self.ts, self.parts
-        part_fn = seed_batched(partial(_train_part, learner, parts), per_device, seed_axis)
-        self.carry_shapes = jax.eval_shape(jax.vmap(partial(evaluation.part_carry, learner.chunk_loop)), ts)
-        carry = self.placement.abstract(self.carry_shapes)
+    def _lower(self, program: str, fn: Callable, args: tuple, donate: bool = False) -> traced_programs.LoweredProgram:
+        """`fn` lowered for `args`, through the export cache on one device (sharded programs skip it)."""
         if self.placement.mesh is None:
-            lowered = lower_cached(f"{type(learner).__name__}.chunk_part of {parts} over seeds by {seed_axis}",
-                                   part_fn, (ts, carry), learner, self.agents, self.env_name, self.env_options)
-            return _in_background(lowered.compile, "train", after=after_traces)
-        options = training_compiler_options(env=learner.env)
-        return _in_background(partial(jax.jit(self.placement.spread(part_fn)).lower(ts, carry).compile, options),
-                              "train", after=after_traces)
-
-    def _lower_judge(self, per_device: int, seed_axis: str, record_episode: bool) -> traced_programs.LoweredProgram:
-        """The judge's program, lowered (`_lower_chunk` for a chunk in parts)."""
-        learner, ts = self.learner, self.ts
-        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
-        if self.placement.mesh is None:
-            judged = (f"{type(learner).__name__}.evaluate_and_keep_best over seeds by {seed_axis}"
-                      + ("" if record_episode else ", no episode recorded"))
-            return lower_cached(judged, judge_fn, (ts, ts.key), learner, self.agents, self.env_name,
-                                self.env_options, donate=True)
-        return traced_programs.LoweredProgram(jax.jit(self.placement.spread(judge_fn), donate_argnums=0).lower(
-            ts, ts.key), training_compiler_options(env=learner.env))
+            return lower_cached(program, fn, args, self.learner, self.agents, self.env_name, self.env_options,
+                                donate=donate)
+        return traced_programs.LoweredProgram(
+            jax.jit(self.placement.spread(fn), donate_argnums=0 if donate else ()).lower(*args),
+            training_compiler_options(env=self.learner.env))
 
     def lower_evaluation(self, params: Any, keys: Any) -> Any:
-        """The final evaluation, lowered for these shapes."""
         if self.placement.mesh is None:
             return lower_evaluation_cached(self.learner, params, keys, self.env_name, self.env_options)
         return jax.jit(self.placement.spread(jax.vmap(self.learner.evaluate))).lower(params, keys)
 
     def _compile_final_beside_training(self) -> None:
-        """The final evaluation's program, compiling while the agents train; on a GPU also the
-        tie-break's program for every seed: thousands of seeds can tie there (CartPole's held to
-        the time limit), and it serves where at least half of them tie. On a CPU, measuring every
-        seed costs more than compiling for the tied ones."""
+        """The final evaluation, compiling while the agents train; on a GPU also the tie-break for every
+        seed (on a CPU, measuring every seed costs more than compiling for the tied ones)."""
         self.final_evaluation = _in_background(
             lambda: self.lower_evaluation(self.params_shape, self.eval_keys).compile(), "evaluation")
         if self.agents > 1 and self.placement.devices[0].platform == "gpu":
@@ -445,19 +351,14 @@ class _Run:
 
     # ---- the chunks --------------------------------------------------------------------------
     def train_chunks(self, progress: bool, on_chunk, stop_after_chunks: int | None, stop_when_solved: bool) -> None:
-        """Train the chunks from the last checkpoint's on, judging on the config's cadence and saving
-        on the save clock, until the last chunk, `stop_after_chunks`, a signal or (with
-        `stop_when_solved`) every agent solved. The next chunk is dispatched before this one's host
-        work (its metrics to JSON, the bar), so the device trains on while the host works, where
-        nothing of that work can change what the next chunk does: no `on_chunk` (it is handed the
-        train state, which the next chunk consumes), no stop when solved, no save due, no signal,
-        and signals caught (where they are not, a KeyboardInterrupt could come with a chunk in
-        flight and its state unlogged)."""
+        """Train the chunks, judged and saved on their clocks, until the last, `stop_after_chunks`, a signal or
+        every agent solved. The next chunk is dispatched before this one's host work where nothing of that
+        work can change it (`look_ahead`)."""
         config = self.config
         self.result = RunResult(params=None, train_state=self.ts, compile_s=self.compile_s,
                                 solve_wall_s=list(self.earlier.get("solve_wall_s") or [None] * self.agents),
-                                devices=self.placement.count,
-                                setup_s=self.compile_start - self.start, total_chunks=config.num_chunks)
+                                devices=self.placement.count, setup_s=self.compile_start - self.start,
+                                total_chunks=config.num_chunks)
         prefill = getattr(config, "prefill_steps", 0)  # SAC's and TD3's first fill of the replay, in `init`
         self.bar = run_steps.progress_bar(prefill + config.num_chunks * config.eval_every,
                                           prefill + self.chunks_done * config.eval_every, self.env_name,
@@ -466,6 +367,7 @@ class _Run:
         self.clock.expect(sum(leaf.nbytes for leaf in jax.tree.leaves(self.ts)))  # the first save, before one is timed
         self.last, self.solved_early, self.overflow_told = self.chunks_done, False, False
         self.on_chunk, self.stop_when_solved = on_chunk, stop_when_solved
+        # on_chunk gets the state the next chunk consumes; uncaught signals could leave a chunk unlogged
         self.look_ahead = on_chunk is None and not stop_when_solved and self.stop.catching and self.parts == 1
         self.bar_ahead = 0  # env steps the bar moved within the chunk under way (`_in_parts`)
         self.stop_at = config.num_chunks if stop_after_chunks is None else min(config.num_chunks, stop_after_chunks)
@@ -501,9 +403,7 @@ class _Run:
         return (self.train_program(ts) if self.parts == 1 else self._in_parts(ts)), began
 
     def _in_parts(self, ts):
-        """A chunk as `self.parts` programs (`evaluation.chunk_part`), with the result of one: the bar
-        moves after each part, and a signal between parts drops the chunk under way, returning
-        (its start state, None, None): the state of the chunks done, which the run then saves."""
+        """A chunk as `self.parts` programs; a signal between parts drops it: (its start state, None, None)."""
         carry, start = self.placement.put(jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), self.carry_shapes)), ts
         steps = self.config.eval_every // self.parts
         for part in range(self.parts):
@@ -517,16 +417,14 @@ class _Run:
         return ts, metrics, eval_key
 
     def _save_due(self, done: int) -> bool:
-        """A periodic save; a run's last chunk is the final save's (`finish`). Process 0's clock."""
+        """A periodic save (the last chunk's is `finish`'s), by process 0's clock."""
         return self.placement.same_on_every_process(self.out is not None and done < self.config.num_chunks
                                                     and self.clock.due(done))
 
     def _after_chunk(self, index: int, metrics: dict, eval_key, tick: float):
-        """A trained chunk's judge (on the cadence), its record and a periodic save; returns the next
-        chunk where it was dispatched ahead (`train_chunks`), else None."""
+        """A trained chunk's judge, record and periodic save; returns the next chunk if dispatched ahead."""
         judging, eval_episode, placement = self.judge_clock.due(index), None, self.placement
-        # The whole chunk done, its train state too, so that its seconds are its own however its
-        # dispatch returned (one through MuJoCo Warp's FFI can return once it is done).
+        # The whole chunk done, so that its seconds are its own however its dispatch returned
         jax.block_until_ready((self.ts, metrics))
         trained_at = time.perf_counter()
         if judging:
@@ -539,7 +437,7 @@ class _Run:
         look = (self.look_ahead and self.last < self.stop_at and not self._save_due(self.last)
                 and not self._signalled())
         ahead = self._dispatched(self.ts) if look and not judging else None  # the device trains on meanwhile
-        record = _host(placement.to_host(metrics))
+        record = {k: np.asarray(v).tolist() for k, v in placement.to_host(metrics).items()}
         if judging:
             self.judge_clock.judged(time.perf_counter() - trained_at)
             if look:  # after the judge's results reached the host, whose seconds are the judge's
@@ -553,10 +451,12 @@ class _Run:
         return ahead
 
     def _observe(self, index: int, record: dict, eval_episode, judging: bool) -> None:
-        """What watches a chunk's record: MuJoCo Warp's overflow, diverged seeds, the solve times,
-        metrics.jsonl, `on_chunk` (e.g. the Rerun logger) and the progress bar."""
+        """What watches a chunk's record: overflow, divergence, solve times, metrics, `on_chunk`, the bar."""
         config, result = self.config, self.result
-        self.overflow_told = _check_overflow(self.env, record, config.eval_every, self.bar, self.overflow_told)
+        most = [int(np.max(record.get(f"overflow_{kind}", 0))) for kind in ("contacts", "constraints")]
+        self.overflow_told = run_steps.check_overflow(self.env, *most, config.eval_every, "env-steps",
+                                                      f"chunk {record['chunk']}", "they ended their episodes and "
+                                                      "stayed out of the replay", self.bar, self.overflow_told)
         _check_diverged(record, result.diverged, self.first, self.bar)
         result.history.append(record)
         now = time.perf_counter() - self.start + self.earlier.get("wall_s", 0.0)
@@ -572,7 +472,6 @@ class _Run:
         self.solved_early = self.stop_when_solved and judging and None not in result.solve_wall_s
 
     def _checkpoint(self, state: Any, done: int, final: bool = False) -> None:
-        """A save of `state` after `done` chunks, timed on the save clock."""
         save_start = time.perf_counter()
         save(self.saves, self.out, self.env_name, self.placement, state, done, final=final,
              finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside,
@@ -581,42 +480,34 @@ class _Run:
         self.result.save_s += time.perf_counter() - save_start
 
     def clock_now(self) -> dict:
-        """The run's clock so far, every session's: wall_s, its parts and solve_wall_s, saved with
-        each checkpoint (`checkpoint.saved_clock`) for a --resume to go on from."""
+        """The run's clock so far, every session's, saved with each checkpoint for a --resume."""
         now = dataclasses.replace(self.result, judge_s=self.judge_clock.judge_s)
         now.finish(self.start, self.earlier)
         return {"wall_s": now.wall_s, "wall_parts_s": now.wall_parts(), "solve_wall_s": now.solve_wall_s}
 
     # ---- the end -------------------------------------------------------------------------------
-    def _evaluated(self):
-        """Every agent's returns from the final evaluation, dispatched."""
+    def _evaluated(self):  # the final evaluation, dispatched
         evaluate = (self.final_evaluation.result() if self.final_evaluation is not None
                     else self.lower_evaluation(self.ts.best_params, self.eval_keys).compile())
         return evaluate(self.ts.best_params, self.eval_keys)
 
     def finish(self) -> RunResult:
-        """The final save, and for a finished run the final evaluation, the tie-break and eval.json.
-        A stopped run (a signal, `stop_after_chunks`) keeps its checkpoint and evaluates nothing."""
+        """The final save, and for a finished run the final evaluation, the tie-break and eval.json."""
         result, ts = self.result, self.ts
         finished = self.last == self.config.num_chunks or self.solved_early
-        # The final evaluation, where it compiled beside training, is dispatched before the final save:
-        # the save's copy to the host, made on this thread where the agents are spread over devices, then
-        # runs while the devices evaluate. MuJoCo Warp's rules put it after the save (`CompileRules`).
+        # The final evaluation goes before the final save, whose host copy overlaps it, except on Warp
         eval_start = time.perf_counter()
         early = (finished and not result.interrupted and self.final_evaluation is not None
                  and self.rules.evaluate_before_final_save)
         returns = self._evaluated() if early else None
         eval_s = time.perf_counter() - eval_start
-        # Not after other errors: the last periodic checkpoint stands (a failed save must not be retried
-        # over it, and a failed chunk may have consumed its donated train state).
+        # Not after errors: a failed chunk may have consumed its donated state, so the last checkpoint stands.
         if self.out is not None and self.clock.last != self.last:
             self._checkpoint(ts, self.last, final=True)  # copied and written during the final evaluation
         result.chunks_done, result.saved_chunks = self.last, self.clock.last if self.out is not None else None
         result.judges = sum(map(self.judge_clock.due, range(self.last)))  # every session's, by the config's cadence
         result.judge_s = self.judge_clock.judge_s
-        # A signal during the last chunk or save stops without the final evaluation's results (it cannot be
-        # cut short once it runs, and one dispatched early is left to end): the checkpoint holds every
-        # chunk, and --resume evaluates.
+        # A signal during the last chunk or save skips the final evaluation; --resume evaluates.
         signalled = self._signalled()  # on every process (a collective where there are several)
         result.interrupted = result.interrupted or signalled
         result.stop_signal = self.stop.name or ("SIGINT" if result.interrupted else None)
@@ -638,45 +529,31 @@ class _Run:
         result.save_s += _waited(self.saves)
         result.finish(self.start, self.earlier)
         if self.writer:
-            run_steps.write_eval(self.out, self._summary(tie_break))
+            run_steps.write_eval(self.out, result.summary(self.agent, self.env_name, self.trained_seeds,
+                                                          [tie_break.get(self.first + i) for i in range(self.agents)]))
         return result
-
-    def _summary(self, tie_break: dict[int, float]) -> dict:
-        """eval.json: the same keys for every agent (docs/training.md)."""
-        result = self.result
-        return {"agent": self.agent, "env": self.env_name, "seeds": self.trained_seeds, "best_seed": result.best_seed,
-                "mean_return": result.mean_return, "solve_step": result.solve_step,
-                "solve_wall_s": result.solve_wall_s, "wall_s": result.wall_s, "compile_s": result.compile_s,
-                "devices": self.placement.count, "wall_parts_s": result.wall_parts(),
-                "judged_chunks": result.judges, "chunks": result.chunks_done,
-                "tie_break_return": [tie_break.get(self.first + i) for i in range(self.agents)],
-                "diverged_seeds": result.diverged}
 
 
 def _waited(saves: checkpoint.BackgroundSaves) -> float:
-    """Seconds spent waiting for the save under way to reach the disk."""
     start = time.perf_counter()
     saves.wait()
     return time.perf_counter() - start
 
 
 def _train_steps(learner: Any, ts: Any) -> tuple[Any, dict, jax.Array]:
-    """`learner.train_steps(ts)` with the env steps done in its metrics: a chunk the judge skips
-    still says where the run stands (the logger's timeline, metrics.jsonl)."""
+    """`learner.train_steps(ts)`, its metrics saying where the run stands even where not judged."""
     ts, metrics, eval_key = learner.train_steps(ts)
     return ts, {**metrics, "env_steps": ts.env_steps}, eval_key
 
 
 def _train_part(learner: Any, parts: int, ts: Any, carry: tuple) -> tuple:
-    """One of `parts` parts of a chunk (`evaluation.chunk_part`), its metrics with the env steps
-    done (`_train_steps`)."""
+    """One of `parts` parts of a chunk (`evaluation.chunk_part`), as `_train_steps`."""
     ts, carry, metrics, eval_key = evaluation.chunk_part(learner.chunk_loop(ts), parts, ts, carry)
     return ts, carry, {**metrics, "env_steps": ts.env_steps}, eval_key
 
 
 def _check_diverged(record: dict, diverged: list[int], first: int, bar) -> None:
-    """Say once per seed when a chunk's losses became non-finite (the seed diverged), and add it to
-    `diverged` (run seed indices): its best parameters so far stay, the other seeds train on."""
+    """Say once per seed when a chunk's losses became non-finite, adding it to `diverged`."""
     losses = [np.atleast_1d(np.asarray(v, dtype=np.float64)) for k, v in record.items() if k.endswith("loss")]
     if not losses:
         return
@@ -689,22 +566,13 @@ def _check_diverged(record: dict, diverged: list[int], first: int, bar) -> None:
                       "max_grad_norm may keep it finite)")
 
 
-def _check_overflow(env: envs.Env, record: dict, chunk_steps: int, bar, told: bool) -> bool:
-    """`run_steps.check_overflow` for a chunk's record (the most any agent's steps overflowed)."""
-    return run_steps.check_overflow(env, int(np.max(record.get("overflow_contacts", 0))),
-                                 int(np.max(record.get("overflow_constraints", 0))), chunk_steps, "env-steps",
-                                 f"chunk {record['chunk']}", "they ended their episodes and stayed out of the replay",
-                                 bar, told)
-
-
 TIE_BREAK_LENGTH = 4  # a tie-break's episodes are this many time limits long...
 TIE_BREAK_EPISODES = 4  # ...and this many times as many as an evaluation's
 
 
 def tie_break_program(agent: Any, env_name: str, env_options: dict | None,
                       placement: sharding.Placement | None = None) -> Callable:
-    """The tie-break's longer evaluation over a batch of agents, jitted: `(params, keys) -> mean
-    return per agent` (`break_ties`); with `placement`, the agents spread over its devices."""
+    """The tie-break's longer evaluation, jitted: `(params, keys) -> mean return per agent`."""
     options = dict(env_options or {})
     length = getattr(agent.env, "episode_length", None)
     if length is not None and "episode_length" in envs.options(env_name):
@@ -717,22 +585,18 @@ def tie_break_program(agent: Any, env_name: str, env_options: dict | None,
 
 def every_seed_tie_break(agent: Any, env_name: str, env_options: dict | None, placement: sharding.Placement,
                          params: Any, keys: Any) -> Callable:
-    """`tie_break_program` for every row of `params`, spread by `placement`, compiled for `params`'
-    and `keys`' shapes (arrays, or their shapes before the arrays exist): `break_ties`' `every_seed`,
-    `(params, keys) -> mean return per agent`, which places the host's keys as the agents are."""
+    """`tie_break_program` compiled for every row of `params`, placing the host's keys: `break_ties`' `every_seed`."""
     program = tie_break_program(agent, env_name, env_options, placement).lower(
         placement.abstract(params), placement.abstract(keys)).compile()
     return lambda params, keys: program(params, placement.put(keys))
 
 
-def tie_break_keys(seed: int, indices: Any) -> jax.Array:
-    """The tie-break's key of each seed, by its index in the run."""
+def tie_break_keys(seed: int, indices: Any) -> jax.Array:  # by each seed's index in the run
     tie_key = jax.random.fold_in(jax.random.PRNGKey(seed), 2)
     return jax.vmap(lambda i: jax.random.fold_in(tie_key, i))(jnp.asarray(indices))
 
 
 def tied_seeds(returns: list[float]) -> np.ndarray:
-    """The indices of the seeds that tie for the best final evaluation (`break_ties`)."""
     returns = np.nan_to_num(np.asarray(returns, dtype=np.float64), nan=-np.inf)  # a diverged seed never ties
     best = returns.max()
     if not np.isfinite(best):  # no seed has a finite return: the first stands
@@ -741,8 +605,7 @@ def tied_seeds(returns: list[float]) -> np.ndarray:
 
 
 def unmeasured_ties(returns: list[float], measured: dict[int, float] | None, first: int = 0) -> list[int]:
-    """The tied seeds (indices into `returns`) whose longer evaluation `break_ties` has yet to run:
-    none where one seed is best or `measured` holds every tied one's (by run seed index)."""
+    """The tied seeds (indices into `returns`) not yet `measured` by run seed index."""
     tied = tied_seeds(returns)
     return [] if len(tied) == 1 else [int(i) for i in tied if first + i not in (measured or {})]
 
@@ -750,18 +613,9 @@ def unmeasured_ties(returns: list[float], measured: dict[int, float] | None, fir
 def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any, returns: list[float],
                seed: int, first: int = 0, measured: dict[int, float] | None = None,
                every_seed: Callable | None = None) -> tuple[int, dict[int, float]]:
-    """The best seed by the final evaluation (an index into `returns`); seeds that tie there (many
-    CartPole seeds hold every episode to its time limit) are told apart by a longer evaluation:
-    more episodes, each TIE_BREAK_LENGTH time limits long where the task takes `episode_length`,
-    so a policy that only holds out to the limit loses to one that keeps balancing. Ties after
-    that go to the first. Also returns the tied seeds' longer returns, by run seed index.
-
-    `returns` (and `params`' rows) are the run's seeds `first`, `first + 1`, ...: a seed's longer
-    evaluation draws its keys from its index in the run, so a process of a run measures its
-    seeds as one process of the whole run would, and the merge (`agents.processes`) passes
-    those (`measured`) instead of measuring them again. `every_seed`, `tie_break_program`
-    compiled ahead for all of `params`' rows, measures them all where at least half of them are
-    to be measured (else the tied seeds' program is compiled here)."""
+    """The best seed (an index into `returns`, the run's seeds from `first`) and the tied seeds' longer
+    returns (by run seed index; `measured`: those already known). A longer evaluation tells tied seeds
+    apart, so that a policy that only holds out to the time limit loses to one that keeps balancing."""
     tied = tied_seeds(returns)
     if len(tied) == 1:
         return int(tied[0]), {}
@@ -782,19 +636,8 @@ def break_ties(agent: Any, env_name: str, env_options: dict | None, params: Any,
 def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement: sharding.Placement, ts: Any,
          chunks_done: int, final: bool = False, finished: bool = False, copy_beside: bool = True,
          clock: dict | None = None) -> None:
-    """A checkpoint of every agent, gathered to the host (on every process; process 0 writes it).
-
-    The files are written on another thread while the run goes on (the next chunks, or the final
-    evaluation): what waits is the copy to the host and the previous save's write, if still under
-    way. Each write is atomic, so a kill loses at most the chunks since the last save on disk (one
-    checkpoint interval, plus the write under way). A CPU's host arrays can share memory with the
-    device buffers that the next chunk reuses: those are copied. The `final` save's arrays are
-    used by nothing after it (the final evaluation reads them, nothing donates them): on one
-    device its copy to the host is made on the writing thread too (arrays split over devices are
-    copied here: never fetched by two threads at once), unless `copy_beside` is False (an env on
-    MuJoCo Warp: `envs.mjx_warp.CompileRules`, docs/mjx.md "MuJoCo Warp and CUDA graphs"). A
-    `finished` run's replay buffers are neither copied nor written (`checkpoint.without_replay`).
-    `clock`: the run's clock at the save (`_Run.clock_now`), saved beside the state."""
+    """A checkpoint of every agent, written by process 0 on another thread, which on one device also makes
+    the `final` save's copy to the host unless `copy_beside` is False (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
     if finished:
         ts = checkpoint.without_replay(ts)
     if final and copy_beside and placement.mesh is None and jax.process_count() == 1:
@@ -802,15 +645,13 @@ def save(saves: checkpoint.BackgroundSaves, out: Path, env_name: str, placement:
         return
     host = placement.to_host(ts)
     if sharding.is_writer():
-        if placement.devices[0].platform == "cpu":
+        if placement.devices[0].platform == "cpu":  # host arrays sharing memory with reused device buffers
             host = jax.tree.map(lambda x: x if isinstance(x, np.ndarray) and x.flags.owndata else np.array(x), host)
         saves.save(out, env_name, host, chunks_done, finished, clock)
 
 
 def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, envs.Env, Any, Any]:
-    """`(env_name, env, agent, best_params)` from a `mjxsuite train --out` directory, whatever
-    the agent (DQN, PPO, SAC); `best_params` has a leading seed axis. `env`: the saved env made
-    here (`checkpoint.saved_env`, the default), or one with other options."""
+    """`(env_name, env, agent, best_params)` from a run directory (`env`: the saved env by default)."""
     saved = checkpoint.load_config(out_dir)
     env = env or checkpoint.saved_env(out_dir)[1]
     agent = registry.make(saved.config, env)
@@ -829,8 +670,6 @@ def pick_seed(out_dir: str | Path, params: Any, seed_index: int | None = None) -
 
 
 def checked_seed_index(seed_index: Any) -> int:
-    """`seed_index` as an int, refused with a clear error unless it is a whole number (a str or a
-    float would fail deep inside numpy's indexing)."""
     if isinstance(seed_index, bool) or not isinstance(seed_index, (int, np.integer)):
         raise TypeError(f"seed_index must be an int (a seed's index in the run, 0 for the first) or None for the "
                         f"run's best seed; got {seed_index!r} ({type(seed_index).__name__})")
@@ -838,21 +677,16 @@ def checked_seed_index(seed_index: Any) -> int:
 
 
 def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
-    """Gymnasium's action space of a continuous `env` (`Env.action_low`/`action_high`: for an MJX
-    task each actuator's ctrlrange, which `MjxEnv.action_to_ctrl` scales [-1, 1] to)."""
     return np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32)
 
 
 def to_action_space(action: jax.Array, low: np.ndarray, high: np.ndarray) -> jax.Array:
-    """A policy action in [-1, 1] as the control the task applies: `MjxEnv.action_to_ctrl`'s
-    arithmetic (centre + a * half-range), so the two agree to the bit."""
+    """An action in [-1, 1] as the control the task applies (`MjxEnv.action_to_ctrl`'s arithmetic)."""
     return 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
 
 
 def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
-    """`obs` (one observation or a batch) as float32 numpy, refused with a clear error unless its
-    last axis has `size` values and every one is finite: a policy fed NaN answers NaN or an
-    arbitrary action without a word, which is how broken physics goes unnoticed."""
+    """`obs` as float32 numpy, refused unless of `size` and finite (so that broken physics is noticed)."""
     obs = np.asarray(obs, np.float32)
     if obs.shape[-1:] != (size,):
         raise ValueError(f"{env_name} observations have size {size}; got shape {obs.shape}")
@@ -868,8 +702,7 @@ def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
 
 
 def checked_frames(frames, env_name: str, shape: tuple[int, ...]) -> np.ndarray:
-    """`frames` (one camera image or a batch) as uint8 numpy, refused with a clear error unless
-    they are uint8 images of `shape`: float images (say in [0, 1]) would be read as nearly black."""
+    """`frames` as uint8 numpy, refused unless uint8 images of `shape` (float ones would look black)."""
     frames = np.asarray(frames)
     if frames.dtype != np.uint8 or frames.shape[-3:] != tuple(shape):
         raise ValueError(f"{env_name} observes uint8 camera images of shape {tuple(shape)} (height, width, "
@@ -878,14 +711,8 @@ def checked_frames(frames, env_name: str, shape: tuple[int, ...]) -> np.ndarray:
 
 
 def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[[np.ndarray], np.ndarray]:
-    """The policy of a `mjxsuite train --out` directory: `policy(obs) -> action(s)`.
-
-    Takes one observation or a batch (numpy or JAX). DQN's greedy policy returns integer
-    actions; PPO's and SAC's deterministic policy (the mode) float32 actions in the task's
-    Gymnasium action space. With several trained seeds it uses the run's best seed
-    (`checkpoint.best_seed`) unless `seed_index` picks one. Non-finite observations are refused;
-    a run trained on camera images (`observation="pixels"`) takes uint8 frames as its env gives them.
-    """
+    """The policy of a run directory, `policy(obs) -> action(s)` in the task's action space, for one
+    observation or a batch, with the run's best seed unless `seed_index` picks one."""
     if seed_index is not None:
         checked_seed_index(seed_index)  # before anything loads
     env_name, env, agent, params = load_agent(out_dir)

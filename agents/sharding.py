@@ -1,16 +1,6 @@
-"""Spreading a run's agents (seeds, and a sweep's configs times seeds) over devices and hosts
-with JAX's own SPMD: a 1-D `jax.sharding.Mesh` whose one axis is the agent axis, the train
-state and keys split along it by a `NamedSharding`, and each device running its share of
-the agents by `shard_map` (batched inside as on one device: `agents.run.seed_batched`).
-
-Agents never talk to each other, so the sharded program has no collectives: K devices run
-K independent slices of the same computation. On one device nothing here is used and a run
-is the program it always was.
-
-Across hosts, `initialize_distributed` calls `jax.distributed.initialize`; the mesh then
-spans every device of every process, each process holds its own devices' agents, and
-`to_host` gathers them (a collective all processes join) for the metrics, checkpoints and
-the final evaluation, which process 0 alone writes (`is_writer`).
+"""Spreading a run's agents (seeds, a sweep's configs times seeds) over devices and hosts: a 1-D mesh over
+the agent axis, each device running its share by `shard_map`, with no collectives (agents never talk).
+Across hosts `to_host` gathers the agents and process 0 alone writes (`is_writer`).
 """
 
 from __future__ import annotations
@@ -29,16 +19,12 @@ DISTRIBUTED_ENV = "MJXSUITE_DISTRIBUTED"
 
 
 def distributed_requested(flag: bool = False) -> bool:
-    """`--distributed`, or MJXSUITE_DISTRIBUTED=1 in the environment."""
     return flag or os.environ.get(DISTRIBUTED_ENV, "").lower() in ("1", "true", "yes")
 
 
 def initialize_distributed() -> None:
-    """Join the other processes of a multi-host run (before any JAX computation).
-
-    JAX reads the coordinator's host:port from JAX_COORDINATOR_ADDRESS, and detects the
-    process count and index itself under SLURM, Open MPI, Kubernetes and Cloud TPU; elsewhere
-    JAX_NUM_PROCESSES and JAX_PROCESS_ID give them (JAX itself does not read those two)."""
+    """Join a multi-host run (before any JAX computation); beside what JAX reads or detects itself,
+    JAX_NUM_PROCESSES and JAX_PROCESS_ID give the count and index."""
     count, index = os.environ.get("JAX_NUM_PROCESSES"), os.environ.get("JAX_PROCESS_ID")
     try:
         jax.distributed.initialize(num_processes=int(count) if count else None,
@@ -54,22 +40,18 @@ def is_writer() -> bool:
     return jax.process_index() == 0
 
 
-# Seen with jax 0.11.2 on two GPUs (docs/upstream-two-gpu-mjx.md): XLA's GPU compiler
-# segfaults compiling a batched MJX step under shard_map over two GPUs (`benchmarks.two_gpu_mjx`
-# reproduces it; the same env's reset, a batched Cholesky and the analytic CartPole compile fine).
-# So `mjxsuite train` spreads an MJX task's seeds over GPUs as one process per GPU (`agents.processes`).
+# XLA's GPU compiler segfaults on a batched MJX step under shard_map over GPUs (docs/upstream-two-gpu-mjx.md),
+# so `mjxsuite train` spreads an MJX task's seeds as one process per GPU (`agents.processes`).
 MJX_OVER_GPUS = ("an MJX task's step, spread over several GPUs in one program, crashes XLA's GPU compiler "
                  "(a segmentation fault; docs/scaling.md), so an MJX task takes one GPU per process: "
                  "`mjxsuite train` starts one process per GPU")
 
 
 def choose_devices(seeds: int, devices: int | None = None, configs: int = 1, mjx_task: str | None = None) -> list:
-    """The devices for `configs` x `seeds` agents: every device of every process in a multi-host
-    run; on one host `devices` local devices (None: all of them when the agents split evenly
-    over them, else the most that do, so one seed still runs on a machine with several GPUs).
-    ValueError when they do not split evenly, naming the --seeds that would. An MJX task
-    (`mjx_task`, its name) stays on one GPU: by default with a warning, refused when asked for more
-    (`MJX_OVER_GPUS`; `mjxsuite train` runs one process per GPU instead, `agents.processes`)."""
+    """The devices for `configs` x `seeds` agents: every device of every process in a multi-host run;
+    on one host `devices` local ones (None: the most that split the agents evenly). ValueError when
+    they do not split, naming the --seeds that would. An MJX task (`mjx_task`, its name) stays on one
+    GPU (`MJX_OVER_GPUS`): with a warning by default, refused when asked for more."""
     multi_host = jax.process_count() > 1
     available = jax.devices() if multi_host else jax.local_devices()
     agents = configs * seeds
@@ -110,8 +92,8 @@ def seeds_that_split(seeds: int, parts: int, configs: int = 1) -> str:
 
 
 class Placement:
-    """Where a run's agents live. One device: `mesh` is None and every method leaves the
-    program and its arrays as they always were. Several: a 1-D mesh over the agent axis."""
+    """Where a run's agents live: on one device `mesh` is None and every method leaves programs and
+    arrays as they are; on several, a 1-D mesh over the agent axis."""
 
     def __init__(self, devices: list):
         self.devices = list(devices)
@@ -126,20 +108,18 @@ class Placement:
         if self.mesh is None:
             return fn
         spec = PartitionSpec(AXIS)
-        # check_vma off: every input and output is split along the agent axis and nothing is
-        # replicated, so there is nothing for JAX's replication check to prove.
+        # check_vma off: everything is split along the agent axis, nothing replicated, nothing to check
         return jax.shard_map(fn, mesh=self.mesh, in_specs=spec, out_specs=spec, check_vma=False)
 
     def abstract(self, tree: Any) -> Any:
-        """`tree`'s shapes and dtypes (weak types kept), split over the mesh as `put` splits
-        arrays: what a program is compiled for before its arrays exist."""
+        """`tree`'s shapes and dtypes (weak types kept), split as `put` splits arrays: what a program
+        is compiled for before its arrays exist."""
         sharding = None if self.mesh is None else NamedSharding(self.mesh, PartitionSpec(AXIS))
         return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type,
                                                            sharding=sharding), tree)
 
     def put(self, tree: Any) -> Any:
-        """Host arrays with a leading agent axis, split over the mesh (each process places only
-        its own devices' slices)."""
+        """Host arrays with a leading agent axis, split over the mesh (each process places its own slices)."""
         if self.mesh is None:
             return tree
         sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
@@ -151,8 +131,7 @@ class Placement:
         def place_on(device):  # every leaf's slice for one device
             return [jax.device_put(x[where[device]], device) for x, where in zip(leaves, slices)]
 
-        # One thread per device: a process's first placement on a GPU is where XLA reserves most of
-        # its memory, and the devices' reservations run at once this way, one after another otherwise
+        # One thread per device: the first placement reserves each GPU's memory, at once this way
         # (docs/bench-gpu.json, "first-placement").
         with ThreadPoolExecutor(max_workers=max(1, len(local)), thread_name_prefix="mjxsuite-put") as pool:
             on_device = list(pool.map(place_on, local))
@@ -161,8 +140,7 @@ class Placement:
             for i, x in enumerate(leaves)])
 
     def to_host(self, tree: Any) -> Any:
-        """Numpy arrays of every agent, on every process (a collective in a multi-host run:
-        every process must call it at the same point)."""
+        """Numpy arrays of every agent, on every process (a collective in a multi-host run)."""
         if jax.process_count() > 1:
             from jax.experimental import multihost_utils
 
@@ -170,8 +148,8 @@ class Placement:
         return jax.device_get(tree)
 
     def same_on_every_process(self, decision: bool) -> bool:
-        """Process 0's `decision` on every process (e.g. whether to save now, which depends on
-        each host's clock): a multi-host run's processes must gather at the same chunks."""
+        """Process 0's `decision` on every process (e.g. whether to save now, by each host's clock):
+        a multi-host run's processes must gather at the same chunks."""
         if jax.process_count() == 1:
             return decision
         from jax.experimental import multihost_utils

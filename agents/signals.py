@@ -1,20 +1,8 @@
-"""Stopping a run on SIGINT (Ctrl-C) or SIGTERM (a cluster scheduler's warning) without raising
-inside a callback that XLA or MuJoCo Warp calls.
-
-Python runs a signal handler in the main thread at the next bytecode, wherever that is: inside
-MuJoCo Warp's JAX FFI callback, a KeyboardInterrupt aborted the process (`free(): invalid size`)
-and nothing was saved. So the handler only records the signal; the run asks
-`stop.requested` where Python holds control (between chunks, before the final evaluation),
-saves, and returns. A second signal forces the exit at once, without saving.
-
-    with StopSignals() as stop:
-        for chunk in ...:
-            ...
-            if stop.requested:
-                break
-
-Outside the main thread (where Python cannot install handlers) it installs nothing and
-`requested` stays None: Ctrl-C then raises KeyboardInterrupt as usual.
+"""Stopping a run on SIGINT (Ctrl-C) or SIGTERM (a scheduler's warning) without raising inside a
+callback that XLA or MuJoCo Warp calls (docs/mjx.md, "MuJoCo Warp and CUDA graphs"): the handler only
+records the signal, and the run checks `stop.requested` between chunks, saves and returns. A second
+signal exits at once, without saving. Outside the main thread nothing is installed: Ctrl-C raises
+KeyboardInterrupt as usual.
 """
 
 from __future__ import annotations
@@ -24,16 +12,14 @@ import signal
 import threading
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-# The pid of the `agents.processes` parent that started this process (`die_with_parent`).
+# The pid of the `agents.processes` parent of this process (`die_with_parent`).
 PARENT_PID_ENV = "MJXSUITE_PARENT_PID"
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def die_with_parent() -> None:
-    """In a child of `agents.processes` (PARENT_PID_ENV set): a SIGTERM when the parent ends,
-    however it ends (SIGKILL included), so that the child stops and saves as on the parent's own
-    SIGTERM instead of training on, orphaned. Linux's prctl(PR_SET_PDEATHSIG) where there is one;
-    elsewhere a thread that watches the parent's pid. A parent gone before this ran counts too."""
+    """In a child of `agents.processes`: a SIGTERM when the parent ends, even by SIGKILL, so that the child
+    stops and saves instead of training on, orphaned (prctl, or a thread watching the parent's pid)."""
     parent = os.environ.get(PARENT_PID_ENV)
     if not parent:
         return
@@ -60,8 +46,7 @@ def exit_status(signum: int) -> int:
     return 128 + int(signum)
 
 
-# A signal that came before any run installed its handlers (`catch_early`): during the imports
-# and the checks of the command line. The run's `StopSignals` takes it over.
+# A signal that came before any run installed its handlers (`catch_early`); `StopSignals` takes it over.
 _pending: int | None = None
 
 
@@ -75,18 +60,15 @@ def _early(signum, frame) -> None:
 
 
 def catch_early() -> None:
-    """From the first line of the `mjxsuite` command: a signal during its imports (seconds: JAX,
-    CUDA's plugin, MuJoCo) is recorded instead of raising there. A KeyboardInterrupt raised
-    inside CUDA's plugin start made JAX fall back to the CPU, and one inside an import left a
-    traceback. `release_early` or the run's `StopSignals` then act on it."""
+    """Record a signal during the command's imports instead of raising there (inside CUDA's plugin start,
+    a KeyboardInterrupt made JAX fall back to the CPU); `release_early` or `StopSignals` act on it."""
     if threading.current_thread() is threading.main_thread():
         for signum in STOP_SIGNALS:
             signal.signal(signum, _early)
 
 
 def release_early() -> None:
-    """Give the signals back their usual meaning (for commands that are no training run); a
-    signal that came meanwhile exits now, with its status."""
+    """Give the signals back their usual meaning (commands that train nothing); one that came exits now."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -95,8 +77,7 @@ def release_early() -> None:
 
 
 class _Catching:
-    """While active (in the main thread), SIGINT and SIGTERM go to `_handle`; `requested` is the
-    first signal's number, one that came during the imports (`catch_early`) included."""
+    """While active, SIGINT and SIGTERM go to `_handle`; `requested`: the first one's number."""
 
     def __init__(self):
         self.requested: int | None = None
@@ -130,15 +111,13 @@ class _Catching:
 
 
 class StopSignals(_Catching):
-    """While active, SIGINT and SIGTERM set `requested` (the first signal's number) instead of
-    raising; a second one exits the process at once with `exit_status`. Once the run calls
-    `finishing`, nothing stops it any more but a second signal, and a first one says so."""
+    """While active, SIGINT and SIGTERM set `requested` instead of raising; a second one exits at
+    once. After `finishing`, only a second signal stops the run."""
 
     finishing_what: str | None = None
 
     def finishing(self, what: str) -> None:
-        """From here the run ends `what` (e.g. its final evaluation) whatever a first signal asks,
-        and that signal's message says so instead of announcing a stop."""
+        """From here the run ends `what` whatever a first signal asks, and that signal's message says so."""
         self.finishing_what = what
 
     def _handle(self, signum, frame) -> None:
@@ -159,11 +138,8 @@ class StopSignals(_Catching):
 
 
 class ForwardSignals(_Catching):
-    """While active, SIGINT and SIGTERM are passed on to the child processes `children()` returns
-    (`subprocess.Popen`s) instead of stopping this one: `agents.processes`'s children are runs
-    that stop and save on a first signal and exit at once on a second (`StopSignals`), so each
-    signal this process gets reaches each child exactly once. `requested`: the first signal's
-    number (one that came before, during the imports, included)."""
+    """While active, SIGINT and SIGTERM are passed on to the `subprocess.Popen`s `children()` returns,
+    each signal to each child exactly once (a child's second signal exits it without saving)."""
 
     def __init__(self, children):
         super().__init__()
@@ -181,8 +157,7 @@ class ForwardSignals(_Catching):
                 self.reached.add(child.pid)
 
     def catch_up(self, child) -> None:
-        """Pass the first signal on to `child` if it started while the signal came (before
-        `children()` listed it), once."""
+        """Pass the first signal on, once, to `child` if it started as the signal came."""
         if self.requested is not None and child.pid not in self.reached:
             self.reached.add(child.pid)
             child.send_signal(self.requested)

@@ -1,27 +1,7 @@
-"""Traced programs kept across processes with `jax.export`, beside JAX's compilation cache.
-
-JAX's persistent compilation cache (`agents.jax_compile_cache`) skips XLA's compile on a
-second run, but not what comes before it: tracing the Python function and lowering it
-to StableHLO. For an MJX training chunk that is seconds of tracing `mjx.step`. This cache
-stores the lowered program (`jax.export`'s serialized `Exported`) in a file named by a
-hash of everything that could change it; a later process deserializes it in
-milliseconds, and the compile that follows is a hit in JAX's persistent cache.
-
-It is switched with the compilation cache: `agents.jax_compile_cache.enable()` (which the
-`mjxsuite` command calls) turns it on in `<compilation cache dir>/mjxsuite-export`,
-`disable()` or `MJXSUITE_COMPILE_CACHE=0` leave it off. Python users who enable
-nothing trace as before. Delete the directory to clear it.
-
-The key (see `cached_compile` and `environment_fingerprint`) covers the caller's
-description of the program, the arguments' shapes and dtypes, the versions of jax,
-jaxlib, mujoco, mujoco-mjx, flax, optax and numpy, the device, JAX's configuration,
-and the source of the `envs` and `agents` packages and of the suite's MJCF models.
-Code outside them that the program traces is covered only where the caller adds it
-(`env_fingerprint` does for an env's class and MuJoCo model).
-
-Custom pytree nodes (flax dataclasses, `mjx.Data`, ...) do not serialize with
-`jax.export`, so the exported function takes and returns flat lists of leaves; the
-input and output tree structures are pickled next to it.
+"""Traced programs kept across processes with `jax.export`, beside JAX's compilation cache (which skips
+XLA's compile, not the tracing before it), in files named by a hash of everything that could change
+them; switched with that cache (docs/results.md, "Startup"). Custom pytree nodes do not serialize, so
+the exported function takes and returns flat lists of leaves, the trees pickled beside it.
 """
 
 from __future__ import annotations
@@ -83,16 +63,13 @@ class CachedProgram:
 
 def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
                    donate: bool = False, compiler_options: dict | None = None) -> CachedProgram:
-    """`fn` compiled for `args` (a tuple of pytrees of arrays), its traced program loaded from
-    `cache_dir` when there, else traced, exported and written there: `cached_lower(...).compile()`."""
     return cached_lower(fn, args, key_parts, cache_dir, donate, compiler_options).compile()
 
 
 @dataclass(frozen=True)
 class LoweredProgram:
-    """A program traced and lowered, not yet compiled. Tracing and lowering are Python and
-    hold Python's lock; `compile()` is XLA's work and does not, so a caller can compile one
-    program on another thread while it traces the next (`agents.run`)."""
+    """A program traced and lowered, to compile (without Python's lock) on another thread while the
+    caller traces the next (`agents.run`)."""
 
     lowered: Any  # jax.stages.Lowered
     compiler_options: dict | None
@@ -110,17 +87,9 @@ class LoweredProgram:
 
 def cached_lower(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
                  donate: bool = False, compiler_options: dict | None = None) -> LoweredProgram:
-    """`fn` lowered for `args` (a tuple of pytrees of arrays), its traced program loaded from
-    `cache_dir` when there, else traced, exported and written there; `.compile()` gives a
-    `CachedProgram`.
-
-    `key_parts` (JSON-able; other values count by `repr`) must describe every input of the
-    trace that the arguments' shapes and `environment_fingerprint()` do not: the config,
-    the env, the code outside the suite's packages. `donate` donates the first argument's
-    buffers, as `jax.jit(fn, donate_argnums=0)` does; `compiler_options` go to XLA (`Lowered.compile`). A file that cannot be read
-    is traced again and overwritten; a program that cannot be exported (e.g. one with
-    host callbacks) is compiled without the cache.
-    """
+    """`fn` lowered for `args` (pytrees of arrays), its trace loaded from `cache_dir` or exported there.
+    `key_parts` (JSON-able, else by `repr`) must describe every input of the trace that the shapes and
+    `environment_fingerprint()` do not; `donate` donates the first argument's buffers."""
     leaves, in_tree = jax.tree.flatten(args)
     donated = len(jax.tree.leaves(args[0])) if donate and args else 0  # the first argument's leaves lead
     path = cache_file(cache_dir, key_parts, args)
@@ -130,13 +99,14 @@ def cached_lower(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.
             return _lower(exported.call, leaves, donated, compiler_options, out_tree, hit=True)
         except Exception as err:  # corrupt, truncated, or from an incompatible jax: trace again
             warnings.warn(f"ignoring unreadable cached program {path} ({type(err).__name__}: {err}); tracing again")
+    flat, found = _flat(fn, in_tree)
     try:
-        blob, out_tree = _export(fn, in_tree, leaves)
+        blob = bytes(jax.export.export(jax.jit(flat))(leaves).serialize())
     except Exception as err:
         warnings.warn(f"cannot cache this program ({type(err).__name__}: {err}); compiling it without the cache")
-        flat, found = _flat(fn, in_tree)
         lowered = _split_jit(flat).lower(leaves[:donated], leaves[donated:])  # traces `flat`: fills `found`
         return LoweredProgram(lowered, compiler_options, found["out_tree"], donated)
+    out_tree = found["out_tree"]
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
     exported = jax.export.deserialize(bytearray(blob))
@@ -146,17 +116,14 @@ def cached_lower(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.
 def compile_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
                         extra: dict | None = None, donate: bool = False,
                         compiler_options: dict | None = None) -> Callable:
-    """`fn` (a program that runs `env`) compiled for `args`: `lower_env_program(...).compile()`."""
     return lower_env_program(program, fn, args, env, env_name, env_options, extra, donate, compiler_options).compile()
 
 
 def lower_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
                       extra: dict | None = None, donate: bool = False,
                       compiler_options: dict | None = None) -> LoweredProgram:
-    """`fn` (a program that runs `env`) lowered for `args`: through this cache when it is on
-    and the env can be fingerprinted, else by plain `jax.jit`. The key is `program`, the
-    env's name, options and `env_fingerprint`, and `extra` (whatever else the trace depends
-    on: a config, the number of seeds, static sizes)."""
+    """`fn` (a program that runs `env`) lowered for `args`: through this cache when it is on and the
+    env can be fingerprinted, else by plain `jax.jit`. `extra`: whatever else the trace depends on."""
     key_parts = program_key_parts(program, env, env_name, env_options, extra) if _directory is not None else None
     if key_parts is None:  # cache off, or an env whose code cannot be hashed
         return LoweredProgram(jax.jit(fn, donate_argnums=0 if donate else ()).lower(*args), compiler_options)
@@ -165,10 +132,8 @@ def lower_env_program(program: str, fn: Callable, args: tuple, env, env_name: st
 
 def program_key_parts(program: str, env, env_name: str, env_options: dict | None,
                       extra: dict | None = None) -> dict | None:
-    """`compile_env_program`'s key, less the arguments' shapes and `environment_fingerprint`
-    (`cache_file` adds those); None when the env cannot be fingerprinted, or runs MuJoCo Warp:
-    `jax.export` refuses Warp's FFI calls (custom calls without compatibility guarantees), after
-    a whole trace, with the program's text in the error."""
+    """`lower_env_program`'s key, less what `cache_file` adds; None when the env cannot be
+    fingerprinted, or runs MuJoCo Warp, whose FFI calls `jax.export` refuses (after a whole trace)."""
     if runs_warp(env):
         return None
     fingerprint = env_fingerprint(env)
@@ -179,18 +144,16 @@ def program_key_parts(program: str, env, env_name: str, env_options: dict | None
 
 
 def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
-    """The file that holds the program for `key_parts`, `args`' shapes and dtypes, and this
-    environment (`environment_fingerprint`)."""
+    """The file for `key_parts`, `args`' shapes and dtypes, and `environment_fingerprint()`."""
     leaves, in_tree = jax.tree.flatten(args)
-    # Static data in the tree (e.g. mjx's wrapped arrays) may print as addresses; `_read`
-    # compares the whole structure, contents included, before a file is used.
+    # Static data in the tree may print as addresses; `_read` compares the whole structure before use.
     signature = [_without_addresses(str(in_tree)), [str(jax.typeof(leaf)) for leaf in leaves]]
     return Path(cache_dir) / f"{_hash([key_parts, signature, environment_fingerprint()])}.pkl"
 
 
 def _flat(fn: Callable, in_tree) -> tuple[Callable, dict]:
-    """`fn` over one flat list of leaves, returning a flat list; its output structure
-    lands in the returned dict (under "out_tree") when it is traced."""
+    """`fn` over one flat list of leaves, returning one; its output structure lands in the returned
+    dict (under "out_tree") when it is traced."""
     found = {}
 
     def flat(leaves):
@@ -201,13 +164,6 @@ def _flat(fn: Callable, in_tree) -> tuple[Callable, dict]:
     return flat, found
 
 
-def _export(fn: Callable, in_tree, leaves: list) -> tuple[bytes, Any]:
-    """The serialized program of `fn` over flat leaves, and its output tree structure."""
-    flat, found = _flat(fn, in_tree)
-    exported = jax.export.export(jax.jit(flat))(leaves)
-    return bytes(exported.serialize()), found["out_tree"]
-
-
 def _split_jit(flat_fn: Callable):
     """`flat_fn` (over one list of leaves) jitted as (head, tail) with the head donated."""
     return jax.jit(lambda head, tail: flat_fn([*head, *tail]), donate_argnums=0)
@@ -215,8 +171,6 @@ def _split_jit(flat_fn: Callable):
 
 def _lower(flat_fn: Callable, leaves: list, donated: int, compiler_options: dict | None, out_tree,
            hit: bool) -> LoweredProgram:
-    """`flat_fn` (over one list of leaves) lowered for `leaves`, the first `donated` of them
-    donated; compiled, it is called with one list, as `CachedProgram` calls it."""
     lowered = _split_jit(flat_fn).lower(leaves[:donated], leaves[donated:])
     return LoweredProgram(lowered, compiler_options, out_tree, donated, hit)
 
@@ -233,8 +187,7 @@ def _read(path: Path, in_tree) -> tuple[Any, Any]:
 
 
 def _write(path: Path, entry: dict) -> None:
-    """Write atomically (temporary file, then rename), so a concurrent run reads whole files only.
-    A cache that cannot be written is not an error: the run goes on without it."""
+    """Write atomically, so a concurrent run reads whole files only; a failure only warns."""
     temporary = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -278,10 +231,8 @@ def environment_fingerprint() -> dict:
 
 
 def env_fingerprint(env) -> dict | None:
-    """What an env adds to the key: its description, the source of its class (a user's task
-    lives outside the hashed packages) and, for an MJX env, its MuJoCo model (which may come
-    from the user's own MJCF file). None when a class's source file cannot be found (e.g.
-    defined at an interactive prompt): such an env's program must not be cached."""
+    """What an env adds to the key: its description, its classes' source and its MuJoCo model, if any.
+    None when a class has no source file (e.g. defined at a prompt): its program must not be cached."""
     task = env.unwrapped
     sources = set()
     for cls in type(task).__mro__:
