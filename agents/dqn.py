@@ -1,10 +1,8 @@
 """DQN with uniform or prioritized replay, the whole training loop inside `lax.scan`.
 
-Read top to bottom: config -> transition packing -> train state -> acting and
-collecting -> the Q-learning update -> greedy evaluation -> one training chunk ->
-`train`. `train(config, env, key)` is pure and jittable, and `jax.vmap`s over
-seeds; the CLI drives the same chunks from the host to show progress and write
-checkpoints between them.
+Read top to bottom: config -> transition packing -> train state -> acting and collecting -> the
+Q-learning update -> greedy evaluation -> one training chunk -> `train`. `train(config, env, key)`
+is pure, jittable and vmaps over seeds; the CLI drives the same chunks from the host.
 """
 
 from __future__ import annotations
@@ -21,7 +19,6 @@ from flax import struct
 from jax.flatten_util import ravel_pytree
 
 from agents import device_options, evaluation, fused_mlp
-from agents.evaluation import EvalEpisode  # noqa: F401 (agents.dqn.EvalEpisode, as before)
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, wrap_for_training
@@ -59,9 +56,8 @@ class DQNConfig:
     eval_episodes: int = 64  # episodes per evaluation
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
-    # The one validation of a config (`__post_init__`): every run, resumed ones included,
-    # is refused here before anything compiles. Exploration and priority annealing need
-    # at least one step: optax makes a zero-step schedule a constant at its start value.
+    # Every run, resumed ones included, is validated here before anything compiles. Exploration and
+    # priority annealing need a step at least: optax makes a zero-step schedule a constant.
     RANGES: ClassVar[dict[str, Range]] = {
         "total_steps": COUNT, "num_envs": COUNT, "learning_starts": NON_NEGATIVE_COUNT, "train_every": COUNT,
         "gradient_steps": COUNT, "learning_rate": POSITIVE, "gamma": PROBABILITY,
@@ -101,8 +97,7 @@ class DQNConfig:
         return max(1, math.ceil(self.total_steps / self.eval_every))
 
     def rounding(self) -> str:
-        """How `total_steps` became the run's env steps, whole chunks of `eval_every` ("" when it
-        needed no rounding); the command line says it before anything compiles."""
+        """How `total_steps` became whole chunks of `eval_every` ("" when it needed no rounding)."""
         steps = self.num_chunks * self.eval_every
         if steps == self.total_steps:
             return ""
@@ -111,24 +106,25 @@ class DQNConfig:
 
     @property
     def chunk_work(self) -> tuple[int, int]:
-        """(batched env steps, gradient updates) of one chunk, run one after another: the judge
-        cadence's cost model (`agents.run_steps.judge_every`)."""
+        """(batched env steps, gradient updates) of one chunk: `agents.run_steps.judge_every`'s cost model."""
         return self.iterations_per_chunk * self.train_every, self.iterations_per_chunk * self.gradient_steps
 
 
-# ---- hyperparameters that may be traced: what `mjxsuite sweep` varies within one program ----
-# Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a
-# Python branch), so one compiled program can run a different value per agent.
+# ---- what `mjxsuite sweep` may vary within one program: fields used only as numbers in the
+# update arithmetic (never as a shape, a loop count or a Python branch) ----
 SWEEPABLE = ("learning_rate", "gamma", "polyak_tau", "epsilon_start", "epsilon_end", "priority_beta_start")
 
 
-class Hyperparams(NamedTuple):
-    """The numbers `DQN` reads from `SWEEPABLE` fields: Python floats for one config (constants
-    in the program, as always), or per-agent float32 arrays in a sweep (`TrainState.hyperparams`).
+def stack_hyperparams(cls, configs: list):
+    """`cls` (an agent's Hyperparams) of one float32 array per field, one entry per config: a sweep's values."""
+    rows = [cls.of(c) for c in configs]
+    return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
 
-    The differences the library computed in Python double precision (optax's `1 - tau`, a
-    schedule's `start - end`) are precomputed here the same way, so a swept agent does the same
-    float32 arithmetic as a separate run of its config, bit for bit."""
+
+class Hyperparams(NamedTuple):
+    """The numbers `DQN` reads from `SWEEPABLE` fields: Python floats for one config, or per-agent float32
+    arrays in a sweep. Differences optax computes in double precision are precomputed here, so a swept
+    agent is bit for bit a separate run of its config."""
 
     neg_learning_rate: Any  # optax.scale(-learning_rate)
     gamma: Any
@@ -144,16 +140,11 @@ class Hyperparams(NamedTuple):
                    polyak_keep=1.0 - config.polyak_tau, epsilon_span=config.epsilon_start - config.epsilon_end,
                    epsilon_end=config.epsilon_end, beta_span=config.priority_beta_start - 1.0)
 
-    @classmethod
-    def stacked(cls, configs: list["DQNConfig"]) -> "Hyperparams":
-        """One float32 array per field, one entry per config: a sweep's traced values."""
-        rows = [cls.of(c) for c in configs]
-        return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
+    stacked = classmethod(stack_hyperparams)
 
 
 def linear_schedule(span, end, steps: int, count):
-    """optax.linear_schedule(end + span, end, steps)(count), with `span` given rather than
-    computed from traced values (see `Hyperparams`): the same operations in the same order."""
+    """optax.linear_schedule(end + span, end, steps)(count), its `span` precomputed (`Hyperparams`)."""
     frac = 1 - jnp.clip(count, 0, steps) / steps
     return span * frac + end
 
@@ -161,12 +152,9 @@ def linear_schedule(span, end, steps: int, count):
 # Named configs for `mjxsuite train --preset NAME` (fields set after it still apply).
 PRESETS = {
     "default": DQNConfig(),
-    # Many envs per agent, large batches, several updates per iteration: on a GPU it solves
-    # CartPole-v1 in far less wall time than the one-env default (docs/results.md), since an
-    # iteration costs about the same for 1 or 32 envs there. On a CPU the default is faster.
-    # One seed on a CPU, CartPole solved in the fewest seconds: a larger step, a shorter random
-    # phase and exploration, and a judge every 500 steps (the judge's budget spaces them out).
+    # One seed on a CPU, CartPole solved soonest: a larger step, shorter random phase and exploration.
     "quick": DQNConfig(learning_rate=4e-3, learning_starts=500, exploration_steps=2_000, eval_every=500),
+    # On a GPU an iteration of 32 envs costs about one env's, so it solves sooner (docs/results.md).
     "many-envs": DQNConfig(num_envs=32, batch_size=512, gradient_steps=4, learning_rate=2e-3, learning_starts=4096,
                            exploration_steps=16_384, eval_every=4096, total_steps=300_000, polyak_tau=0.02),
 }
@@ -193,12 +181,9 @@ def unpack(rows: jax.Array, obs_size: int) -> Transition:
 
 
 def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The greedy action over the last axis of `q` (the actions) and its value: `jnp.argmax(q,
-    axis=-1)` and `q` there, as a chain of elementwise comparisons, one per action (ties go to the
-    first action and a NaN wins, as in `jnp.argmax`). Why: XLA's argmax is a reduction to a
-    (value, index) pair, which on a GPU does not vectorise over a short axis; for the TD target of
-    many agents x replayed rows x 2 actions it was a visible part of an iteration, where the
-    comparisons fuse with the ops around them (docs/bench-gpu.json, "dqn-greedy")."""
+    """`jnp.argmax(q, axis=-1)` and `q` there, as elementwise comparisons, one per action (ties go to
+    the first action, a NaN wins, as in `jnp.argmax`): on a GPU XLA's argmax reduction does not
+    vectorise over a short axis, the comparisons fuse (docs/bench-gpu.json, "dqn-greedy")."""
     best_action = jnp.zeros(q.shape[:-1], jnp.int32)
     best = q[..., 0]
     for action in range(1, q.shape[-1]):
@@ -210,12 +195,7 @@ def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
 
 
 class StepNoise(NamedTuple):
-    """Random bits (uint32) for one iteration of the training loop.
-
-    A chunk draws them for all its iterations in one `jax.random.bits` call before its
-    scan: XLA:CPU runs each `jax.random` call as a loop of tiny kernels, so drawing
-    inside the loop was a visible part of a training step.
-    """
+    """Random bits (uint32) for one iteration, drawn for a whole chunk at once (XLA:CPU loops per call)."""
 
     act: jax.Array  # (train_every, 2, num_envs): explore-or-not coin, random action
     sample: jax.Array  # (gradient_steps, batch_size): one per replayed transition
@@ -237,12 +217,21 @@ class TrainState:
     hyperparams: Hyperparams | None = None  # a sweep's per-agent values; None: the config's constants
 
 
+def first_state(params, env_state, key: jax.Array) -> dict:
+    """The train-state fields a run starts with (DQN, SAC, TD3): no steps taken, `params` the best so far."""
+    return dict(env_state=env_state, key=key, env_steps=jnp.zeros((), jnp.int32), best_params=params,
+                best_return=jnp.full((), -jnp.inf), solve_step=jnp.full((), -1, jnp.int32))
+
+
+# What a chunk adds up over its iterations (an agent's `CHUNK_TOTALS`, with its losses), with their
+# types: the loop's carry needs no extra trace of an iteration to learn them.
+EPISODE_TOTALS = {"episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
+                  "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32}
+
+
 def copy_where(copy: jax.Array, new: Any, old: Any, batch_skips: bool = False) -> Any:
-    """`new` where the scalar `copy` is true, else `old` (pytrees of the same structure), as
-    `jnp.where` per leaf. With `batch_skips`, vmapped over agents, a batch in which no agent
-    copies returns `old` as it is (one `lax.cond` for the whole batch) instead of selecting
-    every leaf of every agent: the same values, without reading and writing `old` on the
-    updates where nothing changes (hard target updates: all but one in `target_period`)."""
+    """`new` where the scalar `copy` is true, else `old`, per leaf. With `batch_skips`, vmapped, a batch where
+    no agent copies returns `old` as it is (one `lax.cond`), not rewriting it (hard target updates)."""
 
     def select(copy, new, old):
         return jax.tree.map(lambda n, o: jnp.where(copy, n, o), new, old)
@@ -268,9 +257,7 @@ class DQN:
     """The pieces of a DQN run for one env and config; all methods are pure."""
 
     def __init__(self, config: DQNConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`platform`: the backend whose program shapes to use (`agents.device_options`); None:
-        JAX's default backend. `agents`: how many agents run vmapped on one device (some
-        program shapes pay off only for many)."""
+        """`platform`: whose program shapes to use (`agents.device_options`); `agents`: how many run vmapped."""
         if env.num_actions is None:
             raise ValueError(f"DQN needs a discrete-action env; {env!r} has continuous actions")
         self.config = config
@@ -278,16 +265,14 @@ class DQN:
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.network = QNetwork(env.num_actions, tuple(config.hidden), config.dueling,
                                 transposed_kernel_gradient=device_options.transposed_kernel_gradient(platform))
-        # A dueling head stays in Flax (its two outputs are not one MLP's), and so do networks
-        # too wide for the kernels to win (`fused_mlp.fits`).
+        # A dueling head (not one MLP) and networks too wide for the kernels (`fused_mlp.fits`) stay in Flax.
         self.fused_network = (device_options.fused_q_network(platform, agents) and not config.dueling
                               and fused_mlp.fits(env.observation_size, config.hidden, env.num_actions))
         self.flat_optimizer = device_options.flat_optimizer(platform)
         self.unroll = device_options.unrolled_inner_loops(platform)
         self.batch_skips_idle_copies = device_options.batch_skips_idle_target_copies(platform)
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm else []
-        # Adam's direction only: the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
-        # would (same state leaves), so a sweep can trace the learning rate.
+        # Adam's direction only, scaled by `hyper.neg_learning_rate` as optax.adam would: a sweep traces it.
         self.optimizer = optax.chain(*clip, optax.scale_by_adam())
         vectorized = device_options.vectorized_replay(platform)
         if config.replay == "uniform":
@@ -297,7 +282,7 @@ class DQN:
         self.hyper = Hyperparams.of(config)
 
     def with_hyperparams(self, hyper: Hyperparams | None) -> "DQN":
-        """This DQN reading `hyper` (a sweep agent's traced values) instead of its config's."""
+        """This agent (DQN, PPO) reading `hyper` (a sweep agent's traced values) instead of its config's."""
         if hyper is None or hyper is self.hyper:
             return self
         bound = copy.copy(self)
@@ -319,28 +304,21 @@ class DQN:
         return greedy(self.q_values(params, obs))[0]
 
     def batch_q_values(self, params, obs):
-        """Q-values of many rows per agent (a replayed batch, in the update's forward and backward
-        passes; the judge's episodes): `fused_mlp`'s kernels where `fused_network` (interpreted
-        where a GPU-shaped program runs on the CPU, as in the tests): the judge's episodes run
-        faster fused, with the same mean returns (docs/bench-gpu.json, "dqn-judge-fused-default").
-        Acting, one row per env, keeps Flax: fused, the training steps were slower (docs/results.md,
-        "Concurrent kernels")."""
+        """Q-values of many rows per agent (a replayed batch, the judge's episodes): `fused_mlp`'s kernels
+        where `fused_network`. Acting, one row per env, keeps Flax (docs/results.md, "Concurrent kernels")."""
         if self.fused_network:
             return fused_mlp.q_values(params, obs, interpret=device_options.on_cpu())
         return self.q_values(params, obs)
 
     def act(self, params, obs, epsilon, bits):
-        """Epsilon-greedy actions for a batch of observations; `bits` (uint32, shape
-        `(2, batch)`): the first row decides whether to explore, the second picks the
-        random action (modulo bias <= num_actions / 2**32)."""
+        """Epsilon-greedy actions; `bits` (uint32, `(2, batch)`): whether to explore, and the random action."""
         greedy_action, _ = greedy(self.q_values(params, obs))
         explore = uniform_from_bits(bits[0]) < epsilon
         random = (bits[1] % self.env.num_actions).astype(jnp.int32)
         return jnp.where(explore, random, greedy_action)
 
     def collect(self, ts: TrainState, epsilon, bits=None) -> tuple[TrainState, dict]:
-        """One step of every env; the transitions go to the buffer (NaN steps never do).
-        `bits`: `StepNoise.act` for one step, drawn from `ts.key` when not given."""
+        """One step of every env into the buffer (faulty steps never); `bits`: `StepNoise.act`, or from `ts.key`."""
         key = ts.key
         if bits is None:
             key, act_key = jax.random.split(key)
@@ -367,8 +345,7 @@ class DQN:
         return batch.reward + self.hyper.gamma * (1.0 - batch.terminated) * next_q
 
     def taken(self, q, action):
-        """`q[i, action[i]]` as a one-hot product: its gradient is a multiply, where
-        `take_along_axis` would need a scatter (slow on XLA:CPU)."""
+        """`q[i, action[i]]` as a one-hot product: its gradient a multiply, not a scatter (slow on XLA:CPU)."""
         return (q * jax.nn.one_hot(action, self.env.num_actions, dtype=q.dtype)).sum(-1)
 
     def loss(self, params, batch: Transition, targets, weights):
@@ -380,16 +357,10 @@ class DQN:
             per_item = td_error**2
         return jnp.mean(weights * per_item), (td_error, q)
 
-    def update(self, ts: TrainState, learning=True, bits=None) -> tuple[TrainState, dict]:
-        """One gradient step. With `learning` False (before `learning_starts`) it is computed
-        and thrown away: selecting the old values costs far less than a `lax.cond` on
-        XLA:CPU, and the same under vmap. `bits`: `StepNoise.sample` for one update,
-        drawn from `ts.key` when not given."""
+    def update(self, ts: TrainState, learning, bits) -> tuple[TrainState, dict]:
+        """One gradient step on the batch `bits` (`StepNoise.sample`) picks; with `learning` False (before
+        `learning_starts`) computed and thrown away, cheaper than a `lax.cond` on XLA:CPU and under vmap."""
         cfg = self.config
-        key = ts.key
-        if bits is None:
-            key, sample_key = jax.random.split(key)
-            bits = jax.random.bits(sample_key, (cfg.batch_size,), jnp.uint32)
         if cfg.replay == "uniform":
             rows, indices = self.buffer.sample_from_bits(ts.buffer, bits)
             weights = jnp.ones((cfg.batch_size,), jnp.float32)
@@ -426,13 +397,12 @@ class DQN:
             new = self.buffer.update_priorities(buffer, indices, jnp.abs(td_error))
             buffer = buffer.replace(**{f: keep_unless_learning(getattr(new, f), getattr(buffer, f))
                                        for f in ("tree", "min_tree", "max_priority")})
-        ts = ts.replace(params=params, target_params=target_params, opt_state=opt_state, buffer=buffer, key=key, updates=updates)
+        ts = ts.replace(params=params, target_params=target_params, opt_state=opt_state, buffer=buffer, updates=updates)
         return ts, {"loss": jnp.mean(weights * td_error**2), "q": q.mean()}
 
     # ---- evaluation -----------------------------------------------------------
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """Greedy (epsilon 0) return of each of `num_episodes` fresh episodes; with `record`, also
-        the first episode step by step (`agents.evaluation.evaluate`)."""
+        """Greedy return of each of `num_episodes` fresh episodes; with `record`, also the first step by step."""
         act = lambda obs: greedy(self.batch_q_values(params, obs))[0]  # noqa: E731
         return evaluation.evaluate(self.env, act, key, num_episodes or self.config.eval_episodes,
                                    jax.ShapeDtypeStruct((), jnp.int32), record)
@@ -444,53 +414,31 @@ class DQN:
         env_state = self.train_env.reset(env_key)
         params = self.network.init(param_key, env_state.obs)
         example = pack(Transition(env_state.obs[0], jnp.int32(0), env_state.reward[0], env_state.obs[0], env_state.reward[0]))
-        ts = TrainState(
-            params=params,
-            target_params=params,
+        return TrainState(
+            params=params, target_params=params,
             opt_state=self.optimizer.init(ravel_pytree(params)[0] if self.flat_optimizer else params),
-            buffer=self.buffer.init(example),
-            env_state=env_state,
-            key=loop_key,
-            env_steps=jnp.zeros((), jnp.int32),
-            updates=jnp.zeros((), jnp.int32),
-            best_params=params,
-            best_return=jnp.full((), -jnp.inf),
-            solve_step=jnp.full((), -1, jnp.int32),
-            hyperparams=hyperparams,
-        )
-        return ts
+            buffer=self.buffer.init(example), updates=jnp.zeros((), jnp.int32), hyperparams=hyperparams,
+            **first_state(params, env_state, loop_key))
 
     def draw_noise(self, key: jax.Array) -> StepNoise:
         """The random bits of every iteration of one chunk (leading axis: iteration)."""
         cfg = self.config
         act_key, sample_key = jax.random.split(key)
         iterations = cfg.iterations_per_chunk
-        return StepNoise(
-            act=jax.random.bits(act_key, (iterations, cfg.train_every, 2, cfg.num_envs), jnp.uint32),
-            sample=jax.random.bits(sample_key, (iterations, cfg.gradient_steps, cfg.batch_size), jnp.uint32),
-        )
+        act = jax.random.bits(act_key, (iterations, cfg.train_every, 2, cfg.num_envs), jnp.uint32)
+        return StepNoise(act, jax.random.bits(sample_key, (iterations, cfg.gradient_steps, cfg.batch_size), jnp.uint32))
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`eval_every` env steps of acting and learning (`train_steps`), then a greedy evaluation
-        (`evaluate_and_keep_best`). With `record`, `metrics["eval_episode"]` holds its first episode (`evaluate`'s
-        `record`), else None: the same train state and metrics from a smaller program, for runs
-        that log no episodes. `agents.run` compiles the two halves as two programs, at once."""
+        """`train_steps`, then `evaluate_and_keep_best` (`agents.run` compiles them as two programs).
+        With `record`, `metrics["eval_episode"]` holds the evaluation's first episode, else None."""
         ts, trained, eval_key = self.train_steps(ts)
         ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
         return ts, {**judged, **trained}
 
-    # What a chunk adds up over its iterations (`train_steps`): `collect`'s and `update`'s stats,
-    # and the last epsilon, with their types, so that the loop's carry needs no extra trace of an
-    # iteration to learn them (such a trace lengthened every MJX task's first compile).
-    CHUNK_TOTALS = {
-        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
-        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
-        "loss": jnp.float32, "q": jnp.float32, "epsilon": jnp.float32,
-    }
+    CHUNK_TOTALS = {**EPISODE_TOTALS, "loss": jnp.float32, "q": jnp.float32, "epsilon": jnp.float32}
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
-        """A chunk's `eval_every` env steps of acting and learning: the train state, its
-        training metrics and the key of the evaluation that follows."""
+        """A chunk's acting and learning: the train state, its metrics and the next evaluation's key."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:  # a sweep agent: its own values
             return self.with_hyperparams(ts.hyperparams).train_steps(ts)
         cfg = self.config
@@ -505,12 +453,8 @@ class DQN:
         key, noise_key, eval_key = jax.random.split(ts.key, 3)
         ts, totals = add_up(self, iteration, ts.replace(key=key), self.draw_noise(noise_key), last=("epsilon",))
         iterations = cfg.iterations_per_chunk
-        metrics = {
-            "loss": totals["loss"] / iterations,
-            "q": totals["q"] / iterations,
-            "epsilon": totals["epsilon"],  # the last iteration's
-            **evaluation.episode_metrics(totals),
-        }
+        metrics = {"loss": totals["loss"] / iterations, "q": totals["q"] / iterations,
+                   "epsilon": totals["epsilon"], **evaluation.episode_metrics(totals)}  # epsilon: the last one
         return ts, metrics, eval_key
 
     def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
@@ -520,11 +464,10 @@ class DQN:
             return self.with_hyperparams(ts.hyperparams).evaluate_and_keep_best(ts, eval_key, record)
         return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
 
+
 def add_up(agent, iteration, ts, xs, last: tuple[str, ...] = ()):
-    """`iteration: (ts, x) -> (ts, stats)` once per row of `xs`, its stats added up over the loop
-    (those named in `last`: the last iteration's) into `agent.CHUNK_TOTALS`' names and types: a
-    chunk's training. Running totals in the loop's carry, not a stacked row per iteration: on a GPU
-    each stacked metric was a kernel of its own in every iteration."""
+    """`iteration: (ts, x) -> (ts, stats)` once per row of `xs`, its stats summed (those in `last`: the last)
+    into `agent.CHUNK_TOTALS`: running totals, as on a GPU a stacked metric is a kernel per iteration."""
 
     def step(carry, x):
         ts, totals = carry
@@ -540,8 +483,7 @@ def add_up(agent, iteration, ts, xs, last: tuple[str, ...] = ()):
 
 
 def repeat(step, ts, xs, unroll: bool = False):
-    """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one
-    row, nor with `unroll`."""
+    """`step: (ts, x) -> (ts, stats)` once per row of `xs`; stats stacked. No loop for one row, nor with `unroll`."""
     if xs.shape[0] == 1:
         ts, stats = step(ts, xs[0])
         return ts, jax.tree.map(lambda x: x[None], stats)
@@ -549,7 +491,5 @@ def repeat(step, ts, xs, unroll: bool = False):
 
 
 def train(config: DQNConfig, env: Env, key: jax.Array):
-    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
-    vmap it over keys for seeds. `metrics` holds one entry per evaluation (leading axis: chunk)
-    plus `solve_step` (-1 if never solved) and `final_params`."""
+    """A whole run as one pure function (`evaluation.whole_run`): `(best_params, metrics)`; vmap it for seeds."""
     return evaluation.whole_run(DQN(config, env), key)

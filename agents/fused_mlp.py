@@ -1,20 +1,11 @@
 """The Q-network's MLP as one Pallas kernel forward and one backward, for the GPU.
 
-Why: with many agents vmapped on a GPU, every layer of every agent's small network is a
-batched matmul whose activations (e.g. 2,048 agents x 128 rows x 120 units) go to memory
-and back between kernels; on a GPU those matmuls and the ReLU/bias kernels around them
-were over half of a DQN iteration with the default config and three quarters with
-PureJaxRL's, in our program and in PureJaxRL's alike (docs/results.md, "DQN on the GPU").
-Here no activation leaves the chip: in the forward kernel one program per block of rows
-carries them through every layer and writes only the Q-values; in the backward kernel one
-program per agent recomputes the activations block by block, adds up the gradients in
-registers and writes them once.
-
-The arithmetic is the network's: `x @ kernel + bias`, ReLU between layers, plain
-products on the way back, at the float32 products' default GPU precision (TF32 on recent
-NVIDIA GPUs, as XLA's matmuls; Q-values agree with XLA's to about 5e-4 relative on a GPU).
-Sizes are padded to powers of two (Triton's tiles) with zeros, which add nothing to any sum and keep the padded units at exactly zero. On the CPU
-`interpret=True` runs the same kernels through XLA (the tests compare them there).
+With many agents vmapped on a GPU, each layer's activations going to memory and back between
+kernels were over half of a DQN iteration (docs/results.md, "DQN on the GPU"). Here none leaves the
+chip: the forward kernel carries each block of rows through every layer; the backward kernel, one
+program per agent, recomputes them block by block and adds up the gradients in registers. Sizes are
+padded with zeros to powers of two (Triton's tiles), which keeps the padded units at exactly zero;
+the products run at XLA's default GPU precision. On the CPU `interpret=True` runs the same kernels.
 """
 
 from __future__ import annotations
@@ -27,11 +18,8 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as plgpu
 
 ROWS_PER_BLOCK = 64  # rows per forward program and per backward loop step
-# The widest layer (inputs, hidden units or actions, padded) for which the kernels are used: fused
-# is faster than XLA for a 64-64 network on 64 rows, but XLA wins at PureJaxRL's 120-84 on 128 rows
-# (padded to 128 wide the blocks no longer fit the registers), also against a variant whose backward
-# programs each take a slab of the last hidden layer's units (docs/results.md, "DQN on the GPU").
-# 256 wide overflowed shared memory.
+# The widest layer (padded) for which the kernels are used: wider blocks no longer fit the registers
+# and XLA wins (docs/results.md, "DQN on the GPU").
 MAX_WIDTH = 64
 
 
@@ -50,25 +38,19 @@ def layers_of(params) -> list[tuple[jax.Array, jax.Array]]:
     return [(dense[f"Dense_{i}"]["kernel"], dense[f"Dense_{i}"]["bias"]) for i in range(len(dense))]
 
 
-def _padded_layers(layers):
-    out = []
+def _padded(layers, x):
+    """The kernels' operands padded with zeros: the rows of `x` and the (kernel, bias) pairs flattened;
+    then the rows per block and the padded output width."""
+    flat = []
     for kernel, bias in layers:
         fan_in, fan_out = kernel.shape
         shape = (_pow2(fan_in), _pow2(fan_out))
-        out.append((jnp.pad(kernel, ((0, shape[0] - fan_in), (0, shape[1] - fan_out))),
-                    jnp.pad(bias, (0, shape[1] - fan_out))[None, :]))
-    return out
-
-
-def _padded_rows(x, width):
+        flat += [jnp.pad(kernel, ((0, shape[0] - fan_in), (0, shape[1] - fan_out))),
+                 jnp.pad(bias, (0, shape[1] - fan_out))[None, :]]
     rows = x.shape[0]
     block = min(ROWS_PER_BLOCK, _pow2(rows))
-    total = _pow2(rows, block)
-    return jnp.pad(x, ((0, total - rows), (0, width - x.shape[1]))), block
-
-
-def _dot(a, b, trans_a=False, trans_b=False):
-    return plgpu.dot(a, b, trans_a=trans_a, trans_b=trans_b)
+    xp = jnp.pad(x, ((0, _pow2(rows, block) - rows), (0, flat[0].shape[0] - x.shape[1])))
+    return xp, flat, block, flat[-2].shape[1]
 
 
 def _forward_kernel(num_layers, x_ref, *refs):
@@ -76,7 +58,7 @@ def _forward_kernel(num_layers, x_ref, *refs):
     weights, q_ref = refs[: 2 * num_layers], refs[2 * num_layers]
     h = x_ref[...]
     for layer in range(num_layers):
-        h = _dot(h, weights[2 * layer][...]) + weights[2 * layer + 1][...]
+        h = plgpu.dot(h, weights[2 * layer][...]) + weights[2 * layer + 1][...]
         if layer < num_layers - 1:
             h = jnp.maximum(h, 0.0)
     q_ref[...] = h
@@ -91,14 +73,14 @@ def _backward_kernel(num_layers, block, x_ref, *refs):
         rows = pl.ds(pl.multiple_of(i * block, block), block)
         inputs = [x_ref[rows, :]]  # each layer's input, recomputed
         for layer in range(num_layers - 1):
-            h = _dot(inputs[-1], weights[2 * layer][...]) + weights[2 * layer + 1][...]
+            h = plgpu.dot(inputs[-1], weights[2 * layer][...]) + weights[2 * layer + 1][...]
             inputs.append(jnp.maximum(h, 0.0))
         g = dq_ref[rows, :]  # gradient at the current layer's output
         grads = list(grads)
         for layer in reversed(range(num_layers)):
-            grads[2 * layer] += _dot(inputs[layer], g, trans_a=True)
+            grads[2 * layer] += plgpu.dot(inputs[layer], g, trans_a=True)
             grads[2 * layer + 1] += jnp.sum(g, axis=0, keepdims=True)
-            g = _dot(g, weights[2 * layer][...], trans_b=True)
+            g = plgpu.dot(g, weights[2 * layer][...], trans_b=True)
             if layer > 0:
                 g = jnp.where(inputs[layer] > 0, g, 0.0)
         dx_ref[rows, :] = g
@@ -111,27 +93,14 @@ def _backward_kernel(num_layers, block, x_ref, *refs):
         ref[...] = grad
 
 
-def _num_warps(kernels) -> int:
-    """4 warps for the widths the kernels are used at (`MAX_WIDTH`; the fastest in a sweep of
-    2-8 on a GPU), 8 for wider ones."""
-    return 4 if max(max(k.shape) for k in kernels) <= 64 else 8
-
-
-def _compiler_params(num_warps):
-    return plgpu.CompilerParams(num_warps=num_warps, num_stages=1)
+def _compiler_params(kernels):
+    """4 warps for the widths the kernels are used at (`MAX_WIDTH`; the fastest on a GPU), 8 for wider ones."""
+    return plgpu.CompilerParams(num_warps=4 if max(max(k.shape) for k in kernels) <= 64 else 8, num_stages=1)
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(2,))
 def _mlp(layers, x, interpret):
     return _forward(layers, x, interpret)
-
-
-def _padded(layers, x):
-    """The kernels' operands: the rows of `x` and each (kernel, bias) padded with zeros (the
-    pairs flattened), the rows per block, and the padded output width."""
-    padded = _padded_layers(layers)
-    xp, block = _padded_rows(x, padded[0][0].shape[0])
-    return xp, [a for pair in padded for a in pair], block, padded[-1][0].shape[1]
 
 
 def _forward(layers, x, interpret):
@@ -143,7 +112,7 @@ def _forward(layers, x, interpret):
         in_specs=[pl.BlockSpec((block, xp.shape[1]), lambda i: (i, 0))]
         + [pl.BlockSpec(a.shape, lambda i: (0, 0)) for a in flat],
         out_specs=pl.BlockSpec((block, width), lambda i: (i, 0)),
-        interpret=interpret, compiler_params=_compiler_params(_num_warps(flat[::2])),
+        interpret=interpret, compiler_params=_compiler_params(flat[::2]),
     )(xp, *flat)
     return q[: x.shape[0], : layers[-1][0].shape[1]]
 
@@ -158,7 +127,7 @@ def _mlp_bwd(interpret, saved, dq):
     dqp = jnp.pad(dq, ((0, xp.shape[0] - dq.shape[0]), (0, width - dq.shape[1])))
     out = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in flat] + [jax.ShapeDtypeStruct(xp.shape, x.dtype)]
     *grads, dx = pl.pallas_call(partial(_backward_kernel, len(layers), block), out_shape=out, interpret=interpret,
-                                compiler_params=_compiler_params(_num_warps(flat[::2])))(xp, *flat, dqp)
+                                compiler_params=_compiler_params(flat[::2]))(xp, *flat, dqp)
     layer_grads = [(dk[: k.shape[0], : k.shape[1]], db[0, : b.shape[0]])
                    for (k, b), dk, db in zip(layers, grads[::2], grads[1::2])]
     return layer_grads, dx[: x.shape[0], : x.shape[1]]

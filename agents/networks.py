@@ -18,13 +18,8 @@ def _matmul_fwd(x, kernel):
 
 
 def _matmul_bwd(saved, grad):
-    """The usual gradients, with the kernel's computed from an explicitly transposed input.
-
-    XLA folds a transpose into the dot that consumes it; the kernel gradient then
-    contracts over the leading (batch) axis of both operands, which XLA:CPU runs on
-    its slow generic matmul path. Keeping the transpose as a separate small copy (the
-    barrier stops the folding) lets that dot take the fast path, a few percent of a training step.
-    """
+    """The usual gradients, the kernel's from an explicitly transposed input: folded into the dot, the
+    transpose makes XLA:CPU contract over the batch axis on its slow generic path; the barrier stops that."""
     x, kernel = saved
     x_rows = x.reshape(-1, x.shape[-1])
     x_rows_t = jax.lax.optimization_barrier(x_rows.T)

@@ -1,22 +1,14 @@
 """PPO as the suite's own agent: Brax's PPO, its loop ours and its parts Brax's.
 
-Read top to bottom: config -> train state -> acting (Brax's `acting.generate_unroll` with
-Brax's tanh-Gaussian policy) -> learning (Brax's `compute_ppo_loss` over shuffled
-minibatches, Brax's running-statistics normalizer) -> deterministic evaluation -> one
-training chunk -> `train`. The loop is Brax's `ppo/train.py` training step, with its
-keys split the same way, so one training step from the same state gives Brax's
-parameters; what differs is around it: the whole state of a seed is one pytree
-(`TrainState`: parameters, Adam's moments, the normalizer, the envs and the key), so a
-run advances chunk by chunk inside `jit`, vmaps over seeds, and resumes exactly from a
-saved copy of that pytree.
-
-The interface is `agents.dqn.DQN`'s: `init(key)`, `train_steps(ts)`, `evaluate_and_keep_best(ts, eval_key)`,
-`chunk(ts)`, `evaluate(params, key)`, `policy(params, obs)`, all pure.
+Read top to bottom: config -> train state -> acting (Brax's `acting.generate_unroll`) -> learning
+(Brax's `compute_ppo_loss` over shuffled minibatches) -> deterministic evaluation -> one training
+chunk -> `train`. The training step is Brax's, its keys split the same way, so from the same state
+it gives Brax's parameters; around it, a seed's whole state is one pytree, so a run advances chunk
+by chunk inside `jit`, vmaps over seeds and resumes exactly. The interface is `agents.dqn.DQN`'s.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import functools
 from typing import Any, ClassVar, NamedTuple
@@ -27,7 +19,7 @@ import optax
 from flax import struct
 
 from agents import evaluation
-from agents.dqn import DQN
+from agents.dqn import DQN, EPISODE_TOTALS, stack_hyperparams
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
@@ -39,15 +31,9 @@ CNN_FIELDS = ("cnn_output_channels", "cnn_kernel_size", "cnn_stride")
 class PPOConfig:
     """Every hyperparameter of a run, with the names and meanings of `brax.training.agents.ppo.train`.
 
-    Each training step collects `batch_size * num_minibatches * unroll_length` env steps (in
-    `batch_size * num_minibatches / num_envs` unrolls of every env) and makes
-    `num_updates_per_batch * num_minibatches` gradient steps on them. As in Brax, the
-    `num_evals - 1` evaluations after training steps split `num_timesteps`, rounded up to
-    whole training steps (`rounding()` says how); Brax's first evaluation, of the untrained
-    policy, is not a chunk. The defaults are sized for small tasks on a CPU (they balance
-    inverted-pendulum); agents/brax_defaults.py holds the per-task recipes. On camera images
-    (`observation="pixels"`) the networks put the `cnn_*` convolutions in front of their MLPs
-    (`make_vision_networks`)."""
+    Each training step collects `batch_size * num_minibatches * unroll_length` env steps; the
+    `num_evals - 1` chunks split `num_timesteps`, rounded up to whole training steps (Brax's first
+    evaluation is not a chunk). The defaults suit small tasks on a CPU (agents/brax_defaults.py)."""
 
     num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
     num_envs: int = 64  # envs stepped in parallel by each agent
@@ -67,9 +53,8 @@ class PPOConfig:
     num_eval_envs: int = 64  # episodes per evaluation
     policy_hidden: tuple[int, ...] = (64, 64)  # the policy network's layer widths, e.g. 64,64
     value_hidden: tuple[int, ...] = (64, 64)  # the value network's layer widths
-    # The convolutional torso in front of each MLP when the observation is a camera image
-    # (`envs.make(task, observation="pixels")`), one entry per layer, in Brax's `networks_vision`
-    # names; the default is the Nature DQN network's, sized for 64x64 images.
+    # On camera images, the convolutions in front of each MLP (`make_vision_networks`), one entry per
+    # layer; the default is the Nature DQN network's, sized for 64x64 images.
     cnn_output_channels: tuple[int, ...] = (32, 64, 64)  # camera images: each convolution's channels
     cnn_kernel_size: tuple[int, ...] = (8, 4, 3)  # ...kernel size
     cnn_stride: tuple[int, ...] = (4, 2, 1)  # ...and stride
@@ -115,12 +100,10 @@ class PPOConfig:
 
     @property
     def unrolls_per_training_step(self) -> int:
-        """Unrolls of all `num_envs` envs in one training step."""
         return self.batch_size * self.num_minibatches // self.num_envs
 
     @property
     def num_chunks(self) -> int:
-        """Training chunks, each ended by an evaluation: Brax's evaluations after training steps."""
         return self.num_evals - 1
 
     @property
@@ -130,12 +113,10 @@ class PPOConfig:
 
     @property
     def eval_every(self) -> int:
-        """Env steps per seed in one chunk: the training steps between two evaluations."""
         return self.training_steps_per_chunk * self.env_steps_per_training_step
 
     @property
     def total_steps(self) -> int:
-        """Env steps per seed of the whole run: num_timesteps rounded up to whole training steps per chunk."""
         return self.num_chunks * self.eval_every
 
     @property
@@ -152,14 +133,12 @@ class PPOConfig:
                 f"{self.num_minibatches} x unroll_length {self.unroll_length})")
 
 
-# Brax's vision networks take a dict of observations and convolve every entry whose key starts
-# with "pixels/"; our image observation is a plain array, passed to them under this key.
+# Brax's vision networks convolve each observation entry whose key starts with "pixels/": ours goes under this key.
 PIXELS_KEY = "pixels/camera"
 
 
 def image_shape(env: Env) -> tuple[int, int, int] | None:
-    """(height, width, channels) where `env` observes camera images (`envs.pixels.Pixels`, whose
-    `observation_shape` every wrapper forwards); None where it observes a state vector."""
+    """(height, width, channels) where `env` observes camera images (`envs.pixels.Pixels`), else None."""
     shape = getattr(env, "observation_shape", None)
     return tuple(shape) if shape is not None and len(shape) == 3 else None
 
@@ -180,14 +159,9 @@ def check_image_fits(config: PPOConfig, shape: tuple[int, int, int]) -> None:
 def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: PPOConfig):
     """Brax's vision PPO networks (`networks_vision.make_ppo_networks_vision`) for uint8 images of `shape`.
 
-    The policy and the value network share nothing: each has its own convolutions (`cnn_*` of
-    `config`, ReLU, no padding), flattened rather than pooled (where the cart is in the image is
-    what the policy must see), then its own MLP (`policy_hidden`, `value_hidden`; swish, as the
-    state networks). Initialisers and padding are MuJoCo Playground's CartpoleBalance vision
-    recipe's: orthogonal, scale sqrt(2) for the convolutions and 0.01 for the policy's last layer
-    (near-zero mean actions at first). Frames are scaled from uint8 to [0, 1] inside the networks,
-    so rollouts store uint8 frames (a quarter of float32's memory); no running-statistics
-    normaliser sees them."""
+    The policy and the value network each have their own convolutions, flattened rather than pooled
+    (where things are matters), then their MLPs; initialisers as MuJoCo Playground's CartpoleBalance
+    vision recipe. Frames go from uint8 to [0, 1] inside the networks, so rollouts store uint8."""
     import math
 
     from brax.training import networks as brax_networks
@@ -210,19 +184,14 @@ def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: 
     return vision.replace(policy_network=on_frames(vision.policy_network), value_network=on_frames(vision.value_network))
 
 
-# ---- hyperparameters that may be traced: what a sweep may vary within one program ----
-# Fields used only as numbers in the update arithmetic (never as a shape, a loop count or a
-# Python branch), so one compiled program can run a different value per agent. A swept agent
-# equals a separate run of its config up to float rounding, not bit for bit as DQN's: XLA
-# simplifies Brax's loss and Adam's step around a constant differently than around a traced
-# value. clipping_epsilon is left out: Brax's loss computes 1 - clipping_epsilon, which rounds
-# differently in Python's double precision than in float32.
+# ---- what a sweep may vary within one program, as `agents.dqn.SWEEPABLE` ----
+# A swept agent equals a separate run up to float rounding (XLA simplifies around a constant
+# differently). clipping_epsilon is left out: Brax's `1 - clipping_epsilon` rounds differently in float32.
 SWEEPABLE = ("learning_rate", "entropy_cost", "discounting", "gae_lambda", "reward_scaling")
 
 
 class Hyperparams(NamedTuple):
-    """The numbers `PPO` reads from `SWEEPABLE` fields: Python floats for one config, or per-agent
-    float32 arrays in a sweep (`TrainState.hyperparams`)."""
+    """The numbers `PPO` reads from `SWEEPABLE` fields, as `agents.dqn.Hyperparams`."""
 
     neg_learning_rate: Any  # optax.adam's last step, scale(-learning_rate)
     entropy_cost: Any
@@ -233,24 +202,14 @@ class Hyperparams(NamedTuple):
     @classmethod
     def of(cls, config: PPOConfig) -> "Hyperparams":
         return cls(neg_learning_rate=-config.learning_rate, entropy_cost=config.entropy_cost,
-                   discounting=config.discounting, gae_lambda=config.gae_lambda,
-                   reward_scaling=config.reward_scaling)
+                   discounting=config.discounting, gae_lambda=config.gae_lambda, reward_scaling=config.reward_scaling)
 
-    @classmethod
-    def stacked(cls, configs: list[PPOConfig]) -> "Hyperparams":
-        """One float32 array per field, one entry per config: a sweep's traced values."""
-        rows = [cls.of(c) for c in configs]
-        return cls(*(jnp.asarray([getattr(r, f) for r in rows], jnp.float32) for f in cls._fields))
+    stacked = classmethod(stack_hyperparams)
 
 
 def scale_by_adam(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> optax.GradientTransformation:
-    """`optax.scale_by_adam()` (its state, its moments, its values), its divisions pinned.
-
-    Why: XLA rewrites optax's divisions by the scalar bias corrections one way in a one-seed
-    program (`m / (c1 * (sqrt(v / c2) + eps))`) and another in a vmapped one, where each seed has
-    its own correction (products with reciprocals): the two differ in the last bit. Here the
-    one-seed form is written out and its divisors held by an optimization barrier, so seed i of
-    a vmapped run is a one-seed run of seed i, bit for bit, and both are Brax's (test_ppo.py)."""
+    """`optax.scale_by_adam()`, its divisions pinned behind an optimization barrier: XLA rewrites them differently
+    when vmapped, so seed i of a vmapped run is a one-seed run bit for bit only so (test_ppo.py)."""
     adam = optax.scale_by_adam(b1, b2, eps)
 
     def update(grads, state, params=None):
@@ -284,8 +243,7 @@ class TrainState:
     hyperparams: Hyperparams | None = None  # a sweep's per-agent values; None: the config's constants
 
 
-# Env info entries an unroll keeps beside Brax's `truncation`: the episode statistics a chunk
-# reports (`envs.EpisodeStats`) and the physics faults (`info["nan"]`, MJX's `info["overflow"]`).
+# Env info entries an unroll keeps beside Brax's `truncation`: episode statistics and physics faults.
 STAT_FIELDS = ("episode_done", "last_return", "nan")
 
 
@@ -293,8 +251,7 @@ class PPO:
     """The pieces of a PPO run for one env and config; all methods are pure."""
 
     def __init__(self, config: PPOConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`env`: one env with its time limit (`envs.make`); `platform` and `agents` as in
-        `agents.dqn.DQN` (no program shape depends on them yet)."""
+        """`env`: one env with its time limit (`envs.make`); `platform` and `agents` as in `agents.dqn.DQN`."""
         from brax.training.acme import running_statistics
         from brax.training.agents.ppo import networks as ppo_networks
         if env.action_size is None:
@@ -307,38 +264,28 @@ class PPO:
         self.image_shape = image_shape(env)  # None: a state vector
         if self.image_shape is None:
             preprocess = running_statistics.normalize if config.normalize_observations else (lambda obs, _: obs)
-            # Brax's networks as Brax's trainer makes them (`benchmarks.brax_trainers.network_factory`):
-            # the params are what Brax's ppo.train returns.
+            # As Brax's trainer makes them (`benchmarks.brax_trainers.network_factory`): the params are Brax's.
             self.networks = ppo_networks.make_ppo_networks(
                 env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
                 policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
         else:
             self.networks = make_vision_networks(self.image_shape, env.action_size, config)
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
-        # Adam's direction only; the step scales it by `hyper.neg_learning_rate`, as optax.adam(lr)
-        # would, so a sweep can trace the learning rate.
+        # Adam's direction only, scaled by `hyper.neg_learning_rate` (as `agents.dqn.DQN`'s).
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm is not None else []
         self.optimizer = optax.chain(*clip, scale_by_adam())
         self.hyper = Hyperparams.of(config)
 
-    def with_hyperparams(self, hyper: Hyperparams | None) -> "PPO":
-        """This PPO reading `hyper` (a sweep agent's traced values) instead of its config's."""
-        if hyper is None or hyper is self.hyper:
-            return self
-        bound = copy.copy(self)
-        bound.hyper = hyper
-        return bound
+    with_hyperparams = DQN.with_hyperparams  # this PPO reading a sweep agent's traced values
 
     # ---- acting -------------------------------------------------------------
     def policy(self, params, obs) -> jax.Array:
-        """The deterministic action in [-1, 1] (tanh of the Gaussian's mean), as Brax's
-        `deterministic_eval` acts; one observation or a batch."""
+        """The deterministic action in [-1, 1] (tanh of the Gaussian's mean), as Brax's `deterministic_eval`."""
         return self.make_policy(params, deterministic=True)(obs, None)[0]
 
     def collect(self, ts: TrainState, key: jax.Array):
-        """One training step's data: `unrolls_per_training_step` unrolls of `unroll_length` steps
-        of every env with the stochastic policy, as Brax's training step collects them.
-        Returns the envs' new state and the transitions, leading axes (unrolls * num_envs, unroll_length)."""
+        """One training step's unrolls of every env with the stochastic policy, as Brax's: the envs' new
+        state and the transitions, leading axes (unrolls * num_envs, unroll_length)."""
         from brax.training import acting
         cfg = self.config
         policy = self.make_policy(ts.params)
@@ -358,12 +305,8 @@ class PPO:
         return env_state, data
 
     def without_faults(self, data):
-        """The transitions for the learner, and the episode statistics taken out of them.
-
-        A step whose physics failed (non-finite, or under MuJoCo Warp a full contact or
-        constraint buffer) ended its episode with reward 0; it must not teach the value that
-        such a state is terminal. Marked as a truncation, Brax's GAE gives it no advantage and
-        no value target, and bootstraps the step before it from its (finite) observation."""
+        """The transitions for the learner and their episode statistics. A step whose physics failed is
+        marked a truncation, so Brax's GAE never teaches the value that its state is terminal."""
         extras = data.extras["state_extras"]
         overflow, stats = evaluation.step_stats(extras)
         fault = (extras["nan"] > 0) | (overflow > 0)
@@ -373,8 +316,7 @@ class PPO:
 
     # ---- learning -----------------------------------------------------------
     def loss_and_grad(self, nets, normalizer, minibatch, key):
-        """Brax's PPO loss (`compute_ppo_loss`, value coefficient 0.5, normalized advantages)
-        and its gradient with respect to `nets` (PPONetworkParams)."""
+        """Brax's PPO loss (`compute_ppo_loss`) and its gradient with respect to `nets` (PPONetworkParams)."""
         from brax.training import gradients
         from brax.training.agents.ppo import losses as ppo_losses
         loss = functools.partial(
@@ -403,9 +345,8 @@ class PPO:
         return (opt_state, nets, key), metrics
 
     def training_step(self, ts: TrainState) -> tuple[TrainState, dict]:
-        """Brax's training step: collect, update the normalizer with the new observations, then
-        `num_updates_per_batch` passes of minibatch SGD. Its keys are split as Brax splits
-        them, so from the same state it gives Brax's parameters."""
+        """Brax's training step, its keys split as Brax's: collect, update the normalizer, then
+        `num_updates_per_batch` passes of minibatch SGD."""
         from brax.training.acme import running_statistics
         from brax.training.agents.ppo import losses as ppo_losses
         cfg = self.config
@@ -426,17 +367,15 @@ class PPO:
 
     # ---- evaluation -----------------------------------------------------------
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """The deterministic policy's return of each of `num_episodes` fresh episodes (the config's
-        `num_eval_envs` when not given); with `record`, also the first episode step by step
-        (`agents.evaluation.evaluate`)."""
+        """The deterministic policy's return of each of `num_episodes` fresh episodes (default: the
+        config's); with `record`, also the first episode step by step (`agents.evaluation.evaluate`)."""
         return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
                                    num_episodes or self.config.eval_episodes,
                                    jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
 
     # ---- a training run ---------------------------------------------------------
     def init_params(self, policy_key: jax.Array, value_key: jax.Array):
-        """Fresh (normalizer, policy, value) params, initialised as Brax's ppo.train does. On images
-        the normalizer's place holds the state of one over no values: Brax's layout, never updated."""
+        """Fresh (normalizer, policy, value) params, as Brax's; on images the normalizer stays empty."""
         from brax.training.acme import running_statistics
         from brax.training.acme import specs
         normalized = 0 if self.image_shape is not None else self.env.observation_size
@@ -464,20 +403,14 @@ class PPO:
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
-        """A chunk's `training_steps_per_chunk` training steps: the train state, its training
-        metrics (scalars) and the key of the evaluation that follows."""
+        """A chunk's training steps: the train state, its metrics and the following evaluation's key."""
         return evaluation.whole_chunk(self.chunk_loop(ts), ts)
 
-    # What a chunk adds up over its training steps (`chunk_loop`): their episode stats and losses.
-    CHUNK_TOTALS = {
-        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
-        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
-        "total_loss": jnp.float32, "policy_loss": jnp.float32, "v_loss": jnp.float32, "entropy_loss": jnp.float32,
-    }
+    CHUNK_TOTALS = {**EPISODE_TOTALS, "total_loss": jnp.float32, "policy_loss": jnp.float32, "v_loss": jnp.float32,
+                    "entropy_loss": jnp.float32}
 
     def chunk_loop(self, ts: TrainState) -> evaluation.ChunkLoop:
-        """A chunk's training steps as pieces (`evaluation.ChunkLoop`), which `agents.run` may run
-        as several programs; a sweep agent's with its own values."""
+        """A chunk's training steps as pieces (`evaluation.ChunkLoop`), which `agents.run` may split."""
         if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
             return self.with_hyperparams(ts.hyperparams).chunk_loop(ts)
         steps = self.config.training_steps_per_chunk
@@ -494,13 +427,9 @@ class PPO:
 
         return evaluation.ChunkLoop(steps, start, self.training_step, finish, self.CHUNK_TOTALS)
 
-    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
-                               record: bool = True) -> tuple[TrainState, dict]:
-        """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+    evaluate_and_keep_best = DQN.evaluate_and_keep_best  # keeps the best parameters and the step that solved
 
 
 def train(config: PPOConfig, env: Env, key: jax.Array):
-    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
-    vmap it over keys for seeds."""
+    """A whole run as one pure function (`evaluation.whole_run`): `(best_params, metrics)`; vmap it for seeds."""
     return evaluation.whole_run(PPO(config, env), key)

@@ -1,44 +1,18 @@
-"""Replay buffers as pure functions over a pytree state.
+"""Replay buffers as pure functions over a pytree state (a `flax.struct.dataclass`), so a buffer can
+be a `lax.scan` carry, jitted and vmapped over seeds; the buffer objects hold static settings only.
 
-All state lives in a `flax.struct.dataclass`, so a buffer can be a `lax.scan`
-carry, jitted, and vmapped over a leading seed axis. The buffer objects are
-frozen (hashable) dataclasses holding only static configuration, so they can be
-closed over or passed as static jit arguments.
-
-Why the code looks the way it does (measured on XLA:CPU inside a `lax.scan`, which is how
-the DQN uses it; docs/bench-cpu.json, "uniform" and "prioritized"):
-
-* XLA:CPU splits any loop fusion that *reads* >= 512 KiB of one operand across
-  threads (`ParallelTaskAssigner`, "I/O bound" branch: bytes accessed / 256 KiB
-  tasks). A gather or scatter counts its whole operand, so fetching 32 rows from
-  a large array pays a thread hand-off per op, and for a sum tree descended
-  level by level that is paid at every level. `dynamic_slice` / `dynamic_update_slice` only count the bytes
-  they touch and are never split, so:
-  - writes (`add`) copy rows one at a time with `dynamic_update_slice` in a
-    `fori_loop` (faster than a scatter for every batch size we tried, <= 64);
-  - reads of large leaves use a `fori_loop` of `dynamic_slice`s; small leaves
-    (< 512 KiB) use an ordinary gather, which measured cheaper for them;
-  - sum-tree writes walk each touched leaf's path with scalar slices;
-  - the sum-tree descent gathers from a `dynamic_slice` window of
-    `tree_capacity` nodes rather than from the whole `2 * tree_capacity` tree,
-    which keeps it under the threshold up to 65536 leaves.
-* Parents are always *recomputed* from their children (never patched with
-  deltas), so the tree stays exact w.r.t. its leaves whatever the duplicate
-  indices in an update, and a parent is 0 iff both children are 0, which makes
-  the "never land on a zero leaf" guard of the descent sound.
-* Uniform indices come from raw `random.bits` reduced modulo `size`: half the
-  random bits of `random.randint`, whose extra work only removes a modulo bias
-  of at most `capacity / 2**32` (< 3e-4 for a million items).
-* On accelerators every one of those loops is a `while` whose iterations each launch
-  kernels, and under `vmap` (seeds) a loop whose trip count differs between seeds
-  selects over the whole carry, i.e. the whole buffer, on every iteration (most of an
-  add's time on a GPU, at hundreds of seeds). So a buffer made with
-  `vectorized=True` (what `agents.device_options` picks off the CPU) reads with one gather,
-  writes with one scatter and rebuilds sum-tree ancestors level by level. Both ways
-  compute the same values bit for bit (`tests/test_replay.py` checks).
-* Both buffers also sample from random bits the caller drew (`sample_from_bits`):
-  XLA:CPU lowers `jax.random` as a rolled loop of tiny kernels, so a training loop
-  is faster drawing the bits of many samples in one call, outside its scan.
+Why the code looks the way it does (docs/bench-cpu.json, "uniform" and "prioritized"):
+* XLA:CPU splits a loop fusion that reads >= 512 KiB of one operand across threads, counting a
+  gather's or scatter's whole operand but only the bytes a `dynamic_slice` touches. So on the CPU
+  rows are written one by one in a `fori_loop`, large leaves read by a loop of dynamic slices,
+  sum-tree paths walked with scalar slices, and the descent gathers from a `tree_capacity` window.
+* Parents are always recomputed from their children, never patched with deltas: the tree stays
+  exact whatever the duplicate indices, and a parent is 0 iff both children are.
+* Off the CPU each loop iteration launches kernels, and under `vmap` a loop whose trip count
+  differs between seeds selects over the whole buffer each iteration; so `vectorized=True` reads
+  with one gather, writes with one scatter and rebuilds the tree level by level, to the same values.
+* Indices come from random bits the caller drew for many samples at once (`sample_from_bits`):
+  XLA:CPU runs each `jax.random` call as a loop of tiny kernels.
 """
 
 from __future__ import annotations
@@ -65,15 +39,9 @@ class ReplayState:
 
 @flax.struct.dataclass
 class PrioritizedState:
-    """State of the prioritized buffer.
-
-    `tree` is a heap-ordered sum tree of `priority**alpha` (root at index 1,
-    node n has children 2n and 2n+1, index 0 unused, leaves at
-    `[tree_capacity, tree_capacity + capacity)`; leaves never written are 0).
-    `min_tree` has the same layout with `min` instead of `+` and `+inf` in
-    unwritten leaves; its root is the smallest leaf in the buffer, which the
-    importance weights are normalised by.
-    """
+    """State of the prioritized buffer. `tree` is a heap-ordered sum tree of `priority**alpha` (root
+    at 1, node n's children 2n and 2n+1, leaves from `tree_capacity` on, 0 where never written);
+    `min_tree` the same with `min` and `+inf`: its root normalises the importance weights."""
 
     data: Any
     insert_pos: jax.Array
@@ -83,16 +51,9 @@ class PrioritizedState:
     min_tree: jax.Array  # float32 (2 * tree_capacity,)
 
 
-# --------------------------------------------------------------------------- #
-# Ring-buffer helpers shared by both buffers
-# --------------------------------------------------------------------------- #
-
-
+# ---- ring-buffer helpers shared by both buffers ----
 def _alloc(example_item: Any, capacity: int) -> Any:
-    return jax.tree.map(
-        lambda x: jnp.zeros((capacity,) + jnp.shape(x), jnp.result_type(x)),
-        example_item,
-    )
+    return jax.tree.map(lambda x: jnp.zeros((capacity,) + jnp.shape(x), jnp.result_type(x)), example_item)
 
 
 def _batch_size(batch: Any, capacity: int) -> int:
@@ -106,26 +67,16 @@ def _batch_size(batch: Any, capacity: int) -> int:
 
 
 def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, keep=None) -> Any:
-    """Writes the k-th stored row to slot (insert_pos + k) % capacity.
-
-    Without `keep` every row of `batch` is stored in order. With `keep =
-    (rows, count)` only `batch[rows[:count]]` is stored; the loop simply stops
-    after `count` rows, so dropped items never touch (or need to read) the
-    buffer.
-    """
+    """Writes the k-th stored row to slot (insert_pos + k) % capacity: every row of `batch`, or with
+    `keep = (rows, count)` only `batch[rows[:count]]` (dropped items never touch the buffer)."""
     b = _batch_size(batch, capacity)
     rows, count = keep if keep is not None else (None, None)
 
     def put_row(k, data):
         slot = (insert_pos + k) % capacity
         src = k if rows is None else rows[k]
-        return jax.tree.map(
-            lambda buf, x: jax.lax.dynamic_update_index_in_dim(
-                buf, jax.lax.dynamic_index_in_dim(x, src, 0, False).astype(buf.dtype), slot, 0
-            ),
-            data,
-            batch,
-        )
+        return jax.tree.map(lambda buf, x: jax.lax.dynamic_update_index_in_dim(
+            buf, jax.lax.dynamic_index_in_dim(x, src, 0, False).astype(buf.dtype), slot, 0), data, batch)
 
     if count is not None:
         return jax.lax.fori_loop(0, count, put_row, data)
@@ -145,15 +96,13 @@ def _scatter_write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, 
         mask = jnp.asarray(mask, bool).reshape(-1)
         kept_before = jnp.cumsum(mask, dtype=jnp.int32) - 1
         slots = jnp.where(mask, (insert_pos + kept_before) % capacity, capacity + rows)
-    return jax.tree.map(
-        lambda buf, x: buf.at[slots].set(x.astype(buf.dtype), mode="drop", unique_indices=True), data, batch
-    )
+    return jax.tree.map(lambda buf, x: buf.at[slots].set(x.astype(buf.dtype), mode="drop", unique_indices=True),
+                        data, batch)
 
 
 def _advance(capacity: int, insert_pos, size, count):
-    new_pos = ((insert_pos + count) % capacity).astype(jnp.int32)
-    new_size = jnp.minimum(size + count, capacity).astype(jnp.int32)
-    return new_pos, new_size
+    """The insert position and size after `count` more items."""
+    return ((insert_pos + count) % capacity).astype(jnp.int32), jnp.minimum(size + count, capacity).astype(jnp.int32)
 
 
 def _store(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask, vectorized: bool):
@@ -168,10 +117,7 @@ def _store(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask, ve
 
 
 def _kept_rows(mask: jax.Array):
-    """(rows, count): indices of the rows where `mask` is True, in order, then the others.
-
-    Used to keep transitions with non-finite physics out of the buffer.
-    """
+    """(rows, count): indices of the rows where `mask` is True, in order, then the others."""
     mask = jnp.asarray(mask, bool).reshape(-1)
     count = mask.sum(dtype=jnp.int32)
     if mask.shape[0] == 1:
@@ -184,20 +130,13 @@ def _read(data: Any, indices: jax.Array, vectorized: bool = False) -> Any:
     leaves, treedef = jax.tree.flatten(data)
     split_bytes = float("inf") if vectorized else _SPLIT_BYTES
     big = [i for i, x in enumerate(leaves) if x.size * x.dtype.itemsize >= split_bytes]
-    out = [
-        None if i in big else x.at[indices].get(mode="promise_in_bounds")
-        for i, x in enumerate(leaves)
-    ]
+    out = [None if i in big else x.at[indices].get(mode="promise_in_bounds") for i, x in enumerate(leaves)]
     if big:
         n = indices.shape[0]
 
         def get_row(k, rows):
-            return [
-                jax.lax.dynamic_update_index_in_dim(
-                    r, jax.lax.dynamic_index_in_dim(leaves[i], indices[k], 0, False), k, 0
-                )
-                for r, i in zip(rows, big)
-            ]
+            return [jax.lax.dynamic_update_index_in_dim(r, jax.lax.dynamic_index_in_dim(x, indices[k], 0, False), k, 0)
+                    for r, x in zip(rows, (leaves[i] for i in big))]
 
         init = [jnp.zeros((n,) + leaves[i].shape[1:], leaves[i].dtype) for i in big]
         for i, rows in zip(big, jax.lax.fori_loop(0, n, get_row, init)):
@@ -216,30 +155,29 @@ def _uniform_indices(bits: jax.Array, size: jax.Array) -> jax.Array:
     return (bits % n).astype(jnp.int32)
 
 
-# --------------------------------------------------------------------------- #
-# Uniform replay
-# --------------------------------------------------------------------------- #
-
-
 @dataclasses.dataclass(frozen=True)
-class UniformReplay:
-    """Uniform FIFO ring buffer; wrap-around overwrites the oldest items. `vectorized`:
-    gather and scatter instead of loops (for accelerators; see the module doc)."""
-
+class _RingBuffer:
     capacity: int
-    vectorized: bool = False
 
     def __post_init__(self):
         if self.capacity < 1:
             raise ValueError("capacity must be >= 1")
 
+    def can_sample(self, state, min_size: int = 1) -> jax.Array:
+        return state.size >= min_size
+
+
+# ---- uniform replay ----
+@dataclasses.dataclass(frozen=True)
+class UniformReplay(_RingBuffer):
+    """Uniform FIFO ring buffer; `vectorized`: gather and scatter instead of loops (see the module doc)."""
+
+    vectorized: bool = False
+
     def init(self, example_item: Any) -> ReplayState:
         """`example_item` is one transition (no batch dim); its dtypes are kept."""
-        return ReplayState(
-            data=_alloc(example_item, self.capacity),
-            insert_pos=jnp.zeros((), jnp.int32),
-            size=jnp.zeros((), jnp.int32),
-        )
+        return ReplayState(data=_alloc(example_item, self.capacity), insert_pos=jnp.zeros((), jnp.int32),
+                           size=jnp.zeros((), jnp.int32))
 
     def add(self, state: ReplayState, batch: Any, mask: jax.Array | None = None) -> ReplayState:
         """`batch` has a static leading dim B <= capacity; items where `mask` is False are not stored."""
@@ -256,39 +194,17 @@ class UniformReplay:
         idx = _uniform_indices(bits, state.size)
         return _read(state.data, idx, self.vectorized), idx
 
-    def can_sample(self, state: ReplayState, min_size: int = 1) -> jax.Array:
-        return state.size >= min_size
 
-
-# --------------------------------------------------------------------------- #
-# Prioritized replay
-# --------------------------------------------------------------------------- #
-
-
+# ---- prioritized replay ----
 @dataclasses.dataclass(frozen=True)
-class PrioritizedReplay:
-    """Proportional prioritized replay (Schaul et al. 2016) over a sum tree.
+class PrioritizedReplay(_RingBuffer):
+    """Proportional prioritized replay (Schaul et al. 2016) over a sum tree, sampled stratified (one
+    point in each of `batch_size` equal strata). Importance weights are normalised over the whole
+    buffer, not the batch: `w_i = (p_i**alpha / min_j p_j**alpha)**-beta`, in (0, 1]."""
 
-    Sampling is stratified: [0, total) is cut into `batch_size` equal strata
-    and one point is drawn uniformly in each, so each draw is still marginally
-    proportional to `p_i**alpha` but a batch has lower variance than with
-    independent draws.
-
-    Importance weights are normalised by the largest weight over the *whole
-    buffer*, not the batch: with N = size and P(i) = p_i**alpha / sum_j p_j**alpha,
-    `w_i = (N P(i))**-beta / max_j (N P(j))**-beta = (p_i**alpha / min_j p_j**alpha)**-beta`,
-    the min running over written slots (root of `min_tree`). All weights are in
-    (0, 1] and the smallest-priority item in the buffer would get exactly 1.
-    """
-
-    capacity: int
     alpha: float = 0.6
     eps: float = 1e-6
     vectorized: bool = False  # gather, scatter and level-by-level tree rebuilds (see the module doc)
-
-    def __post_init__(self):
-        if self.capacity < 1:
-            raise ValueError("capacity must be >= 1")
 
     @property
     def tree_capacity(self) -> int:
@@ -300,22 +216,14 @@ class PrioritizedReplay:
 
     def init(self, example_item: Any) -> PrioritizedState:
         t = self.tree_capacity
-        return PrioritizedState(
-            data=_alloc(example_item, self.capacity),
-            insert_pos=jnp.zeros((), jnp.int32),
-            size=jnp.zeros((), jnp.int32),
-            tree=jnp.zeros((2 * t,), jnp.float32),
-            max_priority=jnp.ones((), jnp.float32),
-            min_tree=jnp.full((2 * t,), jnp.inf, jnp.float32),
-        )
+        return PrioritizedState(data=_alloc(example_item, self.capacity), insert_pos=jnp.zeros((), jnp.int32),
+                                size=jnp.zeros((), jnp.int32), tree=jnp.zeros((2 * t,), jnp.float32),
+                                max_priority=jnp.ones((), jnp.float32),
+                                min_tree=jnp.full((2 * t,), jnp.inf, jnp.float32))
 
     def _set_leaves(self, tree, min_tree, indices, values, count=None):
-        """Sets leaves one by one and rebuilds each one's ancestors from their children.
-
-        Going item by item makes duplicate indices trivially consistent (the
-        last write wins in both trees and every ancestor sees final children).
-        With `count`, only the first `count` (traced) items are set.
-        """
+        """Sets leaves one by one, rebuilding each one's ancestors from their children (of duplicate
+        indices the last wins). With `count`, only the first `count` (traced) items are set."""
 
         def set_leaf(k, trees):
             tree, min_tree = trees
@@ -329,14 +237,10 @@ class PrioritizedReplay:
                 kids = jax.lax.dynamic_slice(tree, (2 * node,), (2,))
                 mkids = jax.lax.dynamic_slice(min_tree, (2 * node,), (2,))
                 tree = jax.lax.dynamic_update_index_in_dim(tree, kids[0] + kids[1], node, 0)
-                min_tree = jax.lax.dynamic_update_index_in_dim(
-                    min_tree, jnp.minimum(mkids[0], mkids[1]), node, 0
-                )
+                min_tree = jax.lax.dynamic_update_index_in_dim(min_tree, jnp.minimum(mkids[0], mkids[1]), node, 0)
                 return node, tree, min_tree
 
-            _, tree, min_tree = jax.lax.fori_loop(
-                0, self.depth, fix_parent, (node, tree, min_tree)
-            )
+            _, tree, min_tree = jax.lax.fori_loop(0, self.depth, fix_parent, (node, tree, min_tree))
             return tree, min_tree
 
         if self.vectorized:
@@ -348,10 +252,8 @@ class PrioritizedReplay:
         return jax.lax.fori_loop(0, count, set_leaf, (tree, min_tree))
 
     def _set_leaves_by_level(self, tree, min_tree, indices, values, count=None):
-        """`_set_leaves` without loops over items: the leaves in one scatter (of duplicate
-        indices the last item wins, as in the loop), then each level's touched parents
-        recomputed from their children in one gather and one scatter. Parents shared by
-        several items get the same value from each, so the result equals the loop's."""
+        """`_set_leaves` without loops over items, to the same result: the leaves in one scatter (of
+        duplicate indices the last wins), then each level's touched parents in one gather and scatter."""
         b = indices.shape[0]
         items = jnp.arange(b, dtype=jnp.int32)
         valid = items < (b if count is None else count)
@@ -376,21 +278,13 @@ class PrioritizedReplay:
         data, count = _store(state.data, batch, self.capacity, state.insert_pos, mask, self.vectorized)
         slots = (state.insert_pos + jnp.arange(b, dtype=jnp.int32)) % self.capacity
         leaf = jnp.broadcast_to(state.max_priority**self.alpha, (b,))
-        tree, min_tree = self._set_leaves(
-            state.tree, state.min_tree, slots, leaf, None if mask is None else count
-        )
+        tree, min_tree = self._set_leaves(state.tree, state.min_tree, slots, leaf, None if mask is None else count)
         pos, size = _advance(self.capacity, state.insert_pos, state.size, count)
-        return state.replace(
-            data=data, insert_pos=pos, size=size, tree=tree, min_tree=min_tree
-        )
+        return state.replace(data=data, insert_pos=pos, size=size, tree=tree, min_tree=min_tree)
 
     def _descend(self, tree: jax.Array, query: jax.Array) -> jax.Array:
-        """Leaf whose prefix-sum interval contains each query (vectorised).
-
-        Going right requires a positive right subtree, so a query pushed past
-        the total by float round-off still ends on a positive (hence written)
-        leaf instead of an empty one.
-        """
+        """Leaf whose prefix-sum interval contains each query. Going right needs a positive right
+        subtree, so a query pushed past the total by round-off still ends on a written leaf."""
         t = self.tree_capacity
 
         def step(level, carry):
@@ -416,28 +310,16 @@ class PrioritizedReplay:
     def sample_from_bits(self, state: PrioritizedState, bits: jax.Array, beta):
         """`sample` with one uint32 of random bits per item drawn by the caller."""
         batch_size = bits.shape[0]
-        total = state.tree[1]
-        u = uniform_from_bits(bits)
-        query = (jnp.arange(batch_size, dtype=jnp.float32) + u) * (total / batch_size)
-        idx = self._descend(state.tree, query)
-        idx = jnp.minimum(idx, jnp.maximum(state.size - 1, 0))
-        leaves = state.tree[self.tree_capacity :]
-        leaf = leaves.at[idx].get(mode="promise_in_bounds")
+        query = (jnp.arange(batch_size, dtype=jnp.float32) + uniform_from_bits(bits)) * (state.tree[1] / batch_size)
+        idx = jnp.minimum(self._descend(state.tree, query), jnp.maximum(state.size - 1, 0))
+        leaf = state.tree[self.tree_capacity :].at[idx].get(mode="promise_in_bounds")
         weights = (leaf / state.min_tree[1]) ** (-jnp.asarray(beta, jnp.float32))
         return _read(state.data, idx, self.vectorized), idx, weights
 
-    def update_priorities(
-        self, state: PrioritizedState, indices: jax.Array, priorities: jax.Array
-    ) -> PrioritizedState:
+    def update_priorities(self, state: PrioritizedState, indices: jax.Array, priorities: jax.Array) -> PrioritizedState:
         """`priorities` are raw (e.g. |TD error|); stored as `(|p| + eps)**alpha`."""
-        raw = jnp.abs(priorities).astype(jnp.float32) + self.eps
+        raw = (jnp.abs(priorities).astype(jnp.float32) + self.eps).reshape(-1)
         indices = jnp.asarray(indices, jnp.int32).reshape(-1)
-        raw = raw.reshape(-1)
-        tree, min_tree = self._set_leaves(
-            state.tree, state.min_tree, indices, raw**self.alpha
-        )
+        tree, min_tree = self._set_leaves(state.tree, state.min_tree, indices, raw**self.alpha)
         max_priority = jnp.maximum(state.max_priority, jnp.max(raw))
         return state.replace(tree=tree, min_tree=min_tree, max_priority=max_priority)
-
-    def can_sample(self, state: PrioritizedState, min_size: int = 1) -> jax.Array:
-        return state.size >= min_size

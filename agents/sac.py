@@ -1,35 +1,14 @@
 """Soft Actor-Critic, the whole training loop inside `lax.scan`, from Brax's parts.
 
-Read top to bottom: config -> transition packing -> train state -> acting and collecting
-(the replay's first fill included) -> the SAC update -> deterministic evaluation -> one
-training chunk -> `train`. Built like `agents.dqn`: `train(config, env, key)` is pure and
-jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the same
-chunks from the host (`init`, `train_steps`, `evaluate_and_keep_best`) and saves the train state between
-them; that state is the whole of one seed (networks, optimizers, temperature, normalizer,
-replay buffer, envs, key), so resuming from it is exact.
+Read top to bottom: config -> transitions and the parts TD3 shares -> train state -> acting and
+collecting -> the SAC update -> one training chunk -> `train`. Built like `agents.dqn`: pure,
+jittable, vmapped over seeds; the train state is the whole of one seed, so resuming is exact.
 
-Brax's parts, imported, never copied: the networks and the deterministic policy
-(`brax.training.agents.sac.networks`), the three losses (`...sac.losses.make_losses`), the
-gradient step (`brax.training.gradients.gradient_update_fn`), the observation normalizer
-(`brax.training.acme.running_statistics`) and the optimizers Brax's trainer uses (Adam at
-`learning_rate` for the policy and the Q networks, at 3e-4 for the log temperature). The
-loop follows `brax.training.agents.sac.train`: each iteration takes one step of every env
-with the stochastic policy, updates the normalizer with the observations acted on, stores the
-transitions and makes `grad_updates_per_step` updates (temperature, then critic, then actor,
-each from the parameters before the update, then the target's Polyak average).
-
-Where it differs from Brax's trainer, and why:
-- Truncation: a transition carries `discount = 1 - terminated` and the true final observation
-  (`envs.wrap_for_training`'s `info["final_obs"]`), so the critic bootstraps through a time
-  limit. Brax stores the next episode's first observation there and leaves truncated steps out
-  of the critic loss instead; here their `truncation` extra is 0, so the loss keeps them.
-- Steps with non-finite or overflowing physics (MuJoCo Warp) never reach the buffer
-  (`agents.replay.UniformReplay`'s mask; Brax's queue stores every row), as in the DQN.
-- The replay's first fill (`min_replay_size`, rounded up to whole env-step batches, with the
-  untrained policy's actions as Brax does) happens in `init`, so every chunk is the same
-  program; `env_steps` counts it, as Brax's does.
-- Brax also evaluates the untrained policy before training (one of its `num_evals`); here the
-  evaluations are the judges after each of the `num_evals - 1` chunks.
+Brax's networks, losses, gradient step, normalizer and optimizers are imported, never copied; the
+loop follows `brax.training.agents.sac.train` (temperature, critic, actor, each from the parameters
+before the update, then the target's Polyak average). Where it differs (truncation bootstraps from
+the true final observation, faulty physics never reaches the replay, the first fill is in `init`):
+docs/agents.md, "PPO and SAC: Brax's parts, our loop".
 """
 
 from __future__ import annotations
@@ -44,28 +23,43 @@ from flax import struct
 
 from agents import device_options
 from agents import evaluation
-from agents.dqn import DQN, add_up
+from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
+from agents.ppo import PPO
 from agents.replay import UniformReplay
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
 
-# Brax is imported inside the functions that use it, so `import agents` stays light: importing
-# it costs about a second of every command's start-up.
+# Brax is imported inside the functions that use it, so `import agents` stays light.
 
 # Brax's trainer: the log temperature's own Adam step size, whatever `learning_rate` is.
 ALPHA_LEARNING_RATE = 3e-4
 
 
+def check_layer_widths(config, *fields: str) -> None:
+    """Refuses an empty or non-positive layer width list in each of `fields`."""
+    for name in fields:
+        widths = getattr(config, name)
+        if not widths:
+            raise ValueError(f"{type(config).__name__}.{name} needs at least one layer width, got {widths!r}; "
+                             "e.g. (64, 64)")
+        for width in widths:
+            COUNT.check(f"{type(config).__name__}.{name} (layer widths {widths})", width)
+
+
+def check_prefill(config) -> None:
+    """Refuses a first fill that leaves no env steps to train on."""
+    if config.prefill_steps >= config.num_timesteps:
+        raise ValueError(f"{type(config).__name__}.min_replay_size ({config.min_replay_size}, {config.prefill_steps} "
+                         f"env steps over {config.num_envs} envs) must be below num_timesteps "
+                         f"({config.num_timesteps}), or no training happens; "
+                         "lower min_replay_size or raise num_timesteps")
+
+
 @dataclasses.dataclass(frozen=True)
 class SACConfig:
-    """Every hyperparameter of a run, with the names and meanings of the arguments of
-    `brax.training.agents.sac.train` (`num_timesteps` is `--steps` on the command line).
-
-    The replay is first filled with `min_replay_size` env steps (rounded up to whole batches of
-    `num_envs`); then each iteration takes one step of every env and makes
-    `grad_updates_per_step` gradient steps on batches of `batch_size`. The run is `num_evals - 1`
-    chunks of `eval_every` env steps, each followed by an evaluation of `num_eval_envs` episodes
-    (Brax's `num_evals` counts an evaluation before training too)."""
+    """Every hyperparameter of a run, named as the arguments of `brax.training.agents.sac.train`. After
+    the first fill, each iteration steps every env once and makes `grad_updates_per_step` gradient
+    steps; the run is `num_evals - 1` chunks, each ended by an evaluation."""
 
     num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
     num_envs: int = 16
@@ -92,16 +86,10 @@ class SACConfig:
 
     def __post_init__(self):
         check_fields(self, self.RANGES)
-        if not self.hidden:
-            raise ValueError(f"SACConfig.hidden needs at least one layer width, got {self.hidden!r}; e.g. (64, 64)")
-        for width in self.hidden:
-            COUNT.check(f"SACConfig.hidden (layer widths {self.hidden})", width)
+        check_layer_widths(self, "hidden")
         if self.solve_return is not None:
             FINITE.check("SACConfig.solve_return (None: no threshold)", self.solve_return)
-        if self.prefill_steps >= self.num_timesteps:
-            raise ValueError(f"SACConfig.min_replay_size ({self.min_replay_size}, {self.prefill_steps} env steps "
-                             f"over {self.num_envs} envs) must be below num_timesteps ({self.num_timesteps}), "
-                             "or no training happens; lower min_replay_size or raise num_timesteps")
+        check_prefill(self)
         need = max(self.batch_size, self.min_replay_size, self.num_envs)
         if self.max_replay_size < need:
             raise ValueError(f"SACConfig.max_replay_size ({self.max_replay_size}) must hold at least batch_size "
@@ -110,8 +98,7 @@ class SACConfig:
 
     @property
     def prefill_steps(self) -> int:
-        """Env steps of the replay's first fill (in `init`): `min_replay_size` rounded up to
-        whole batches of `num_envs`, as Brax's SAC rounds it."""
+        """Env steps of the first fill: `min_replay_size` rounded up to whole batches, as Brax's SAC."""
         return self.prefill_iterations * self.num_envs
 
     @property
@@ -120,15 +107,12 @@ class SACConfig:
 
     @property
     def iterations_per_chunk(self) -> int:
-        """Iterations (one step of every env, then the updates) in a chunk: Brax's
-        `num_training_steps_per_epoch`, the steps after the first fill split over the chunks,
-        rounded up."""
+        """Brax's `num_training_steps_per_epoch`: the steps after the first fill over the chunks, rounded up."""
         return -(-(self.num_timesteps - self.prefill_steps) // (self.num_chunks * self.num_envs))
 
     @property
     def eval_every(self) -> int:
-        """Env steps per seed in one chunk, a whole number of `num_envs` batches: the steps
-        after the first fill over `num_chunks`, rounded up (so `total_steps >= num_timesteps`)."""
+        """Env steps per seed in one chunk (so `total_steps >= num_timesteps`)."""
         return self.iterations_per_chunk * self.num_envs
 
     @property
@@ -145,8 +129,7 @@ class SACConfig:
         return self.prefill_steps + self.num_chunks * self.eval_every
 
     def rounding(self) -> str:
-        """How `num_timesteps` became `total_steps` ("" when it needed no rounding); the command line
-        says it before anything compiles."""
+        """How `num_timesteps` became `total_steps` ("" when it needed no rounding)."""
         if self.total_steps == self.num_timesteps:
             return ""
         return (f"num_timesteps {self.num_timesteps:,} rounded up to {self.total_steps:,} env steps: a first fill of "
@@ -178,9 +161,46 @@ def unpack(rows: jax.Array, obs_size: int, action_size: int) -> Transition:
                       discount=rows[..., a + 1], next_obs=rows[..., a + 2:])
 
 
+def example_row(env_state, action_size: int) -> jax.Array:
+    """One packed row shaped as the envs' transitions: what the buffer is allocated from."""
+    obs, reward = env_state.obs[0], env_state.reward[0]
+    return pack(Transition(obs, jnp.zeros((action_size,), jnp.float32), reward, reward, obs))
+
+
+def step_envs(train_env, env_state, action):
+    """One step of every env: the new env state, the packed transitions, which of them may be
+    stored (finite physics, no overflow) and the step's episode stats."""
+    obs = env_state.obs
+    env_state = train_env.step(env_state, action)
+    info = env_state.info
+    terminated = env_state.done * (1.0 - info["truncation"])
+    rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
+    overflow, stats = evaluation.step_stats(info)
+    return env_state, rows, (info["nan"] == 0) & (overflow == 0), stats
+
+
+def sample_batches(agent, ts, key: jax.Array, count: int) -> Transition:
+    """`count` uniform batches of the config's `batch_size` from `agent`'s buffer, leading axis: batch."""
+    batch_size = agent.config.batch_size
+    rows, _ = agent.buffer.sample_from_bits(ts.buffer, jax.random.bits(key, (count * batch_size,), jnp.uint32))
+    return unpack(rows.reshape(count, batch_size, -1), agent.obs_size, agent.action_size)
+
+
+def polyak(target, online, tau: float):
+    """The target's Polyak step towards the online parameters."""
+    return jax.tree.map(lambda old, new: old * (1 - tau) + new * tau, target, online)
+
+
+def prefill(collect, ts, key: jax.Array, iterations: int):
+    """The replay's first fill: `iterations` steps of every env (`collect`) with the untrained policy;
+    the first evaluation compares against these parameters."""
+    if iterations:
+        ts, _ = jax.lax.scan(collect, ts, jax.random.split(key, iterations))
+    return ts.replace(best_params=ts.params)
+
+
 def brax_transitions(t: Transition):
-    """`t` as the batch Brax's losses read. `truncation` is 0: the row's next observation is
-    the true one, so the critic bootstraps through a time limit rather than dropping the row."""
+    """`t` as Brax's losses read it; `truncation` 0, as the next observation is the true one."""
     from brax.training import types
 
     return types.Transition(observation=t.obs, action=t.action, reward=t.reward, discount=t.discount,
@@ -211,9 +231,7 @@ class SAC:
     """The pieces of a SAC run for one env and config; all methods are pure."""
 
     def __init__(self, config: SACConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`platform`: the backend whose program shapes to use (`agents.device_options`); None: JAX's
-        default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
-        interface has it)."""
+        """`platform`: whose program shapes to use (`agents.device_options`); `agents`: unused."""
         from brax.training import gradients, types
         from brax.training.acme import running_statistics
         from brax.training.agents.sac import losses as sac_losses
@@ -226,8 +244,7 @@ class SAC:
         self.env = env
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.obs_size, self.action_size = env.observation_size, env.action_size
-        # Brax's trainer builds its networks the same way (`benchmarks.brax_trainers.network_factory`),
-        # so `params` is what Brax's SAC returns.
+        # As Brax's trainer builds them (`benchmarks.brax_trainers.network_factory`): `params` is Brax's SAC's.
         normalize = running_statistics.normalize if config.normalize_observations else types.identity_observation_preprocessor
         self.networks = sac_networks.make_sac_networks(self.obs_size, self.action_size,
                                                        preprocess_observations_fn=normalize,
@@ -246,24 +263,18 @@ class SAC:
 
     # ---- acting -------------------------------------------------------------
     def policy(self, params, obs):
-        """The deterministic policy (the mode, tanh of the mean): an action in [-1, 1] per
-        observation; `params` = (normalizer state, policy params)."""
+        """The deterministic policy (tanh of the mean); `params` = (normalizer state, policy params)."""
         return self.make_policy(params, deterministic=True)(obs, None)[0]
 
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        """One step of every env with the stochastic policy: the normalizer sees the observations
-        acted on (as Brax's), the transitions go to the buffer (NaN and overflow steps never do)."""
+        """One step of every env with the stochastic policy into the buffer; the normalizer sees its observations."""
         from brax.training.acme import running_statistics
 
         normalizer, policy_params = ts.params
         obs = ts.env_state.obs
         action, _ = self.make_policy(ts.params)(obs, key)
-        env_state = self.train_env.step(ts.env_state, action)
-        info = env_state.info
-        terminated = env_state.done * (1.0 - info["truncation"])
-        rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
-        overflow, stats = evaluation.step_stats(info)
-        buffer = self.buffer.add(ts.buffer, rows, mask=(info["nan"] == 0) & (overflow == 0))
+        env_state, rows, valid, stats = step_envs(self.train_env, ts.env_state, action)
+        buffer = self.buffer.add(ts.buffer, rows, mask=valid)
         normalizer = running_statistics.update(normalizer, obs)
         ts = ts.replace(params=(normalizer, policy_params), buffer=buffer, env_state=env_state,
                         env_steps=ts.env_steps + self.config.num_envs)
@@ -271,9 +282,8 @@ class SAC:
 
     # ---- learning -----------------------------------------------------------
     def learn(self, ts: TrainState, batch: Transition, keys: tuple[jax.Array, jax.Array, jax.Array]):
-        """One gradient step on `batch` (Brax's `sgd_step`): the temperature, the critic and the
-        actor, each from the parameters before this step, then the target's Polyak average.
-        `keys`: the temperature's, the critic's and the actor's sampling keys."""
+        """One gradient step on `batch` (Brax's `sgd_step`), `keys` the temperature's, the critic's and
+        the actor's: each from the parameters before this step, then the target's Polyak average."""
         key_alpha, key_critic, key_actor = keys
         normalizer, policy_params = ts.params
         transitions = brax_transitions(batch)
@@ -286,22 +296,18 @@ class SAC:
         actor_loss, policy_params, policy_opt_state = self.actor_update(
             policy_params, normalizer, ts.q_params, alpha, transitions, key_actor,
             optimizer_state=ts.policy_opt_state)
-        tau = self.config.tau
-        target_q_params = jax.tree.map(lambda old, new: old * (1 - tau) + new * tau, ts.target_q_params, q_params)
+        target_q_params = polyak(ts.target_q_params, q_params, self.config.tau)
         ts = ts.replace(params=(normalizer, policy_params), q_params=q_params, target_q_params=target_q_params,
                         log_alpha=log_alpha, policy_opt_state=policy_opt_state, q_opt_state=q_opt_state,
                         alpha_opt_state=alpha_opt_state)
-        stats = {"critic_loss": critic_loss, "actor_loss": actor_loss, "alpha_loss": alpha_loss,
-                 "alpha": jnp.exp(log_alpha)}
-        return ts, stats
+        return ts, {"critic_loss": critic_loss, "actor_loss": actor_loss, "alpha_loss": alpha_loss,
+                    "alpha": jnp.exp(log_alpha)}
 
     def update(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         """`grad_updates_per_step` gradient steps, each on its own uniform batch from the buffer."""
         cfg = self.config
         sample_key, sgd_key = jax.random.split(key)
-        bits = jax.random.bits(sample_key, (cfg.grad_updates_per_step * cfg.batch_size,), jnp.uint32)
-        rows, _ = self.buffer.sample_from_bits(ts.buffer, bits)
-        batches = unpack(rows.reshape(cfg.grad_updates_per_step, cfg.batch_size, -1), self.obs_size, self.action_size)
+        batches = sample_batches(self, ts, sample_key, cfg.grad_updates_per_step)
 
         def sgd_step(carry, batch):
             ts, key = carry
@@ -315,21 +321,12 @@ class SAC:
         (ts, _), stats = jax.lax.scan(sgd_step, (ts, sgd_key), batches)
         return ts, jax.tree.map(jnp.mean, stats)
 
-    # ---- evaluation -----------------------------------------------------------
-    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """The deterministic policy's return of each of `num_episodes` fresh episodes (the config's
-        `num_eval_envs` when not given); with `record`, also the first episode step by step
-        (`agents.evaluation.evaluate`)."""
-        return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
-                                   num_episodes or self.config.eval_episodes,
-                                   jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
+    evaluate = PPO.evaluate  # the deterministic policy's returns
 
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
-        """Fresh networks (as Brax initialises them), optimizers, temperature 1, envs, and the
-        replay's first fill: `prefill_iterations` steps of every env with the untrained
-        stochastic policy, which also feed the normalizer (Brax's `prefill_replay_buffer`).
-        `hyperparams`: DQN's sweep argument; SAC traces none of its settings yet."""
+        """Fresh networks (as Brax's), optimizers, temperature 1, envs, and the replay's first fill
+        (Brax's `prefill_replay_buffer`). `hyperparams`: DQN's sweep argument; SAC traces none yet."""
         from brax.training.acme import running_statistics, specs
 
         if hyperparams is not None:
@@ -341,42 +338,21 @@ class SAC:
         normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
         log_alpha = jnp.asarray(0.0, jnp.float32)
         env_state = self.train_env.reset(env_key)
-        example = pack(Transition(env_state.obs[0], jnp.zeros((self.action_size,), jnp.float32), env_state.reward[0],
-                                  env_state.reward[0], env_state.obs[0]))
         ts = TrainState(
-            params=(normalizer, policy_params),
-            q_params=q_params,
-            target_q_params=q_params,
-            log_alpha=log_alpha,
-            policy_opt_state=self.policy_optimizer.init(policy_params),
-            q_opt_state=self.q_optimizer.init(q_params),
+            params=(normalizer, policy_params), q_params=q_params, target_q_params=q_params, log_alpha=log_alpha,
+            policy_opt_state=self.policy_optimizer.init(policy_params), q_opt_state=self.q_optimizer.init(q_params),
             alpha_opt_state=self.alpha_optimizer.init(log_alpha),
-            buffer=self.buffer.init(example),
-            env_state=env_state,
-            key=loop_key,
-            env_steps=jnp.zeros((), jnp.int32),
-            best_params=(normalizer, policy_params),
-            best_return=jnp.full((), -jnp.inf),
-            solve_step=jnp.full((), -1, jnp.int32),
-        )
-        if self.config.prefill_iterations:
-            fill_keys = jax.random.split(fill_key, self.config.prefill_iterations)
-            ts, _ = jax.lax.scan(self.collect, ts, fill_keys)
-        # The first evaluation compares against these: the untrained policy after the fill.
-        return ts.replace(best_params=ts.params)
+            buffer=self.buffer.init(example_row(env_state, self.action_size)),
+            **first_state((normalizer, policy_params), env_state, loop_key))
+        return prefill(self.collect, ts, fill_key, self.config.prefill_iterations)
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
-    # What a chunk adds up over its iterations (`train_steps`), with their types.
-    CHUNK_TOTALS = {
-        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
-        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
-        "critic_loss": jnp.float32, "actor_loss": jnp.float32, "alpha_loss": jnp.float32, "alpha": jnp.float32,
-    }
+    CHUNK_TOTALS = {**EPISODE_TOTALS, "critic_loss": jnp.float32, "actor_loss": jnp.float32,
+                    "alpha_loss": jnp.float32, "alpha": jnp.float32}
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
-        """A chunk's `eval_every` env steps of acting and learning: the train state, its
-        training metrics and the key of the evaluation that follows."""
+        """A chunk's acting and learning: the train state, its metrics and the next evaluation's key."""
         cfg = self.config
 
         def iteration(ts, key):
@@ -388,11 +364,8 @@ class SAC:
         key, loop_key, eval_key = jax.random.split(ts.key, 3)
         ts, totals = add_up(self, iteration, ts.replace(key=key), jax.random.split(loop_key, cfg.iterations_per_chunk))
         iterations = cfg.iterations_per_chunk
-        metrics = {
-            **{name: totals[name] / iterations for name in ("critic_loss", "actor_loss", "alpha_loss", "alpha")},
-            **evaluation.episode_metrics(totals),
-        }
-        return ts, metrics, eval_key
+        losses = {name: totals[name] / iterations for name in ("critic_loss", "actor_loss", "alpha_loss", "alpha")}
+        return ts, {**losses, **evaluation.episode_metrics(totals)}, eval_key
 
     def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
                                record: bool = False) -> tuple[TrainState, dict]:
@@ -401,6 +374,5 @@ class SAC:
 
 
 def train(config: SACConfig, env: Env, key: jax.Array):
-    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
-    vmap it over keys for seeds."""
+    """A whole run as one pure function (`evaluation.whole_run`): `(best_params, metrics)`; vmap it for seeds."""
     return evaluation.whole_run(SAC(config, env), key)

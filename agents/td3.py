@@ -1,44 +1,11 @@
 """FastTD3 (Seo et al. 2025, arXiv 2505.22642): TD3 at GPU scale, the whole loop inside `lax.scan`.
 
-Read top to bottom: config -> networks and C51's projection -> n-step rows -> train state ->
-acting and collecting (the replay's first fill included) -> the critic's and the actor's losses -> one update -> deterministic
-evaluation -> one training chunk -> `train`. Built like `agents.sac`: `train(config, env, key)`
-is pure and jittable, `jax.vmap`s over seeds, and the run lifecycle (`agents.run`) drives the
-same chunks from the host (`init`, `train_steps`, `evaluate_and_keep_best`) and saves the train
-state between them; that state is the whole of one seed (actor, twin critics and their target,
-optimizers, normalizer, per-env exploration noise, n-step window, replay buffer, envs, key), so
-resuming from it is exact.
-
-The recipe is FastTD3's (github.com/younggyoseo/FastTD3, `fast_td3/train.py`,
-`fast_td3/fast_td3.py`, `fast_td3/hyperparams.py` read at commit 229ed59), written here from
-its description, not its code:
-- many parallel envs, each iteration one step of every env then `num_updates` gradient steps on
-  large uniform batches from a replay on the device (`agents.replay.UniformReplay`);
-- twin distributional (C51) critics over `num_atoms` atoms on [v_min, v_max], trained by cross
-  entropy against the target critics' projected distribution; with `use_cdq` (clipped double Q)
-  both learn the projection of whichever target critic's mean value is lower;
-- no target actor: the next action is the actor's, smoothed by clipped Gaussian noise
-  (`policy_noise`, `noise_clip`); the actor maximises the lower twin's mean value, once every
-  `policy_frequency` critic updates (delayed updates); the target critics' Polyak step `tau`
-  follows every update;
-- exploration: each env has its own Gaussian noise scale, drawn uniformly from
-  [std_min, std_max] when its episode ends;
-- AdamW (`weight_decay`) for both networks, an actor head initialised at `init_scale`;
-  optionally bfloat16 matmuls (`compute_dtype`, FastTD3's AMP), losses in float32.
-
-Where it differs from FastTD3's code, and why:
-- The observation normalizer is Brax's running statistics (as our PPO and SAC), updated with the
-  observations acted on; FastTD3's also updates on every replay batch it normalises.
-- An exploring action is clipped to [-1, 1] before the env and the replay see it, so the
-  critic learns the action the env took.
-- Truncation bootstraps from the true final observation; steps with non-finite or overflowing
-  physics never reach the replay (as in `agents.sac`).
-- n-step returns (`num_steps`, FastTD3's default 1: none) are formed as transitions enter the
-  replay, from a window of each env's last `num_steps` steps kept in the train state; FastTD3
-  forms them when it samples. Either way a return stops where its episode ends.
-- The delayed actor step counts updates within a chunk (update k of the chunk steps the actor
-  when k % policy_frequency == policy_frequency - 1), so its schedule is a constant of the
-  program (a real branch, also under `vmap`) rather than a per-seed counter.
+Read top to bottom: config -> networks and C51's projection -> n-step rows -> train state -> acting
+and collecting -> the critic's and the actor's losses -> one update -> one training chunk -> `train`.
+Built like `agents.sac` (pure, jittable, vmapped over seeds, resumed exactly) from its shared parts.
+The recipe (many envs, twin C51 critics with clipped double Q, delayed actor updates without a target
+actor, per-env exploration noise, AdamW, optional bf16 matmuls) and where it differs from FastTD3's
+code: docs/agents.md, "TD3: FastTD3's recipe".
 """
 
 from __future__ import annotations
@@ -54,10 +21,11 @@ from flax import struct
 
 from agents import device_options
 from agents import evaluation
-from agents.dqn import DQN, add_up
+from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
 from agents.ppo import scale_by_adam
 from agents.replay import UniformReplay
-from agents.sac import SACConfig, Transition, pack, unpack
+from agents.sac import (SAC, SACConfig, Transition, check_layer_widths, check_prefill, example_row, pack, polyak,
+                        prefill, sample_batches, step_envs, unpack)
 from envs import Env, wrap_for_training
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, Valid,
                          check_fields)
@@ -78,13 +46,9 @@ class _OneOf(Valid):
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config:
-    """Every hyperparameter of a run. The defaults are sized for small tasks on a CPU; FastTD3's
-    own (for a GPU) are in the comments and in `agents/brax_defaults.py`'s TD3 rows.
-
-    The run is timed as `agents.sac.SACConfig`'s: the replay is first filled with
-    `min_replay_size` env steps (rounded up to whole batches of `num_envs`); each iteration then
-    takes one step of every env and makes `num_updates` gradient steps on batches of `batch_size`;
-    the run is `num_evals - 1` chunks, each followed by an evaluation of `num_eval_envs` episodes."""
+    """Every hyperparameter of a run, timed as `agents.sac.SACConfig`'s (`num_updates` gradient
+    steps per iteration). The defaults are sized for small tasks on a CPU; FastTD3's own (for a GPU)
+    are in the comments and in `agents/brax_defaults.py`'s TD3 rows."""
 
     num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
     num_envs: int = 16  # FastTD3: 128 (HumanoidBench), 1,024 (Playground), 4,096 (IsaacLab)
@@ -131,12 +95,7 @@ class TD3Config:
 
     def __post_init__(self):
         check_fields(self, self.RANGES)
-        for name in ("actor_hidden", "critic_hidden"):
-            widths = getattr(self, name)
-            if not widths:
-                raise ValueError(f"TD3Config.{name} needs at least one layer width, got {widths!r}; e.g. (64, 64)")
-            for width in widths:
-                COUNT.check(f"TD3Config.{name} (layer widths {widths})", width)
+        check_layer_widths(self, "actor_hidden", "critic_hidden")
         if self.std_min > self.std_max:
             raise ValueError(f"TD3Config.std_min ({self.std_min}) must not exceed std_max ({self.std_max}); "
                              "swap them, or set them equal for one noise scale")
@@ -145,10 +104,7 @@ class TD3Config:
                              "support; set them around the task's discounted returns (reward_scaling included)")
         if self.solve_return is not None:
             FINITE.check("TD3Config.solve_return (None: no threshold)", self.solve_return)
-        if self.prefill_steps >= self.num_timesteps:
-            raise ValueError(f"TD3Config.min_replay_size ({self.min_replay_size}, {self.prefill_steps} env steps "
-                             f"over {self.num_envs} envs) must be below num_timesteps ({self.num_timesteps}), "
-                             "or no training happens; lower min_replay_size or raise num_timesteps")
+        check_prefill(self)
         need = max(self.min_replay_size, self.num_envs)
         if self.max_replay_size < need:
             raise ValueError(f"TD3Config.max_replay_size ({self.max_replay_size}) must hold at least "
@@ -172,7 +128,7 @@ class TD3Config:
 
 # ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits ----------
 def _dense(features: int, dtype, **kwargs) -> nn.Dense:
-    # PyTorch's default layer init (FastTD3's networks are PyTorch's): U(+-1/sqrt(fan_in)) kernels.
+    # PyTorch's default layer init (FastTD3's): U(+-1/sqrt(fan_in)) kernels.
     kwargs.setdefault("kernel_init", nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform"))
     return nn.Dense(features, dtype=dtype, param_dtype=jnp.float32, **kwargs)
 
@@ -207,9 +163,8 @@ class DistributionalQ(nn.Module):
 
 
 def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: jax.Array) -> jax.Array:
-    """C51's projection (Bellemare et al. 2017) of the distribution `probs` over `support`, shifted
-    to `reward + discount * z` and clipped to the support, back onto the support's atoms: each
-    shifted atom's mass is split between its two neighbours by distance. `probs`: (batch, atoms)."""
+    """C51's projection (Bellemare et al. 2017) of `probs` (batch, atoms) over `support`, shifted to `reward +
+    discount * z` and clipped, back onto the atoms: each mass split between its two neighbours by distance."""
     v_min, v_max, atoms = support[0], support[-1], support.shape[0]
     shifted = jnp.clip(reward[:, None] + discount[:, None] * support[None, :], v_min, v_max)
     position = (shifted - v_min) / ((v_max - v_min) / (atoms - 1))
@@ -224,11 +179,10 @@ def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: j
 
 
 def n_step_rows(window: jax.Array, obs_size: int, action_size: int, discounting: float):
-    """Each env's `len(window)`-step transition from its window of one-step rows (oldest first;
-    a packed `Transition`, then `ended` and `valid`): the discounted rewards up to the first step
-    that ended its episode, that step's next observation, and `discounting**k * (1 - terminated)`
-    as the discount (the critic multiplies in one more `discounting`). `window`: (n, envs, width).
-    Returns the packed rows and whether each may be stored (every step in it valid)."""
+    """Each env's `len(window)`-step transition from its window (n, envs, width) of one-step rows
+    (oldest first; a packed `Transition`, then `ended` and `valid`): the discounted rewards up to
+    the first step that ended its episode, that step's next observation, and `discounting**k * (1 -
+    terminated)` as the discount. Returns the packed rows and whether each may be stored."""
     steps = unpack(window[..., :-2], obs_size, action_size)
     ended, valid = window[..., -2], window[..., -1]
     alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[:1]), 1.0 - ended[:-1]]), axis=0)  # before an end
@@ -260,8 +214,7 @@ class TrainState:
 
 
 def _adamw(learning_rate: float, weight_decay: float, max_grad_norm: float) -> optax.GradientTransformation:
-    """AdamW, its Adam divisions pinned as PPO's (`agents.ppo.scale_by_adam`): a seed's update is
-    the same program whether seeds are vmapped or not, up to the normalizer's own rounding."""
+    """AdamW, its Adam divisions pinned as PPO's (`agents.ppo.scale_by_adam`), so vmapped seeds match."""
     clip = [optax.clip_by_global_norm(max_grad_norm)] if max_grad_norm > 0 else []
     return optax.chain(*clip, scale_by_adam(), optax.add_decayed_weights(weight_decay),
                        optax.scale_by_learning_rate(learning_rate))
@@ -271,9 +224,7 @@ class TD3:
     """The pieces of a FastTD3 run for one env and config; all methods are pure."""
 
     def __init__(self, config: TD3Config, env: Env, platform: str | None = None, agents: int = 1):
-        """`platform`: the backend whose program shapes to use (`agents.device_options`); None: JAX's
-        default backend. `agents`: how many agents run vmapped on one device (unused, as DQN's
-        interface has it)."""
+        """`platform` and `agents`: as `agents.sac.SAC`'s."""
         if env.action_size is None:
             raise ValueError(f"TD3 needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
                              "(train it with --agent dqn)")
@@ -304,15 +255,13 @@ class TD3:
 
     # ---- acting -------------------------------------------------------------
     def policy(self, params, obs):
-        """The deterministic policy: the actor's action in [-1, 1] per observation;
-        `params` = (normalizer state, actor params)."""
+        """The actor's action in [-1, 1]; `params` = (normalizer state, actor params)."""
         normalizer, actor_params = params
         return self.actor.apply(actor_params, self.normalize(normalizer, obs))
 
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        """One step of every env with the actor and each env's own Gaussian noise; the normalizer
-        sees the observations acted on, the transitions go to the buffer (NaN and overflow steps
-        never do), and an env whose episode ended draws a new noise scale."""
+        """One step of every env with the actor and each env's own Gaussian noise, as `SAC.collect`;
+        an env whose episode ended draws a new noise scale."""
         from brax.training.acme import running_statistics
 
         cfg = self.config
@@ -321,12 +270,7 @@ class TD3:
         obs = ts.env_state.obs
         noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
         action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
-        env_state = self.train_env.step(ts.env_state, action)
-        info = env_state.info
-        terminated = env_state.done * (1.0 - info["truncation"])
-        rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
-        overflow, stats = evaluation.step_stats(info)
-        valid = (info["nan"] == 0) & (overflow == 0)
+        env_state, rows, valid, stats = step_envs(self.train_env, ts.env_state, action)
         window = ts.window
         if cfg.num_steps > 1:
             flags = jnp.stack([env_state.done, valid], axis=-1).astype(rows.dtype)
@@ -343,10 +287,8 @@ class TD3:
 
     # ---- the losses -----------------------------------------------------------
     def critic_loss(self, critic_params, ts: TrainState, batch: Transition, key: jax.Array):
-        """Cross entropy of each critic against the target critics' projected distribution of
-        `r + gamma * discount * Z(s', a')` (n-step: the row's reward and discount span its steps),
-        a' the actor's smoothed next action; with clipped
-        double Q both learn the projection whose mean value is lower."""
+        """Cross entropy of each critic against the target critics' projected `r + gamma * discount *
+        Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection."""
         cfg = self.config
         normalizer, actor_params = ts.params
         obs, next_obs = self.normalize(normalizer, batch.obs), self.normalize(normalizer, batch.next_obs)
@@ -365,8 +307,7 @@ class TD3:
         return loss, self.twin_values(target[0]).mean()
 
     def actor_loss(self, actor_params, ts: TrainState, batch: Transition):
-        """Minus the mean value of the actor's actions: the lower twin's with clipped double Q,
-        else the twins' average."""
+        """Minus the mean value of the actor's actions: the lower twin's with clipped double Q, else the mean."""
         normalizer, _ = ts.params
         obs = self.normalize(normalizer, batch.obs)
         values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, self.actor.apply(actor_params, obs))))
@@ -389,8 +330,7 @@ class TD3:
         updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
         ts = ts.replace(critic_params=optax.apply_updates(ts.critic_params, updates), critic_opt_state=opt_state)
         ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
-        tau = self.config.tau
-        target = jax.tree.map(lambda old, new: old * (1 - tau) + new * tau, ts.target_critic_params, ts.critic_params)
+        target = polyak(ts.target_critic_params, ts.critic_params, self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
                                                          "target_q": target_q}
 
@@ -399,9 +339,7 @@ class TD3:
         iteration's index in its chunk, the same for every seed) places them on the actor's clock."""
         cfg = self.config
         sample_key, noise_key = jax.random.split(key)
-        bits = jax.random.bits(sample_key, (cfg.num_updates * cfg.batch_size,), jnp.uint32)
-        rows, _ = self.buffer.sample_from_bits(ts.buffer, bits)
-        batches = unpack(rows.reshape(cfg.num_updates, cfg.batch_size, -1), self.obs_size, self.action_size)
+        batches = sample_batches(self, ts, sample_key, cfg.num_updates)
         counts = iteration * cfg.num_updates + jnp.arange(cfg.num_updates)
 
         def one_update(ts, inputs):
@@ -412,19 +350,12 @@ class TD3:
         return ts, {"critic_loss": stats["critic_loss"].mean(), "actor_loss": stats["actor_loss"].sum(),
                     "target_q": stats["target_q"].mean()}
 
-    # ---- evaluation -----------------------------------------------------------
-    def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
-        """The deterministic policy's return of each of `num_episodes` fresh episodes (the config's
-        `num_eval_envs` when not given); with `record`, also the first episode step by step."""
-        return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
-                                   num_episodes or self.config.eval_episodes,
-                                   jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
+    evaluate = SAC.evaluate  # the deterministic policy's returns
 
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
-        """Fresh networks, optimizers, per-env noise scales and envs, and the replay's first fill:
-        `prefill_iterations` steps of every env with the untrained actor and its noise, which also
-        feed the normalizer. `hyperparams`: DQN's sweep argument; TD3 traces none of its settings."""
+        """Fresh networks, optimizers, per-env noise scales and envs, and the replay's first fill
+        (the untrained actor and its noise). `hyperparams`: DQN's sweep argument; TD3 traces none."""
         from brax.training.acme import running_statistics, specs
 
         if hyperparams is not None:
@@ -437,41 +368,23 @@ class TD3:
         critic_params = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
         normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
         env_state = self.train_env.reset(env_key)
-        example = pack(Transition(env_state.obs[0], jnp.zeros((self.action_size,), jnp.float32), env_state.reward[0],
-                                  env_state.reward[0], env_state.obs[0]))
+        example = example_row(env_state, self.action_size)
         ts = TrainState(
-            params=(normalizer, actor_params),
-            critic_params=critic_params,
-            target_critic_params=critic_params,
+            params=(normalizer, actor_params), critic_params=critic_params, target_critic_params=critic_params,
             actor_opt_state=self.actor_optimizer.init(actor_params),
             critic_opt_state=self.critic_optimizer.init(critic_params),
             noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
             buffer=self.buffer.init(example),
-            env_state=env_state,
-            key=loop_key,
-            env_steps=jnp.zeros((), jnp.int32),
-            best_params=(normalizer, actor_params),
-            best_return=jnp.full((), -jnp.inf),
-            solve_step=jnp.full((), -1, jnp.int32),
             window=None if cfg.num_steps == 1 else jnp.zeros((cfg.num_steps, cfg.num_envs, example.shape[-1] + 2)),
-        )
-        if cfg.prefill_iterations:
-            ts, _ = jax.lax.scan(self.collect, ts, jax.random.split(fill_key, cfg.prefill_iterations))
-        # The first evaluation compares against these: the untrained actor after the fill.
-        return ts.replace(best_params=ts.params)
+            **first_state((normalizer, actor_params), env_state, loop_key))
+        return prefill(self.collect, ts, fill_key, cfg.prefill_iterations)
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
-    # What a chunk adds up over its iterations (`train_steps`), with their types.
-    CHUNK_TOTALS = {
-        "episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
-        "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32,
-        "critic_loss": jnp.float32, "actor_loss": jnp.float32, "target_q": jnp.float32,
-    }
+    CHUNK_TOTALS = {**EPISODE_TOTALS, "critic_loss": jnp.float32, "actor_loss": jnp.float32, "target_q": jnp.float32}
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
-        """A chunk's `eval_every` env steps of acting and learning: the train state, its
-        training metrics and the key of the evaluation that follows."""
+        """A chunk's acting and learning: the train state, its metrics and the next evaluation's key."""
         cfg = self.config
 
         def iteration(ts, inputs):
@@ -485,20 +398,13 @@ class TD3:
         iterations = cfg.iterations_per_chunk
         inputs = (jax.random.split(loop_key, iterations), jnp.arange(iterations))
         ts, totals = add_up(self, iteration, ts.replace(key=key), inputs)
-        metrics = {
-            "critic_loss": totals["critic_loss"] / iterations, "target_q": totals["target_q"] / iterations,
-            "actor_loss": totals["actor_loss"] / max(cfg.actor_updates_per_chunk, 1),
-            **evaluation.episode_metrics(totals),
-        }
-        return ts, metrics, eval_key
+        metrics = {"critic_loss": totals["critic_loss"] / iterations, "target_q": totals["target_q"] / iterations,
+                   "actor_loss": totals["actor_loss"] / max(cfg.actor_updates_per_chunk, 1)}
+        return ts, {**metrics, **evaluation.episode_metrics(totals)}, eval_key
 
-    def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
-                               record: bool = False) -> tuple[TrainState, dict]:
-        """A chunk's deterministic evaluation: keeps the best parameters and the step that solved the task."""
-        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+    evaluate_and_keep_best = SAC.evaluate_and_keep_best  # keeps the best parameters and the step that solved
 
 
 def train(config: TD3Config, env: Env, key: jax.Array):
-    """A whole run as one pure function (`agents.evaluation.whole_run`): `(best_params, metrics)`;
-    vmap it over keys for seeds."""
+    """A whole run as one pure function (`evaluation.whole_run`): `(best_params, metrics)`; vmap it for seeds."""
     return evaluation.whole_run(TD3(config, env), key)
