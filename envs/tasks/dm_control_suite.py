@@ -137,6 +137,23 @@ def control_substeps(control_timestep: float | None, timestep: float, tolerance_
     return int(round(ratio))
 
 
+def without_collisions(model: mujoco.MjModel) -> mujoco.MjModel:
+    """`model` with every geom's contype and conaffinity 0, which MJX needs (its `put_model` checks
+    the pairs the filter lets through, flags or not); neutral where the model disables constraints
+    or contacts by flag (`check_disabled`): C MuJoCo then runs no collision detection at all."""
+    model.geom_contype[:] = 0
+    model.geom_conaffinity[:] = 0
+    return model
+
+
+def check_disabled(model: mujoco.MjModel, disabled: mujoco.mjtDisableBit, name: str) -> None:
+    """ValueError unless `disabled` is set: the geoms `without_collisions` would then miss contacts."""
+    if not model.opt.disableflags & int(disabled):
+        raise ValueError(f"task {name}: its geoms collide with nothing (MJX has no collision for some of their "
+                         f"pairs), which is dm_control's physics only with {disabled.name} "
+                         "set, as its MJCF sets it; it was cleared")
+
+
 class DmControlEnv(MjxEnv):
     """A task of dm_control's suite (see the module docstring). Subclasses set `domain` (the MJCF
     is `dm_control/suite/<domain>.xml`), `task`, `control_timestep` where dm_control's domain has
@@ -267,3 +284,26 @@ class DmControlEnv(MjxEnv):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}()"
+
+
+class EpisodeTarget:
+    """dm_control's per-episode target (reacher, fish swim, swimmer): a world geom "target" whose
+    model position the task moves in every `initialize_episode`. Ours is kept in
+    `state.info["target"]` (its first `target_axes` coordinates) and written into `geom_xpos` after
+    every physics call, where dm_control's edited model puts it. Put before `DmControlEnv`'s subclass
+    in the bases; the subclass's `draw_episode` draws the target."""
+
+    episode_info = ("target",)  # dm_control's per-episode edit, for envs.interop.dm_control
+    target_axes: ClassVar[int] = 2  # x-y (reacher, swimmer) or x-y-z (fish)
+
+    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
+        # A world geom: its geom_xpos is its geom_pos, as dm_control's edited model gives it.
+        index = self.mj_model.geom("target").id
+        return data.replace(geom_xpos=data.geom_xpos.at[index, :self.target_axes].set(info["target"]))
+
+    def put_episode(self, physics, info) -> None:
+        """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
+        physics.named.model.geom_pos["target", :self.target_axes] = info["target"]
+
+    def get_episode(self, physics) -> dict:
+        return {"target": physics.named.model.geom_pos["target", :self.target_axes].copy()}

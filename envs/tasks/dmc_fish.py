@@ -39,29 +39,11 @@ import mujoco
 import numpy as np
 
 from envs.assets import load_model
-from envs.mjx_env import mjx
-from envs.tasks.dm_control_suite import DmControlEnv, tolerance
+from envs.tasks.dm_control_suite import DmControlEnv, EpisodeTarget, check_disabled, tolerance, without_collisions
 
 JOINTS = ("tail1", "tail_twist", "tail2", "finright_roll", "finright_pitch", "finleft_roll", "finleft_pitch")
 JOINT_SPREAD = 0.2  # the hinges' U(-0.2, 0.2) at reset (rad)
 TARGET_LOW, TARGET_HIGH = (-0.4, -0.4, 0.1), (0.4, 0.4, 0.3)  # Swim's target box (m)
-
-
-def without_collisions(model: mujoco.MjModel) -> mujoco.MjModel:
-    """`model` with every geom's contype and conaffinity 0, which MJX needs (its `put_model` checks
-    the pairs the filter lets through, flags or not); neutral where the model disables constraints
-    or contacts by flag (`check_disabled`): C MuJoCo then runs no collision detection at all."""
-    model.geom_contype[:] = 0
-    model.geom_conaffinity[:] = 0
-    return model
-
-
-def check_disabled(model: mujoco.MjModel, disabled: mujoco.mjtDisableBit, name: str) -> None:
-    """ValueError unless `disabled` is set: the geoms `without_collisions` would then miss contacts."""
-    if not model.opt.disableflags & int(disabled):
-        raise ValueError(f"task {name}: its geoms collide with nothing (MJX has no collision for some of their "
-                         f"pairs), which is dm_control's physics only with {disabled.name} "
-                         "set, as its MJCF sets it; it was cleared")
 
 
 class DmcFish(DmControlEnv):
@@ -111,26 +93,15 @@ class DmcFishUpright(DmcFish):
         return tolerance(self._upright(data), (1.0, 1.0), margin=1.0)
 
 
-class DmcFishSwim(DmcFish):
+class DmcFishSwim(EpisodeTarget, DmcFish):
     task = "swim"
     observation_shapes = (("joint_angles", 7), ("upright", 1), ("target", 3), ("velocity", 13))
-    episode_info = ("target",)  # dm_control's per-episode edit, for envs.interop.dm_control
+    target_axes = 3
 
     def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict]:
         key, target_key = jax.random.split(key)
         target = jax.random.uniform(target_key, (3,), minval=jnp.array(TARGET_LOW), maxval=jnp.array(TARGET_HIGH))
         return key, {"target": target.astype(self.mjx_model.geom_pos.dtype)}
-
-    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
-        # A world geom: its geom_xpos is its geom_pos, as dm_control's edited model gives it.
-        return data.replace(geom_xpos=data.geom_xpos.at[self.mj_model.geom("target").id].set(info["target"]))
-
-    def put_episode(self, physics, info) -> None:
-        """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
-        physics.named.model.geom_pos["target"] = info["target"]
-
-    def get_episode(self, physics) -> dict:
-        return {"target": physics.named.model.geom_pos["target"].copy()}
 
     def _mouth_to_target(self, data):
         """dm_control's `mouth_to_target`: target - mouth, in the mouth's frame (row vector times xmat)."""

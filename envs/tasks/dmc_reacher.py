@@ -23,19 +23,17 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.mjx_env import mjx
-from envs.tasks.dm_control_suite import DmControlEnv, randomize_joints, tolerance
+from envs.tasks.dm_control_suite import DmControlEnv, EpisodeTarget, randomize_joints, tolerance
 
 BIG_TARGET, SMALL_TARGET = 0.05, 0.015  # dm_control's _BIG_TARGET, _SMALL_TARGET (m)
 
 
-class DmcReacher(DmControlEnv):
+class DmcReacher(EpisodeTarget, DmControlEnv):
     """dm_control's `reacher.Reacher(target_size)`; the two tasks below fix it."""
 
     domain = "reacher"
     observation_shapes = (("position", 2), ("to_target", 2), ("velocity", 2))
     target_size: float
-    episode_info = ("target",)  # dm_control's per-episode edits, for envs.interop.dm_control
 
     def _put_on_device(self, impl: str) -> None:
         # The same every episode (dm_control sets it in each initialize_episode): set once.
@@ -48,18 +46,6 @@ class DmcReacher(DmControlEnv):
         radius = jax.random.uniform(radius_key, minval=0.05, maxval=0.2)
         target = (radius * jnp.stack([jnp.sin(angle), jnp.cos(angle)])).astype(self.mjx_model.geom_pos.dtype)
         return key, {"target": target}
-
-    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
-        # A world geom: its geom_xpos is its geom_pos, as dm_control's edited model gives it.
-        index = self.mj_model.geom("target").id
-        return data.replace(geom_xpos=data.geom_xpos.at[index, :2].set(info["target"]))
-
-    def put_episode(self, physics, info) -> None:
-        """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
-        physics.named.model.geom_pos["target", :2] = info["target"]
-
-    def get_episode(self, physics) -> dict:
-        return {"target": physics.named.model.geom_pos["target", :2].copy()}
 
     def initial_qpos_qvel(self, key):
         return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0), key), jnp.zeros(2)

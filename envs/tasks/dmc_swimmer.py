@@ -39,8 +39,8 @@ import jax.numpy as jnp
 import mujoco
 
 from envs.mjx_env import mjx
-from envs.tasks.dm_control_suite import DmControlEnv, randomize_joints, tolerance
-from envs.tasks.dmc_fish import check_disabled, without_collisions
+from envs.tasks.dm_control_suite import (DmControlEnv, EpisodeTarget, check_disabled, randomize_joints, tolerance,
+                                         without_collisions)
 
 CLOSE_TARGET_PROBABILITY = 0.2  # dm_control's chance of a target within CLOSE_TARGET_BOX
 CLOSE_TARGET_BOX, FAR_TARGET_BOX = 0.3, 2.0  # the target's x, y half-range (m)
@@ -77,13 +77,12 @@ def swimmer_spec(path: os.PathLike, n_bodies: int) -> mujoco.MjSpec:
     return spec
 
 
-class DmcSwimmer(DmControlEnv):
+class DmcSwimmer(EpisodeTarget, DmControlEnv):
     """dm_control's `swimmer.Swimmer` on `_make_model(n_bodies)`; the task below fixes n_bodies."""
 
     domain = "swimmer"
     control_timestep = 0.03  # dm_control's _CONTROL_TIMESTEP
     n_bodies: ClassVar[int]
-    episode_info = ("target",)  # dm_control's per-episode edit, for envs.interop.dm_control
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
         return without_collisions(swimmer_spec(path, self.n_bodies).compile())
@@ -100,18 +99,14 @@ class DmcSwimmer(DmControlEnv):
         return key, {"target": target.astype(self.mjx_model.geom_pos.dtype)}
 
     def with_episode(self, data: mjx.Data, info) -> mjx.Data:
-        # A world geom: its geom_xpos is its geom_pos, and the frame sensor on it reads that.
-        geom, sensor = self.mj_model.geom("target").id, int(self.mj_model.sensor("target_pos").adr[0])
-        return data.replace(geom_xpos=data.geom_xpos.at[geom, :2].set(info["target"]),
-                            sensordata=data.sensordata.at[sensor:sensor + 2].set(info["target"]))
+        # The frame sensor on the target reads its geom_xpos too.
+        sensor = int(self.mj_model.sensor("target_pos").adr[0])
+        data = super().with_episode(data, info)
+        return data.replace(sensordata=data.sensordata.at[sensor:sensor + 2].set(info["target"]))
 
     def put_episode(self, physics, info) -> None:
-        """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
-        physics.named.model.geom_pos["target", :2] = info["target"]
+        super().put_episode(physics, info)
         physics.named.model.light_pos["target_light", :2] = info["target"]
-
-    def get_episode(self, physics) -> dict:
-        return {"target": physics.named.model.geom_pos["target", :2].copy()}
 
     def initial_qpos_qvel(self, key):
         return randomize_joints(self.mj_model, jnp.asarray(self.mj_model.qpos0), key), jnp.zeros(self.mj_model.nv)
