@@ -56,8 +56,7 @@ class DQNConfig:
     eval_episodes: int = 64  # episodes per evaluation
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
-    # Every run, resumed ones included, is validated here before anything compiles. Exploration and
-    # priority annealing need a step at least: optax makes a zero-step schedule a constant.
+    # Validated before anything compiles; schedules need a step at least (optax's zero-step one is constant).
     RANGES: ClassVar[dict[str, Range]] = {
         "total_steps": COUNT, "num_envs": COUNT, "learning_starts": NON_NEGATIVE_COUNT, "train_every": COUNT,
         "gradient_steps": COUNT, "learning_rate": POSITIVE, "gamma": PROBABILITY,
@@ -110,8 +109,7 @@ class DQNConfig:
         return self.iterations_per_chunk * self.train_every, self.iterations_per_chunk * self.gradient_steps
 
 
-# ---- what `mjxsuite sweep` may vary within one program: fields used only as numbers in the
-# update arithmetic (never as a shape, a loop count or a Python branch) ----
+# ---- what `mjxsuite sweep` may vary within one program: fields only used as numbers, never as shapes ----
 SWEEPABLE = ("learning_rate", "gamma", "polyak_tau", "epsilon_start", "epsilon_end", "priority_beta_start")
 
 
@@ -122,9 +120,8 @@ def stack_hyperparams(cls, configs: list):
 
 
 class Hyperparams(NamedTuple):
-    """The numbers `DQN` reads from `SWEEPABLE` fields: Python floats for one config, or per-agent float32
-    arrays in a sweep. Differences optax computes in double precision are precomputed here, so a swept
-    agent is bit for bit a separate run of its config."""
+    """The numbers `DQN` reads from `SWEEPABLE` fields: floats for one config, float32 arrays in a sweep, with
+    optax's double-precision differences precomputed, so a swept agent is bit for bit a run of its config."""
 
     neg_learning_rate: Any  # optax.scale(-learning_rate)
     gamma: Any
@@ -181,9 +178,8 @@ def unpack(rows: jax.Array, obs_size: int) -> Transition:
 
 
 def greedy(q: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """`jnp.argmax(q, axis=-1)` and `q` there, as elementwise comparisons, one per action (ties go to
-    the first action, a NaN wins, as in `jnp.argmax`): on a GPU XLA's argmax reduction does not
-    vectorise over a short axis, the comparisons fuse (docs/bench-gpu.json, "dqn-greedy")."""
+    """`jnp.argmax(q, axis=-1)` and `q` there, as one comparison per action (ties and NaNs as `jnp.argmax`): on
+    a GPU XLA's argmax does not vectorise over a short axis, comparisons fuse (docs/bench-gpu.json, "dqn-greedy")."""
     best_action = jnp.zeros(q.shape[:-1], jnp.int32)
     best = q[..., 0]
     for action in range(1, q.shape[-1]):
@@ -223,8 +219,7 @@ def first_state(params, env_state, key: jax.Array) -> dict:
                 best_return=jnp.full((), -jnp.inf), solve_step=jnp.full((), -1, jnp.int32))
 
 
-# What a chunk adds up over its iterations (an agent's `CHUNK_TOTALS`, with its losses), with their
-# types: the loop's carry needs no extra trace of an iteration to learn them.
+# What every agent's chunk adds up (its `CHUNK_TOTALS`), typed so the loop needs no extra trace to learn them.
 EPISODE_TOTALS = {"episodes": jnp.float32, "return_sum": jnp.float32, "nan_episodes": jnp.float32,
                   "overflow_contacts": jnp.int32, "overflow_constraints": jnp.int32}
 
@@ -351,10 +346,7 @@ class DQN:
     def loss(self, params, batch: Transition, targets, weights):
         q = self.taken(self.batch_q_values(params, batch.obs), batch.action)
         td_error = q - targets
-        if self.config.loss == "huber":
-            per_item = optax.huber_loss(td_error)
-        else:
-            per_item = td_error**2
+        per_item = optax.huber_loss(td_error) if self.config.loss == "huber" else td_error**2
         return jnp.mean(weights * per_item), (td_error, q)
 
     def update(self, ts: TrainState, learning, bits) -> tuple[TrainState, dict]:
@@ -429,8 +421,7 @@ class DQN:
         return StepNoise(act, jax.random.bits(sample_key, (iterations, cfg.gradient_steps, cfg.batch_size), jnp.uint32))
 
     def chunk(self, ts: TrainState, record: bool = True) -> tuple[TrainState, dict]:
-        """`train_steps`, then `evaluate_and_keep_best` (`agents.run` compiles them as two programs).
-        With `record`, `metrics["eval_episode"]` holds the evaluation's first episode, else None."""
+        """`train_steps`, then `evaluate_and_keep_best`; `record`: its first episode in `metrics["eval_episode"]`."""
         ts, trained, eval_key = self.train_steps(ts)
         ts, judged = self.evaluate_and_keep_best(ts, eval_key, record)
         return ts, {**judged, **trained}

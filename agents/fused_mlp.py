@@ -18,8 +18,7 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as plgpu
 
 ROWS_PER_BLOCK = 64  # rows per forward program and per backward loop step
-# The widest layer (padded) for which the kernels are used: wider blocks no longer fit the registers
-# and XLA wins (docs/results.md, "DQN on the GPU").
+# The widest layer (padded) the kernels take: wider blocks overflow the registers and XLA wins (docs/results.md).
 MAX_WIDTH = 64
 
 

@@ -45,9 +45,7 @@ class QNetwork(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         def dense(features):
-            if not self.transposed_kernel_gradient:
-                return nn.Dense(features)
-            return nn.Dense(features, dot_general=_dense_dot_general)
+            return nn.Dense(features, dot_general=_dense_dot_general if self.transposed_kernel_gradient else None)
 
         x = obs
         for width in self.hidden:

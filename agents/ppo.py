@@ -1,10 +1,9 @@
-"""PPO as the suite's own agent: Brax's PPO, its loop ours and its parts Brax's.
+"""PPO as the suite's own agent: Brax's PPO, its loop ours and its parts Brax's (docs/agents.md).
 
-Read top to bottom: config -> train state -> acting (Brax's `acting.generate_unroll`) -> learning
-(Brax's `compute_ppo_loss` over shuffled minibatches) -> deterministic evaluation -> one training
-chunk -> `train`. The training step is Brax's, its keys split the same way, so from the same state
-it gives Brax's parameters; around it, a seed's whole state is one pytree, so a run advances chunk
-by chunk inside `jit`, vmaps over seeds and resumes exactly. The interface is `agents.dqn.DQN`'s.
+Read top to bottom: config -> train state -> acting -> learning -> evaluation -> one training chunk
+-> `train`. The training step is Brax's, its keys split the same way, so from the same state it gives
+Brax's parameters; around it, a seed's whole state is one pytree, so a run advances chunk by chunk
+inside `jit`, vmaps over seeds and resumes exactly. The interface is `agents.dqn.DQN`'s.
 """
 
 from __future__ import annotations
@@ -29,11 +28,9 @@ CNN_FIELDS = ("cnn_output_channels", "cnn_kernel_size", "cnn_stride")
 
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
-    """Every hyperparameter of a run, with the names and meanings of `brax.training.agents.ppo.train`.
-
-    Each training step collects `batch_size * num_minibatches * unroll_length` env steps; the
-    `num_evals - 1` chunks split `num_timesteps`, rounded up to whole training steps (Brax's first
-    evaluation is not a chunk). The defaults suit small tasks on a CPU (agents/brax_defaults.py)."""
+    """Every hyperparameter of a run, named as in `brax.training.agents.ppo.train`. The `num_evals - 1` chunks
+    split `num_timesteps`, rounded up to whole training steps of `batch_size * num_minibatches *
+    unroll_length` env steps. The defaults suit small tasks on a CPU (agents/brax_defaults.py)."""
 
     num_timesteps: int = 1_000_000  # env steps per seed, rounded up (see `total_steps`)
     num_envs: int = 64  # envs stepped in parallel by each agent
@@ -53,8 +50,7 @@ class PPOConfig:
     num_eval_envs: int = 64  # episodes per evaluation
     policy_hidden: tuple[int, ...] = (64, 64)  # the policy network's layer widths, e.g. 64,64
     value_hidden: tuple[int, ...] = (64, 64)  # the value network's layer widths
-    # On camera images, the convolutions in front of each MLP (`make_vision_networks`), one entry per
-    # layer; the default is the Nature DQN network's, sized for 64x64 images.
+    # On camera images, the convolutions before each MLP, one entry per layer (default: Nature DQN's, for 64x64).
     cnn_output_channels: tuple[int, ...] = (32, 64, 64)  # camera images: each convolution's channels
     cnn_kernel_size: tuple[int, ...] = (8, 4, 3)  # ...kernel size
     cnn_stride: tuple[int, ...] = (4, 2, 1)  # ...and stride
@@ -157,11 +153,9 @@ def check_image_fits(config: PPOConfig, shape: tuple[int, int, int]) -> None:
 
 
 def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: PPOConfig):
-    """Brax's vision PPO networks (`networks_vision.make_ppo_networks_vision`) for uint8 images of `shape`.
-
-    The policy and the value network each have their own convolutions, flattened rather than pooled
-    (where things are matters), then their MLPs; initialisers as MuJoCo Playground's CartpoleBalance
-    vision recipe. Frames go from uint8 to [0, 1] inside the networks, so rollouts store uint8."""
+    """Brax's vision PPO networks for uint8 images of `shape`: each network's own convolutions, flattened
+    rather than pooled (where things are matters), initialised as MuJoCo Playground's CartpoleBalance
+    vision recipe; frames go to [0, 1] inside the networks, so rollouts store uint8 (docs/agents.md)."""
     import math
 
     from brax.training import networks as brax_networks
@@ -251,7 +245,7 @@ class PPO:
     """The pieces of a PPO run for one env and config; all methods are pure."""
 
     def __init__(self, config: PPOConfig, env: Env, platform: str | None = None, agents: int = 1):
-        """`env`: one env with its time limit (`envs.make`); `platform` and `agents` as in `agents.dqn.DQN`."""
+        """`env`: one env with its time limit (`envs.make`); `platform` and `agents`: DQN's, unused."""
         from brax.training.acme import running_statistics
         from brax.training.agents.ppo import networks as ppo_networks
         if env.action_size is None:
@@ -259,7 +253,6 @@ class PPO:
                              f"{env!r} has {env.num_actions} discrete actions (train it with DQN)")
         self.config = config
         self.env = env
-        self.platform, self.agents = platform, agents
         self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
         self.image_shape = image_shape(env)  # None: a state vector
         if self.image_shape is None:

@@ -39,9 +39,8 @@ class ReplayState:
 
 @flax.struct.dataclass
 class PrioritizedState:
-    """State of the prioritized buffer. `tree` is a heap-ordered sum tree of `priority**alpha` (root
-    at 1, node n's children 2n and 2n+1, leaves from `tree_capacity` on, 0 where never written);
-    `min_tree` the same with `min` and `+inf`: its root normalises the importance weights."""
+    """`tree`: a heap-ordered sum tree of `priority**alpha` (root 1, node n's children 2n and 2n+1, leaves from
+    `tree_capacity` on, 0 where unwritten); `min_tree` the same with `min` and `+inf`, normalising weights."""
 
     data: Any
     insert_pos: jax.Array
@@ -66,11 +65,10 @@ def _batch_size(batch: Any, capacity: int) -> int:
     return b
 
 
-def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, keep=None) -> Any:
+def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, rows=None, count=None) -> Any:
     """Writes the k-th stored row to slot (insert_pos + k) % capacity: every row of `batch`, or with
-    `keep = (rows, count)` only `batch[rows[:count]]` (dropped items never touch the buffer)."""
+    `rows` and `count` only `batch[rows[:count]]` (dropped items never touch the buffer)."""
     b = _batch_size(batch, capacity)
-    rows, count = keep if keep is not None else (None, None)
 
     def put_row(k, data):
         slot = (insert_pos + k) % capacity
@@ -112,17 +110,17 @@ def _store(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask, ve
         count = jnp.asarray(mask, bool).sum(dtype=jnp.int32)
     if vectorized:
         return _scatter_write(data, batch, capacity, insert_pos, mask), count
-    keep = None if mask is None else _kept_rows(mask)
-    return _write(data, batch, capacity, insert_pos, keep), count
+    if mask is None:
+        return _write(data, batch, capacity, insert_pos), count
+    return _write(data, batch, capacity, insert_pos, _kept_rows(mask), count), count
 
 
-def _kept_rows(mask: jax.Array):
-    """(rows, count): indices of the rows where `mask` is True, in order, then the others."""
+def _kept_rows(mask: jax.Array) -> jax.Array:
+    """Indices of the rows where `mask` is True, in order, then the others."""
     mask = jnp.asarray(mask, bool).reshape(-1)
-    count = mask.sum(dtype=jnp.int32)
     if mask.shape[0] == 1:
-        return jnp.zeros((1,), jnp.int32), count
-    return jnp.argsort(~mask, stable=True).astype(jnp.int32), count
+        return jnp.zeros((1,), jnp.int32)
+    return jnp.argsort(~mask, stable=True).astype(jnp.int32)
 
 
 def _read(data: Any, indices: jax.Array, vectorized: bool = False) -> Any:
@@ -222,8 +220,7 @@ class PrioritizedReplay(_RingBuffer):
                                 min_tree=jnp.full((2 * t,), jnp.inf, jnp.float32))
 
     def _set_leaves(self, tree, min_tree, indices, values, count=None):
-        """Sets leaves one by one, rebuilding each one's ancestors from their children (of duplicate
-        indices the last wins). With `count`, only the first `count` (traced) items are set."""
+        """Sets leaves one by one (of duplicates the last wins), rebuilding ancestors; `count`: how many to set."""
 
         def set_leaf(k, trees):
             tree, min_tree = trees

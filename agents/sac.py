@@ -3,11 +3,9 @@
 Read top to bottom: config -> transitions and the parts TD3 shares -> train state -> acting and
 collecting -> the SAC update -> one training chunk -> `train`. Built like `agents.dqn`: pure,
 jittable, vmapped over seeds; the train state is the whole of one seed, so resuming is exact.
-
 Brax's networks, losses, gradient step, normalizer and optimizers are imported, never copied; the
-loop follows `brax.training.agents.sac.train` (temperature, critic, actor, each from the parameters
-before the update, then the target's Polyak average). Where it differs (truncation bootstraps from
-the true final observation, faulty physics never reaches the replay, the first fill is in `init`):
+loop follows `brax.training.agents.sac.train`. Where it differs (truncation bootstraps from the true
+final observation, faulty physics never reaches the replay, the first fill is in `init`):
 docs/agents.md, "PPO and SAC: Brax's parts, our loop".
 """
 
@@ -57,9 +55,8 @@ def check_prefill(config) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class SACConfig:
-    """Every hyperparameter of a run, named as the arguments of `brax.training.agents.sac.train`. After
-    the first fill, each iteration steps every env once and makes `grad_updates_per_step` gradient
-    steps; the run is `num_evals - 1` chunks, each ended by an evaluation."""
+    """Every hyperparameter of a run, named as in `brax.training.agents.sac.train`. After the first fill, each
+    iteration steps every env once; the run is `num_evals - 1` chunks, each ended by an evaluation."""
 
     num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
     num_envs: int = 16
@@ -136,10 +133,6 @@ class SACConfig:
                 f"{self.prefill_steps:,} (min_replay_size over {self.num_envs} envs), then {self.num_chunks} chunks of "
                 f"{self.iterations_per_chunk:,} steps of every env")
 
-    @property
-    def steps_per_epoch(self) -> int:  # Brax's name for it
-        return self.eval_every
-
 
 # ---- transitions: one packed float row, so the buffer does one gather per sample ----
 class Transition(NamedTuple):
@@ -161,6 +154,17 @@ def unpack(rows: jax.Array, obs_size: int, action_size: int) -> Transition:
                       discount=rows[..., a + 1], next_obs=rows[..., a + 2:])
 
 
+def continuous_setup(agent, config, env: Env) -> None:
+    """What SAC and TD3 set up alike: the config, the env (refused without continuous actions), its
+    training batch (train_run vmaps seeds) and the observation and action sizes."""
+    if env.action_size is None:
+        raise ValueError(f"{type(agent).__name__} needs a continuous-action env; {env!r} has {env.num_actions} "
+                         "discrete actions (train it with --agent dqn)")
+    agent.config, agent.env = config, env
+    agent.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)
+    agent.obs_size, agent.action_size = env.observation_size, env.action_size
+
+
 def example_row(env_state, action_size: int) -> jax.Array:
     """One packed row shaped as the envs' transitions: what the buffer is allocated from."""
     obs, reward = env_state.obs[0], env_state.reward[0]
@@ -168,8 +172,7 @@ def example_row(env_state, action_size: int) -> jax.Array:
 
 
 def step_envs(train_env, env_state, action):
-    """One step of every env: the new env state, the packed transitions, which of them may be
-    stored (finite physics, no overflow) and the step's episode stats."""
+    """One step of every env: its new state, the packed transitions, which may be stored, and the episode stats."""
     obs = env_state.obs
     env_state = train_env.step(env_state, action)
     info = env_state.info
@@ -192,8 +195,7 @@ def polyak(target, online, tau: float):
 
 
 def prefill(collect, ts, key: jax.Array, iterations: int):
-    """The replay's first fill: `iterations` steps of every env (`collect`) with the untrained policy;
-    the first evaluation compares against these parameters."""
+    """The replay's first fill, `iterations` steps of every env (`collect`); the first evaluation's baseline."""
     if iterations:
         ts, _ = jax.lax.scan(collect, ts, jax.random.split(key, iterations))
     return ts.replace(best_params=ts.params)
@@ -202,7 +204,6 @@ def prefill(collect, ts, key: jax.Array, iterations: int):
 def brax_transitions(t: Transition):
     """`t` as Brax's losses read it; `truncation` 0, as the next observation is the true one."""
     from brax.training import types
-
     return types.Transition(observation=t.obs, action=t.action, reward=t.reward, discount=t.discount,
                             next_observation=t.next_obs,
                             extras={"state_extras": {"truncation": jnp.zeros_like(t.reward)}, "policy_extras": {}})
@@ -236,14 +237,7 @@ class SAC:
         from brax.training.acme import running_statistics
         from brax.training.agents.sac import losses as sac_losses
         from brax.training.agents.sac import networks as sac_networks
-
-        if env.action_size is None:
-            raise ValueError(f"SAC needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
-                             "(train it with --agent dqn)")
-        self.config = config
-        self.env = env
-        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
-        self.obs_size, self.action_size = env.observation_size, env.action_size
+        continuous_setup(self, config, env)
         # As Brax's trainer builds them (`benchmarks.brax_trainers.network_factory`): `params` is Brax's SAC's.
         normalize = running_statistics.normalize if config.normalize_observations else types.identity_observation_preprocessor
         self.networks = sac_networks.make_sac_networks(self.obs_size, self.action_size,
@@ -269,7 +263,6 @@ class SAC:
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         """One step of every env with the stochastic policy into the buffer; the normalizer sees its observations."""
         from brax.training.acme import running_statistics
-
         normalizer, policy_params = ts.params
         obs = ts.env_state.obs
         action, _ = self.make_policy(ts.params)(obs, key)
@@ -328,7 +321,6 @@ class SAC:
         """Fresh networks (as Brax's), optimizers, temperature 1, envs, and the replay's first fill
         (Brax's `prefill_replay_buffer`). `hyperparams`: DQN's sweep argument; SAC traces none yet."""
         from brax.training.acme import running_statistics, specs
-
         if hyperparams is not None:
             raise ValueError("SAC cannot sweep settings within one program yet (no field of SACConfig is traced); "
                              "run one `mjxsuite train --agent sac` per value instead")

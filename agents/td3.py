@@ -24,9 +24,9 @@ from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
 from agents.ppo import scale_by_adam
 from agents.replay import UniformReplay
-from agents.sac import (SAC, SACConfig, Transition, check_layer_widths, check_prefill, example_row, pack, polyak,
-                        prefill, sample_batches, step_envs, unpack)
-from envs import Env, wrap_for_training
+from agents.sac import (SAC, SACConfig, Transition, check_layer_widths, check_prefill, continuous_setup, example_row,
+                        pack, polyak, prefill, sample_batches, step_envs, unpack)
+from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, Valid,
                          check_fields)
 
@@ -46,9 +46,8 @@ class _OneOf(Valid):
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config:
-    """Every hyperparameter of a run, timed as `agents.sac.SACConfig`'s (`num_updates` gradient
-    steps per iteration). The defaults are sized for small tasks on a CPU; FastTD3's own (for a GPU)
-    are in the comments and in `agents/brax_defaults.py`'s TD3 rows."""
+    """Every hyperparameter of a run, timed as `agents.sac.SACConfig`'s. The defaults suit small tasks on a
+    CPU; FastTD3's own (for a GPU) are in the comments and in `agents/brax_defaults.py`'s TD3 rows."""
 
     num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
     num_envs: int = 16  # FastTD3: 128 (HumanoidBench), 1,024 (Playground), 4,096 (IsaacLab)
@@ -179,10 +178,9 @@ def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: j
 
 
 def n_step_rows(window: jax.Array, obs_size: int, action_size: int, discounting: float):
-    """Each env's `len(window)`-step transition from its window (n, envs, width) of one-step rows
-    (oldest first; a packed `Transition`, then `ended` and `valid`): the discounted rewards up to
-    the first step that ended its episode, that step's next observation, and `discounting**k * (1 -
-    terminated)` as the discount. Returns the packed rows and whether each may be stored."""
+    """Each env's n-step transition from its window (n, envs, width) of one-step rows (oldest first; packed,
+    then `ended` and `valid`): rewards discounted up to the first step that ended its episode, that step's
+    next observation and `discounting**k * (1 - terminated)`. Returns the rows and whether each may be stored."""
     steps = unpack(window[..., :-2], obs_size, action_size)
     ended, valid = window[..., -2], window[..., -1]
     alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[:1]), 1.0 - ended[:-1]]), axis=0)  # before an end
@@ -225,13 +223,7 @@ class TD3:
 
     def __init__(self, config: TD3Config, env: Env, platform: str | None = None, agents: int = 1):
         """`platform` and `agents`: as `agents.sac.SAC`'s."""
-        if env.action_size is None:
-            raise ValueError(f"TD3 needs a continuous-action env; {env!r} has {env.num_actions} discrete actions "
-                             "(train it with --agent dqn)")
-        self.config = config
-        self.env = env
-        self.train_env = wrap_for_training(env, config.num_envs, under_vmap=True)  # train_run vmaps seeds
-        self.obs_size, self.action_size = env.observation_size, env.action_size
+        continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
         self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype)
         self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype)
@@ -243,7 +235,6 @@ class TD3:
     # ---- the networks, on normalized observations ---------------------------------------
     def normalize(self, normalizer, obs):
         from brax.training.acme import running_statistics
-
         return running_statistics.normalize(obs, normalizer) if self.config.normalize_observations else obs
 
     def twin_logits(self, critic_params, obs, action):
@@ -260,10 +251,8 @@ class TD3:
         return self.actor.apply(actor_params, self.normalize(normalizer, obs))
 
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        """One step of every env with the actor and each env's own Gaussian noise, as `SAC.collect`;
-        an env whose episode ended draws a new noise scale."""
+        """One step of every env with the actor and each env's noise (redrawn as its episode ends), as `SAC.collect`."""
         from brax.training.acme import running_statistics
-
         cfg = self.config
         noise_key, scale_key = jax.random.split(key)
         normalizer, actor_params = ts.params
@@ -323,8 +312,7 @@ class TD3:
                           actor_opt_state=opt_state), loss
 
     def learn(self, ts: TrainState, batch: Transition, key: jax.Array, actor_turn: jax.Array):
-        """One update on `batch`: the critics, then (on `actor_turn`, a value the same for every
-        seed) the actor against the updated critics, then the target critics' Polyak average."""
+        """One update on `batch`: the critics, the actor on `actor_turn` (the same for every seed), the targets."""
         (critic_loss, target_q), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
             ts.critic_params, ts, batch, key)
         updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
@@ -335,8 +323,7 @@ class TD3:
                                                          "target_q": target_q}
 
     def update(self, ts: TrainState, key: jax.Array, iteration: jax.Array) -> tuple[TrainState, dict]:
-        """`num_updates` updates, each on its own uniform batch from the buffer; `iteration` (the
-        iteration's index in its chunk, the same for every seed) places them on the actor's clock."""
+        """`num_updates` updates on uniform batches, on the actor's clock by `iteration` (its index in the chunk)."""
         cfg = self.config
         sample_key, noise_key = jax.random.split(key)
         batches = sample_batches(self, ts, sample_key, cfg.num_updates)
@@ -354,10 +341,8 @@ class TD3:
 
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
-        """Fresh networks, optimizers, per-env noise scales and envs, and the replay's first fill
-        (the untrained actor and its noise). `hyperparams`: DQN's sweep argument; TD3 traces none."""
+        """Fresh networks, optimizers, noise scales and envs, then the first fill; `hyperparams`: none traced yet."""
         from brax.training.acme import running_statistics, specs
-
         if hyperparams is not None:
             raise ValueError("TD3 cannot sweep settings within one program yet (no field of TD3Config is traced); "
                              "run one `mjxsuite train --agent td3` per value instead")
