@@ -1,4 +1,4 @@
-"""mjxsuite agents: DQN (uniform and prioritized replay), PPO and SAC, each a pure
+"""mjxsuite agents: DQN (uniform and prioritized replay), PPO, SAC and TD3, each a pure
 `train(config, env, key)` driven chunk by chunk by one run lifecycle (`train_run`), and
 `load_policy` for any run directory."""
 
@@ -8,7 +8,7 @@ import importlib
 # first line, loads no JAX.
 _LAZY = {"DQN": "agents.dqn", "DQNConfig": "agents.dqn", "train": "agents.dqn", "load_policy": "agents.run",
          "train_run": "agents.run", "PPO": "agents.ppo", "PPOConfig": "agents.ppo", "SAC": "agents.sac",
-         "SACConfig": "agents.sac"}
+         "SACConfig": "agents.sac", "TD3": "agents.td3", "TD3Config": "agents.td3"}
 
 
 def __getattr__(name: str):
@@ -23,4 +23,5 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["DQN", "DQNConfig", "PPO", "PPOConfig", "SAC", "SACConfig", "load_policy", "train", "train_run"]
+__all__ = ["DQN", "DQNConfig", "PPO", "PPOConfig", "SAC", "SACConfig", "TD3", "TD3Config", "load_policy", "train",
+           "train_run"]

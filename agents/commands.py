@@ -46,9 +46,7 @@ def config_fields(args: argparse.Namespace) -> dict[str, str]:
 
 def _parse_value(kind: type, text: str):
     if kind is bool:
-        if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-            raise ValueError(f"expected true/false, got {text!r}")
-        return text.lower() in ("true", "1", "yes")
+        return env_options.parse_bool(text)
     if kind == tuple[int, ...]:
         return tuple(int(v) for v in text.split(",") if v)
     if kind == float | None:

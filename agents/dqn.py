@@ -22,7 +22,8 @@ from agents import device_options, evaluation, fused_mlp
 from agents.networks import QNetwork
 from agents.replay import PrioritizedReplay, UniformReplay, uniform_from_bits
 from envs import Env, wrap_for_training
-from envs.ranges import COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
+from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
+                         check_fields)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,7 +58,9 @@ class DQNConfig:
     solve_return: float = 475.0  # greedy mean return that counts as solved
 
     # Validated before anything compiles; schedules need a step at least (optax's zero-step one is constant).
-    RANGES: ClassVar[dict[str, Range]] = {
+    RANGES: ClassVar[dict[str, Valid]] = {
+        "loss": OneOf(("mse", "huber")), "target_update": OneOf(("polyak", "hard")),
+        "replay": OneOf(("uniform", "prioritized")),
         "total_steps": COUNT, "num_envs": COUNT, "learning_starts": NON_NEGATIVE_COUNT, "train_every": COUNT,
         "gradient_steps": COUNT, "learning_rate": POSITIVE, "gamma": PROBABILITY,
         "polyak_tau": Range(0.0, 1.0, low_open=True), "target_period": COUNT, "epsilon_start": PROBABILITY,
@@ -67,10 +70,6 @@ class DQNConfig:
     }
 
     def __post_init__(self):
-        choices = {"loss": ("mse", "huber"), "target_update": ("polyak", "hard"), "replay": ("uniform", "prioritized")}
-        for field, valid in choices.items():
-            if getattr(self, field) not in valid:
-                raise ValueError(f"DQNConfig.{field} must be one of {valid}, got {getattr(self, field)!r}")
         check_fields(self, self.RANGES)
         for width in self.hidden:
             COUNT.check(f"DQNConfig.hidden (layer widths {self.hidden})", width)

@@ -66,6 +66,12 @@ def parse_randomize(entry: str) -> tuple[str, list | float]:
     return name, (["x", *bounds] if scale else bounds)
 
 
+def parse_bool(text: str) -> bool:
+    if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+        raise ValueError(f"expected true or false, got {text!r}")
+    return text.lower() in ("true", "1", "yes")
+
+
 def parse_option(name: str, option: str, text: str) -> Any:
     """`--env-opt option=text` for env `name`, read as the option's default's type; `opt.FIELD` is
     one field of an MJX task's `opt` (`parse_opt_field`)."""
@@ -83,9 +89,7 @@ def parse_option(name: str, option: str, text: str) -> Any:
         raise ValueError(f"option {option!r} of env {name!r} cannot be given as text; {fix}")
     try:
         if isinstance(default, bool):
-            if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise ValueError("expected true or false")
-            return text.lower() in ("true", "1", "yes")
+            return parse_bool(text)
         if isinstance(default, (int, float)):
             return type(default)(text)
         if isinstance(default, tuple):  # an interval such as healthy_z_range, written LOW,HIGH (inf allowed)

@@ -22,7 +22,7 @@ from flax import struct
 from agents import device_options
 from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
-from agents.ppo import PPO
+from agents.ppo import PPO, PPOConfig
 from agents.replay import UniformReplay
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, check_fields
@@ -112,13 +112,8 @@ class SACConfig:
         """Env steps per seed in one chunk (so `total_steps >= num_timesteps`)."""
         return self.iterations_per_chunk * self.num_envs
 
-    @property
-    def num_chunks(self) -> int:
-        return self.num_evals - 1
-
-    @property
-    def eval_episodes(self) -> int:
-        return self.num_eval_envs
+    num_chunks = PPOConfig.num_chunks  # one evaluation after each chunk, as PPO's
+    eval_episodes = PPOConfig.eval_episodes
 
     @property
     def total_steps(self) -> int:

@@ -27,21 +27,10 @@ from agents.replay import UniformReplay
 from agents.sac import (SAC, SACConfig, Transition, check_layer_widths, check_prefill, continuous_setup, example_row,
                         pack, polyak, prefill, sample_batches, step_envs, unpack)
 from envs import Env
-from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, Range, Valid,
+from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
                          check_fields)
 
 COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
-
-
-class _OneOf(Valid):
-    def __init__(self, choices):
-        self.choices = tuple(choices)
-
-    def __contains__(self, value: Any) -> bool:
-        return value in self.choices
-
-    def __str__(self) -> str:
-        return "one of " + ", ".join(repr(c) for c in self.choices)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,7 +77,7 @@ class TD3Config:
         "tau": Range(0.0, 1.0, low_open=True), "reward_scaling": POSITIVE, "policy_noise": NON_NEGATIVE,
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
-        "compute_dtype": _OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
+        "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
         "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
     }
 

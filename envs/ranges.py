@@ -81,6 +81,19 @@ class Flag(Valid):
         return "True or False"
 
 
+class OneOf(Valid):
+    """One of a fixed set of values (e.g. a dtype's name)."""
+
+    def __init__(self, choices):
+        self.choices = tuple(choices)
+
+    def __contains__(self, value: Any) -> bool:
+        return value in self.choices
+
+    def __str__(self) -> str:
+        return "one of " + ", ".join(repr(c) for c in self.choices)
+
+
 FINITE = Range()
 POSITIVE = Range(0.0, low_open=True)
 NON_NEGATIVE = Range(0.0)
