@@ -144,12 +144,11 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     },
 }
 
-# The DeepMind Control Suite's tasks (dmc-*): MuJoCo Playground's recipes for its look-alikes
-# (google-deepmind/mujoco_playground, mujoco_playground/config/dm_control_suite_params.py at commit
-# 0b06a59), `brax_ppo_config` and `brax_sac_config` with Brax's default networks, less
-# num_resets_per_eval, PendulumSwingup's PPO action_repeat (an env option here) and SAC's
-# q_network_layer_norm; pendulum's SAC keeps the base steps, as in Playground (its "PendulumSwingUp"
-# exception names no task). solve_return: the goal. Starting points unless docs/tasks.md shows a run.
+# The dmc-* tasks: MuJoCo Playground's recipes for its look-alikes (google-deepmind/mujoco_playground,
+# mujoco_playground/config/dm_control_suite_params.py at commit 0b06a59), `brax_ppo_config` and `brax_sac_config` with
+# Brax's default networks, less num_resets_per_eval, PendulumSwingup's PPO action_repeat (an env option here) and
+# SAC's q_network_layer_norm; pendulum's SAC keeps the base steps, as in Playground (its "PendulumSwingUp" exception
+# names no task). solve_return: the goal. Starting points unless docs/tasks.md shows a run.
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
@@ -172,6 +171,7 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-humanoid-run": ({}, {}, None),
     "dmc-humanoid-stand": ({}, {}, None),
     "dmc-humanoid-walk": ({}, dict(num_timesteps=10_000_000), None),
+    "dmc-manipulator-bring-ball": ({}, {}, None),  # Playground has no manipulator: its base recipes
     "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
     "dmc-point-mass-easy": ({}, {}, None),
     "dmc-quadruped-run": ({}, {}, 700.0),  # Playground has no quadruped: its base recipes

@@ -60,6 +60,7 @@ TASKS = (
     ("dmc-humanoid-stand", "envs.tasks.dmc_humanoid:DmcHumanoidStand", 1000, ("DmcHumanoid",)),
     ("dmc-humanoid-walk", "envs.tasks.dmc_humanoid:DmcHumanoidWalk", 1000, ()),
     ("dmc-humanoid-run", "envs.tasks.dmc_humanoid:DmcHumanoidRun", 1000, ()),
+    ("dmc-manipulator-bring-ball", "envs.tasks.dmc_manipulator:DmcManipulatorBringBall", 1000, ("DmcManipulator",)),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
     ("dmc-quadruped-walk", "envs.tasks.dmc_quadruped:DmcQuadrupedWalk", 1000, ("DmcQuadruped",)),

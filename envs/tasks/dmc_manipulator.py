@@ -1,0 +1,203 @@
+"""The DeepMind Control Suite's manipulator (dm_control/suite/manipulator.py), stepped by MJX:
+`envs.make("dmc-manipulator-bring-ball")`. A planar arm (root, shoulder, elbow, wrist hinges) with a
+two-fingered hand (thumb and finger coupled by a tendon equality, each with a fingertip) brings a
+ball to a ghost target (Euler, elliptic friction cones, timestep 0.001, 10 physics steps per control
+step: dt 0.01). The MJCF is dm_control's `manipulator.xml`, read from the installed package, less
+the props the task does not use, as dm_control's `make_model(use_peg=False, insert=False)` removes
+them (the peg, its target, the slot and the cup).
+
+- Action: Box(-1, 1, (5,)): root, shoulder, elbow, wrist motors and the grasp tendon's motor.
+- Observation (44), dm_control's order: arm_pos (16) = (sin, cos) of each of the 8 arm joints
+  (arm_root, arm_shoulder, arm_elbow, arm_wrist, finger, fingertip, thumb, thumbtip), row by row;
+  arm_vel (8) = their qvel; touch (5) = log1p of the palm, finger, thumb, fingertip and thumbtip
+  touch sensors (acceleration stage: the last substep's value, as in dm_control's legacy step);
+  hand_pos (4), object_pos (4), target_pos (4) = the hand's, the ball's and the target's bodies' 2-D
+  poses (xpos x, z, then xquat w, y); object_vel (3) = the ball's qvel (ball_x, ball_z, ball_y).
+- Reward: tolerance(|ball site - target site|, (0, 0.01), margin 0.02), gaussian.
+- Reset: dm_control's rejection loop, until nothing touches (its `ncon > 0` after a forward pass;
+  here a `lax.while_loop` on MJX's contact slots closer than their margin): the arm joints uniform
+  in their ranges (the root U(-pi, pi)), the finger set to the thumb's angle; the target at x
+  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y; the ball, with probability 0.1 in the hand
+  (at the grasp site, turned as the grasp site is), 0.1 on the target (its position and angle),
+  else at x U(-0.5, 0.5), z U(0, 0.7), angle U(0, 2 pi) and thrown at x velocity U(-5, 5). The
+  velocity is the loop's one draw that a later try does not overwrite: a start in the hand or on the
+  target keeps the last thrown velocity of a rejected try (0 if none), as dm_control's loop leaves it.
+- Episode: 1,000 steps (10 s simulated), never terminated.
+
+The target's pose is per episode (dm_control edits `model.body_pos`/`body_quat` of the `target_ball`
+body in every try of its loop): kept in `state.info["target"]` as the model holds it (x, z, qw, qy)
+and written after each physics call into the body's, its site's and its geom's derived poses
+(`with_episode`), where dm_control's edited model puts them. The target is a ghost (contype and
+conaffinity 0, fixed to the world): its pose moves nothing else, so every env and every MuJoCo Warp
+world steps the task's one model. The insert tasks move the colliding cup or slot instead, which
+needs a model per env; they and the peg's reward are not offered.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from envs.mjx_env import mjx
+from envs.tasks.dm_control_suite import DmControlEnv, tolerance
+
+ARM_JOINTS = ("arm_root", "arm_shoulder", "arm_elbow", "arm_wrist", "finger", "fingertip", "thumb", "thumbtip")
+TOUCH_SENSORS = ("palm_touch", "finger_touch", "thumb_touch", "fingertip_touch", "thumbtip_touch")
+ALL_PROPS = ("ball", "target_ball", "cup", "peg", "target_peg", "slot")  # dm_control's _ALL_PROPS
+CLOSE = 0.01  # dm_control's _CLOSE (m)
+P_IN_HAND, P_IN_TARGET = 0.1, 0.1  # _P_IN_HAND, _P_IN_TARGET
+TARGET_LOW, TARGET_HIGH = (-0.4, 0.1), (0.4, 0.4)  # the target's x, z box (m)
+OBJECT_LOW, OBJECT_HIGH = (-0.5, 0.0, 0.0), (0.5, 0.7, 2 * np.pi)  # a free start's x, z, angle
+OBJECT_SPEED = 5.0  # a free start's x velocity U(-5, 5) (m/s)
+
+
+class DmcManipulator(DmControlEnv):
+    """dm_control's `manipulator.Bring` for a prop (`prop`: "ball"; the peg would need its own
+    reward): the model as `make_model` trims it, the rejection-sampled reset, the target's pose."""
+
+    costly_reset = True
+    domain = "manipulator"
+    control_timestep = 0.01  # dm_control's _CONTROL_TIMESTEP
+    prop: ClassVar[str] = "ball"
+    episode_info = ("target",)  # the target body's (x, z, qw, qy), for envs.interop.dm_control
+    observation_shapes = (("arm_pos", 16), ("arm_vel", 8), ("touch", 5), ("hand_pos", 4), ("object_pos", 4),
+                          ("object_vel", 3), ("target_pos", 4))
+
+    @property
+    def target(self) -> str:
+        return f"target_{self.prop}"
+
+    def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
+        """dm_control's `make_model(use_peg, insert=False)`: the unused props' bodies removed."""
+        spec = mujoco.MjSpec.from_file(str(path))
+        for prop in ALL_PROPS:
+            if prop not in (self.prop, self.target):
+                spec.delete(spec.body(prop))
+        return spec.compile()
+
+    def __init__(self, xml: str | None = None):
+        super().__init__(xml)
+        model = self.mj_model
+        self._arm = np.array([model.joint(name).qposadr[0] for name in ARM_JOINTS])
+        self._arm_vel = np.array([model.joint(name).dofadr[0] for name in ARM_JOINTS])
+        limited = model.jnt_limited[[model.joint(name).id for name in ARM_JOINTS]].astype(bool)
+        ranges = model.jnt_range[[model.joint(name).id for name in ARM_JOINTS]]
+        self._arm_low = np.where(limited, ranges[:, 0], -np.pi)
+        self._arm_high = np.where(limited, ranges[:, 1], np.pi)
+        joints = [model.joint(f"{self.prop}_{axis}") for axis in "xzy"]  # dm_control's _object_joints
+        self._object, self._object_vel = (np.array([j.qposadr[0] for j in joints]),
+                                          np.array([j.dofadr[0] for j in joints]))
+
+    # ---- reset ---------------------------------------------------------------------
+    def _try(self, key: jax.Array, qvel: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """One try of dm_control's loop: (qpos, qvel, the target's x, z, qw, qy)."""
+        arm_key, target_key, angle_key, branch_key, object_key, speed_key = jax.random.split(key, 6)
+        model, dtype = self.mj_model, self._initial_data.qpos.dtype
+        qpos = jnp.asarray(model.qpos0, dtype)
+        arm = jax.random.uniform(arm_key, (len(ARM_JOINTS),), dtype, self._arm_low, self._arm_high)
+        qpos = qpos.at[self._arm].set(arm)
+        qpos = qpos.at[self._arm[4]].set(arm[6])  # dm_control's "symmetrize hand": finger = thumb
+        target_xz = jax.random.uniform(target_key, (2,), dtype, jnp.array(TARGET_LOW), jnp.array(TARGET_HIGH))
+        target_angle = jax.random.uniform(angle_key, (), dtype, -jnp.pi, jnp.pi)
+        # The grasp site's pose for the in-hand start (dm_control's forward pass inside the loop).
+        grasp = model.site("grasp").id
+        hand = mjx.kinematics(self.reset_model, self.reset_data.replace(qpos=qpos))
+        direction = hand.site_xmat[grasp]
+        hand_angle = jnp.pi - jnp.arctan2(direction[2, 0], direction[0, 0])
+        free = jax.random.uniform(object_key, (3,), dtype, jnp.array(OBJECT_LOW), jnp.array(OBJECT_HIGH))
+        branch = jax.random.uniform(branch_key, (), dtype)
+        in_hand, in_target = branch < P_IN_HAND, (branch >= P_IN_HAND) & (branch < P_IN_HAND + P_IN_TARGET)
+        placed = jnp.where(in_hand, jnp.concatenate([hand.site_xpos[grasp, jnp.array([0, 2])], hand_angle[None]]),
+                           jnp.concatenate([target_xz, target_angle[None]]))
+        qpos = qpos.at[self._object].set(jnp.where(in_hand | in_target, placed, free))
+        speed = jax.random.uniform(speed_key, (), qvel.dtype, -OBJECT_SPEED, OBJECT_SPEED)
+        qvel = jnp.where(in_hand | in_target, qvel, qvel.at[self._object_vel[0]].set(speed))
+        target = jnp.concatenate([target_xz, jnp.stack([jnp.cos(target_angle / 2), jnp.sin(target_angle / 2)])])
+        return qpos, qvel, target
+
+    def _start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """dm_control's `initialize_episode`: tries until nothing touches (no cap, as dm_control's)."""
+        def another(carry):
+            key, _, qvel, _, _ = carry
+            key, try_key = jax.random.split(key)
+            qpos, qvel, target = self._try(try_key, qvel)
+            return key, qpos, qvel, target, self.touching(qpos)
+
+        dtype = self._initial_data.qpos.dtype
+        start = (key, jnp.asarray(self.mj_model.qpos0, dtype), jnp.zeros(self.mj_model.nv, dtype),
+                 jnp.zeros(4, dtype), jnp.ones((), bool))
+        _, qpos, qvel, target, _ = jax.lax.while_loop(lambda carry: carry[-1], another, start)
+        return qpos, qvel, target
+
+    def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict]:
+        # dm_control draws the target inside its rejection loop (a start on the target puts the ball
+        # there), so one loop draws the target and the state: the reset hands `initial_qpos_qvel` the
+        # key returned here, which finds that loop's state; any other key runs the loop afresh.
+        qpos, qvel, target = self._start(key)
+        self._drawn = (key, qpos, qvel)
+        return key, {"target": target.astype(self.mjx_model.body_pos.dtype)}
+
+    def initial_qpos_qvel(self, key):
+        drawn, self._drawn = getattr(self, "_drawn", None), None
+        if drawn is not None and drawn[0] is key:
+            return drawn[1], drawn[2]
+        qpos, qvel, _ = self._start(key)
+        return qpos, qvel
+
+    # ---- the target's per-episode pose -----------------------------------------------
+    def with_episode(self, data: mjx.Data, info) -> mjx.Data:
+        # A body fixed to the world: its pose is its model pose, its site and geom sit at its origin.
+        x, z, w, y = info["target"]
+        body, site, geom = (self.mj_model.body(self.target).id, self.mj_model.site(self.target).id,
+                            self.mj_model.geom(self.target).id)
+        position = data.xpos[body].at[jnp.array([0, 2])].set(jnp.stack([x, z]))
+        zero, one = jnp.zeros_like(w), jnp.ones_like(w)
+        quat = jnp.stack([w, zero, y, zero])
+        # MuJoCo's mju_quat2Mat of (w, 0, y, 0): a turn about y.
+        xmat = jnp.stack([jnp.stack([w * w - y * y, zero, 2 * w * y]), jnp.stack([zero, one, zero]),
+                          jnp.stack([-2 * w * y, zero, w * w - y * y])]).astype(data.xmat.dtype)
+        position, quat = position.astype(data.xpos.dtype), quat.astype(data.xquat.dtype)
+        return data.replace(xpos=data.xpos.at[body].set(position), xquat=data.xquat.at[body].set(quat),
+                            xmat=data.xmat.at[body].set(xmat), site_xpos=data.site_xpos.at[site].set(position),
+                            site_xmat=data.site_xmat.at[site].set(xmat),
+                            geom_xpos=data.geom_xpos.at[geom].set(position),
+                            geom_xmat=data.geom_xmat.at[geom].set(xmat))
+
+    def put_episode(self, physics, info) -> None:
+        """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
+        physics.named.model.body_pos[self.target, ["x", "z"]] = info["target"][:2]
+        physics.named.model.body_quat[self.target, ["qw", "qy"]] = info["target"][2:]
+
+    def get_episode(self, physics) -> dict:
+        return {"target": np.concatenate([physics.named.model.body_pos[self.target, ["x", "z"]],
+                                          physics.named.model.body_quat[self.target, ["qw", "qy"]]])}
+
+    # ---- readings --------------------------------------------------------------------
+    def body_2d_pose(self, data: mjx.Data, body: str) -> jax.Array:
+        """dm_control's `body_2d_pose`: xpos x, z and xquat w, y."""
+        index = self.mj_model.body(body).id
+        return jnp.concatenate([data.xpos[index, jnp.array([0, 2])], data.xquat[index, jnp.array([0, 2])]])
+
+    def observations(self, data):
+        angles = data.qpos[self._arm]
+        return {"arm_pos": jnp.stack([jnp.sin(angles), jnp.cos(angles)], axis=1),
+                "arm_vel": data.qvel[self._arm_vel],
+                "touch": jnp.log1p(jnp.concatenate([self.sensor(data, name) for name in TOUCH_SENSORS])),
+                "hand_pos": self.body_2d_pose(data, "hand"), "object_pos": self.body_2d_pose(data, self.prop),
+                "object_vel": data.qvel[self._object_vel], "target_pos": self.body_2d_pose(data, self.target)}
+
+    def site_distance(self, data: mjx.Data, first: str, second: str) -> jax.Array:
+        first, second = self.mj_model.site(first).id, self.mj_model.site(second).id
+        return jnp.linalg.norm(data.site_xpos[first] - data.site_xpos[second])
+
+
+class DmcManipulatorBringBall(DmcManipulator):
+    task = "bring_ball"
+
+    def reward(self, data, action, prev):
+        return tolerance(self.site_distance(data, self.prop, self.target), (0.0, CLOSE), margin=2 * CLOSE)

@@ -1,0 +1,217 @@
+"""dm_control's manipulator bring_ball against dm_control 1.0.50's own env: the model (trimmed as
+dm_control's `make_model` trims it), the spec, the observation and reward of dm_control's own states
+(no physics compiled), the reset distribution with each episode's target; in the slow run, single
+steps from dm_control's own states with each episode's target handed to dm_control's physics (only the
+step compiled); in the heavy run, the same steps after our resets' program and the resets' observation."""
+
+from __future__ import annotations
+
+import copy
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import envs
+
+pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
+                                         "(pip install 'mjxsuite[dmc]'; the test extra has it)")
+
+from envs.core import State  # noqa: E402
+from envs.interop.dm_control import (Comparison, Steps, assert_spec_is_dm_controls,  # noqa: E402
+                                     c_mujoco_contacts, compare_readings_with_dm_control, dm_control_observations,
+                                     dm_control_rollouts, dm_control_steps, flatten, load, put_state, steps_from)
+from envs.mjx_env import mjx  # noqa: E402
+from tests.test_dm_control import assert_same_distribution  # noqa: E402
+from tests.test_dm_control_swim import assert_models_equal  # noqa: E402
+
+NAME = "dmc-manipulator-bring-ball"
+COUNT = 32  # start states of the slow run: one batch shape, one compiled program
+DRAWS = 2000  # resets drawn on each side
+# The target's offset from the ball in a stirred state, per coordinate: the reward's margin plus its
+# bounds (0.03), so the reward spans its range.
+REACH = 0.03
+# float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
+# (plus 1e-4 relative) and the reward's. Measured worst: see docs/tasks.md's proof table.
+BOUNDS = {"obs": 1e-3, "reward": 1e-4}
+# The start states with the ball put in the closing hand (a quarter): MJX's contact solve of the squeeze
+# parts from C MuJoCo's in the ball's spin and the touch sensors, by the same amount in x64 (not float32
+# rounding: MJX's elliptic cones against C MuJoCo's, as the feasibility study saw for manipulator's rarer
+# states), so these hold their positions and rewards to BOUNDS and the rest to GRIP_BOUND.
+GRIPS = slice(1, None, 4)
+GRIP_BOUND = 3e-2
+TOUCH = slice(24, 29)
+POSITIONS = np.r_[0:16, 29:37, 40:44]  # arm_pos, hand_pos, object_pos, target_pos
+
+
+def test_spec_and_model_are_dm_controls():
+    """Spec (5 motors in [-1, 1], 10 x 0.001 s, 1,000 steps, 44 observations in dm_control's order) and
+    our model equal to the one dm_control's env steps in every number but the target body's pose
+    (each episode's, `state.info` here)."""
+    env, theirs = assert_spec_is_dm_controls(NAME)
+    model, their_model = env.mj_model, theirs.physics.model.ptr
+    ours = copy.copy(model)
+    for field in ("body_pos", "body_quat"):
+        getattr(ours, field)[model.body("target_ball").id] = getattr(their_model, field)[model.body("target_ball").id]
+    assert_models_equal(ours, their_model, set(), NAME)
+    assert model.nbody == their_model.nbody and model.body("ball") and "peg" not in model.names.decode()
+
+
+def stir(physics, rng):
+    """The target moved near the ball (the reward's range), every other time the ball put in the hand."""
+    named = physics.named
+    if rng.uniform() < 0.5:
+        named.data.qpos[["ball_x", "ball_z"]] = named.data.site_xpos["grasp", ["x", "z"]]
+        physics.forward()
+    near = named.data.site_xpos["ball", ["x", "z"]] + rng.uniform(-REACH, REACH, 2)
+    angle = rng.uniform(-np.pi, np.pi)
+    named.model.body_pos["target_ball", ["x", "z"]] = near
+    named.model.body_quat["target_ball", ["qw", "qy"]] = np.cos(angle / 2), np.sin(angle / 2)
+
+
+def test_observation_and_reward_of_dm_controls_states():
+    """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
+    here), stirred every third step: the arm's angles and velocities, the touch sensors, the hand's,
+    ball's and target's poses, and the reward."""
+    comparison = compare_readings_with_dm_control(NAME, episodes=4, num_steps=8, perturb=stir)
+    comparison.assert_within({"obs": 1e-5, "reward": 1e-5}, rtol=1e-5)
+    assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
+    assert np.ptp(comparison.theirs.obs[:, 24:29]) > 0.1, "something must touch"
+
+
+def our_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    env = envs.make(NAME).unwrapped
+
+    def draw(key):
+        key, episode = env.draw_episode(key)
+        return (*env.initial_qpos_qvel(key), episode["target"])
+
+    keys = jax.random.split(jax.random.PRNGKey(3), count)
+    return tuple(np.asarray(x, np.float64) for x in jax.jit(jax.vmap(draw))(keys))
+
+
+def their_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    env, theirs = envs.make(NAME).unwrapped, load("manipulator", "bring_ball", seed=2)
+    qpos, qvel, target = [], [], []
+    for _ in range(count):
+        theirs.reset()
+        qpos.append(theirs.physics.data.qpos.copy()), qvel.append(theirs.physics.data.qvel.copy())
+        target.append(env.get_episode(theirs.physics)["target"])
+    return np.array(qpos), np.array(qvel), np.array(target)
+
+
+def assert_same_share(ours: np.ndarray, theirs: np.ndarray, what: str) -> None:
+    """Two shares of DRAWS within 5 standard errors of their difference; neither rare."""
+    share = (ours.mean() + theirs.mean()) / 2
+    assert share > 0.02 and abs(ours.mean() - theirs.mean()) < 5 * np.sqrt(2 * share * (1 - share) / DRAWS), \
+        (what, ours.mean(), theirs.mean())
+
+
+def test_reset_distribution_matches_dm_control():
+    """2,000 draws of each: the arm's joints (finger = thumb), the ball's position, angle and thrown
+    velocity, and the target's pose in distribution; the shares of starts on the target and at rest
+    within 5 standard errors; nothing touches at any of ours in C MuJoCo, nothing but the ball's x moves."""
+    env = envs.make(NAME).unwrapped
+    qpos, qvel, target = our_draws(DRAWS)
+    their_qpos, their_qvel, their_target = their_draws(DRAWS)
+    assert_same_distribution(qpos, their_qpos, "qpos")
+    assert_same_distribution(qvel[:, 8], their_qvel[:, 8], "ball_x velocity")
+    assert_same_distribution(target, their_target, "target")
+    assert not np.delete(qvel, 8, axis=1).any() and not np.delete(their_qvel, 8, axis=1).any()
+    np.testing.assert_array_equal(qpos[:, 4], qpos[:, 6])
+    assert_same_share(np.abs(qpos[:, 8:10] - target[:, :2]).max(1) < 1e-5,
+                      np.abs(their_qpos[:, 8:10] - their_target[:, :2]).max(1) < 1e-5, "starts on the target")
+    # At rest only where the start is in the hand or on the target and no thrown try came before it.
+    assert_same_share(qvel[:, 8] == 0, their_qvel[:, 8] == 0, "starts at rest")
+    assert c_mujoco_contacts(env.mj_model, qpos).max() == 0
+
+
+# ---- single steps (slow: one compiled program) ---------------------------------------------------
+def start_states(env, rng):
+    """`COUNT` of dm_control's own states along random-action episodes from its resets, with their
+    episodes' targets; every other one with its target moved near the ball (the reward's range), a
+    quarter (`GRIPS`) with the ball put in the hand at rest and the hand closing on it."""
+    rollouts = dm_control_rollouts(env, episodes=4, num_steps=40)
+    chosen = np.linspace(0, len(rollouts.qpos) - 1, COUNT).round().astype(int)
+    qpos, qvel = rollouts.qpos[chosen].copy(), rollouts.qvel[chosen].copy()
+    target = rollouts.episode["target"][chosen].copy()
+    target[::2, :2] = qpos[::2, 8:10] + rng.uniform(-REACH, REACH, (len(target[::2]), 2))
+    data, grasp = mujoco.MjData(env.mj_model), env.mj_model.site("grasp").id
+    for index in range(COUNT)[GRIPS]:
+        data.qpos[:] = qpos[index]
+        mujoco.mj_kinematics(env.mj_model, data)
+        qpos[index, 8:10], qvel[index, 8:] = data.site_xpos[grasp, [0, 2]], 0.0
+    actions = rng.uniform(-1.0, 1.0, (COUNT, env.action_size))
+    actions[GRIPS, 4] = 1.0
+    return qpos, qvel, rollouts.qacc_warmstart[chosen], actions, target
+
+
+@pytest.mark.slow
+def test_steps_match_dm_control():
+    """One control step (10 physics steps with contacts, elliptic cones) from each of dm_control's
+    states, its data (warm start included) put on the device as it is and the episode's target in
+    `state.info`, against dm_control's step from the same state with the target handed to its physics
+    (`put_episode`). Only the step compiles (the reset's program is the heavy run's)."""
+    env = envs.make(NAME).unwrapped
+    qpos, qvel, warmstart, actions, target = start_states(env, np.random.default_rng(0))
+    theirs, datas, obs, rewards = load("manipulator", "bring_ball"), [], [], []
+    for index in range(COUNT):
+        theirs.reset()
+        env.put_episode(theirs.physics, {"target": target[index]})
+        put_state(theirs.physics, qpos[index], qvel[index], qacc_warmstart=warmstart[index])
+        datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
+        step = theirs.step(actions[index])
+        obs.append(flatten(step.observation)), rewards.append(step.reward)
+    # In JAX's default dtypes (float32 and int32, or float64 and int64 under x64), as a step's output has them.
+    data = jax.tree.map(lambda *leaves: jnp.asarray(np.stack(leaves).astype(
+        np.int64 if np.issubdtype(leaves[0].dtype, np.integer) else np.float64)), *datas)
+    zero = np.zeros(COUNT, np.float32)
+    info = {"truncation": zero, "nan": zero, "overflow": zero, "target": jnp.asarray(target)}
+    state = State(data, np.zeros((COUNT, env.observation_size), np.float32), zero, zero, metrics={}, info=info)
+    ours = jax.jit(jax.vmap(env.step))(state, jnp.asarray(actions))
+    comparison = Comparison(Steps(np.asarray(ours.obs), np.asarray(ours.reward), 1.0 - np.asarray(ours.done)),
+                            Steps(np.array(obs), np.array(rewards), np.ones(COUNT)))
+    assert_steps_within(comparison)
+    assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
+    assert (comparison.theirs.obs[GRIPS, TOUCH] > 0).any(1).all(), "every grip must touch"
+
+
+def assert_steps_within(comparison: Comparison) -> None:
+    """The free states' steps to BOUNDS; the grips' positions and rewards to BOUNDS, the rest to GRIP_BOUND."""
+    free = np.ones(len(comparison.theirs.reward), bool)
+    free[GRIPS] = False
+    Comparison(*(Steps(steps.obs[free], steps.reward[free], steps.discount[free])
+                 for steps in (comparison.ours, comparison.theirs))).assert_within(BOUNDS)
+    ours, theirs = comparison.ours.obs[GRIPS], comparison.theirs.obs[GRIPS]
+    np.testing.assert_allclose(ours[:, POSITIONS], theirs[:, POSITIONS], atol=BOUNDS["obs"], rtol=1e-4)
+    np.testing.assert_allclose(ours, theirs, atol=GRIP_BOUND, rtol=1e-4)
+    np.testing.assert_allclose(comparison.ours.reward, comparison.theirs.reward, atol=BOUNDS["reward"], rtol=1e-4)
+    np.testing.assert_array_equal(comparison.ours.discount, comparison.theirs.discount)
+
+
+# ---- resets and steps together (heavy: the reset's program too) -----------------------------------
+@pytest.fixture(scope="module")
+def manipulator_case():
+    env = envs.make(NAME).unwrapped
+    qpos, qvel, _, actions, target = start_states(env, np.random.default_rng(0))
+    starts = steps_from(env, qpos.astype(np.float32), qvel.astype(np.float32), actions,
+                        {"target": target.astype(np.float32)})
+    return env, starts, dm_control_steps(env, starts)
+
+
+@pytest.mark.heavy
+def test_steps_after_resets_match_dm_control(manipulator_case):
+    """The slow run's steps again through `steps_from` (our reset's program, then the state put in)."""
+    env, starts, theirs = manipulator_case
+    assert_steps_within(Comparison(starts.steps, theirs))
+    assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
+
+
+@pytest.mark.heavy
+def test_reset_observation_is_dm_controls(manipulator_case):
+    """Our resets (the same program's) are dm_control's observation of the same state and target."""
+    env, starts, _ = manipulator_case
+    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
+    np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
