@@ -308,6 +308,13 @@ class MjxEnv(Env):
         `key` at reset. The default draws nothing."""
         return key, {}
 
+    def draw_start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
+        """An episode's start, (qpos, qvel, its `episode_info` values): the episode's values
+        (`draw_episode`), then the state (`initial_qpos_qvel`) from the key left. A task that draws
+        both in one loop (dm_control's manipulator) overrides this."""
+        key, episode = self.draw_episode(key)
+        return (*self.initial_qpos_qvel(key), episode)
+
     def with_episode(self, data: mjx.Data, info: Mapping) -> mjx.Data:
         """`data` with the episode's markers (`info` holds `episode_info`) placed in its derived
         positions (geom_xpos, site_xpos, the sensors reading them). The default places nothing."""
@@ -325,8 +332,7 @@ class MjxEnv(Env):
     # each env's physics; `reset`/`step` above pass the task's one model at no extra cost.
     def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
         """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
-        key, episode = self.draw_episode(key)
-        qpos, qvel = self.initial_qpos_qvel(key)
+        qpos, qvel, episode = self.draw_start(key)
         qpos = jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq)
         qvel = jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv)
         if not isinstance(qpos, jax.core.Tracer):  # called outside jit: placed (committed) as the rest of

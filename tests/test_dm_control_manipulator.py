@@ -85,8 +85,8 @@ def our_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     env = envs.make(NAME).unwrapped
 
     def draw(key):
-        key, episode = env.draw_episode(key)
-        return (*env.initial_qpos_qvel(key), episode["target"])
+        qpos, qvel, episode = env.draw_start(key)
+        return qpos, qvel, episode["target"]
 
     keys = jax.random.split(jax.random.PRNGKey(3), count)
     return tuple(np.asarray(x, np.float64) for x in jax.jit(jax.vmap(draw))(keys))

@@ -134,20 +134,14 @@ class DmcManipulator(DmControlEnv):
         _, qpos, qvel, target, _ = jax.lax.while_loop(lambda carry: carry[-1], another, start)
         return qpos, qvel, target
 
-    def draw_episode(self, key: jax.Array) -> tuple[jax.Array, dict]:
+    def draw_start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, dict]:
         # dm_control draws the target inside its rejection loop (a start on the target puts the ball
-        # there), so one loop draws the target and the state: the reset hands `initial_qpos_qvel` the
-        # key returned here, which finds that loop's state; any other key runs the loop afresh.
+        # there): one loop draws the target and the state.
         qpos, qvel, target = self._start(key)
-        self._drawn = (key, qpos, qvel)
-        return key, {"target": target.astype(self.mjx_model.body_pos.dtype)}
+        return qpos, qvel, {"target": target.astype(self.mjx_model.body_pos.dtype)}
 
     def initial_qpos_qvel(self, key):
-        drawn, self._drawn = getattr(self, "_drawn", None), None
-        if drawn is not None and drawn[0] is key:
-            return drawn[1], drawn[2]
-        qpos, qvel, _ = self._start(key)
-        return qpos, qvel
+        return self._start(key)[:2]
 
     # ---- the target's per-episode pose -----------------------------------------------
     def with_episode(self, data: mjx.Data, info) -> mjx.Data:
