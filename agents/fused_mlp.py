@@ -94,7 +94,7 @@ def _backward_kernel(num_layers, block, x_ref, *refs):
 
 def _compiler_params(kernels):
     """4 warps for the widths the kernels are used at (`MAX_WIDTH`; the fastest on a GPU), 8 for wider ones."""
-    return plgpu.CompilerParams(num_warps=4 if max(max(k.shape) for k in kernels) <= 64 else 8, num_stages=1)
+    return plgpu.CompilerParams(num_warps=4 if max(max(k.shape) for k in kernels) <= MAX_WIDTH else 8, num_stages=1)
 
 
 @partial(jax.custom_vjp, nondiff_argnums=(2,))
