@@ -151,6 +151,12 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 # names no task). solve_return: the issue's goal. Starting points unless docs/tasks.md shows a run.
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
+# TD3: FastTD3's CheetahRunArgs, which its authors offer for the DeepMind Control Suite in general
+# (MuJoCoPlaygroundArgs' 1,024 envs and discount 0.97, 3-step returns, exploration noise from 0.1 and
+# target-policy noise 0.1). Ours: the critic's support [0, 35] holds every discounted return of rewards
+# in [0, 1] (at most 1 / (1 - 0.97)), where FastTD3's +-500 spends all but four of its atoms outside it.
+_DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
+                num_timesteps=10_240_000)
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
 _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-acrobot-swingup": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
@@ -186,7 +192,8 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
     SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}},
-                       "sac": {"default": {**_DMC_SAC, **_sac, **_solve}}}
+                       "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
+                       "td3": {"default": {**_DMC_TD3, **_solve}}}
 del _task, _ppo, _sac, _goal, _solve
 
 
