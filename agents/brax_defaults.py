@@ -151,10 +151,10 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 # names no task). solve_return: the goal. Starting points unless docs/tasks.md shows a run.
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
+_LONG_RUNS = (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
 _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
-    "dmc-acrobot-swingup": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
-    "dmc-acrobot-swingup-sparse": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
+    "dmc-acrobot-swingup": _LONG_RUNS, "dmc-acrobot-swingup-sparse": _LONG_RUNS,
     "dmc-ball-in-cup-catch": (dict(discounting=0.95), {}, 900.0),
     "dmc-cartpole-balance": ({}, {}, 900.0),
     "dmc-cartpole-balance-sparse": ({}, {}, None),
@@ -178,7 +178,7 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-quadruped-walk": ({}, {}, 700.0),
     "dmc-reacher-easy": ({}, {}, 900.0),
     "dmc-reacher-hard": ({}, {}, None),
-    "dmc-swimmer-swimmer6": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
+    "dmc-swimmer-swimmer6": _LONG_RUNS, "dmc-swimmer-swimmer15": _LONG_RUNS,  # no swimmer15 in Playground: swimmer6
     "dmc-walker-stand": ({}, {}, 900.0),
     "dmc-walker-walk": ({}, {}, 900.0),
     "dmc-walker-run": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), 700.0),
