@@ -151,42 +151,34 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 # names no task). solve_return: the issue's goal. Starting points unless docs/tasks.md shows a run.
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
-# TD3: FastTD3's CheetahRunArgs, which its authors offer for the DeepMind Control Suite in general
-# (MuJoCoPlaygroundArgs' 1,024 envs and discount 0.97, 3-step returns, exploration noise from 0.1 and
-# target-policy noise 0.1). Ours: the critic's support [0, 35] holds every discounted return of rewards
-# in [0, 1] (at most 1 / (1 - 0.97)), where FastTD3's +-500 spends all but four of its atoms outside it.
+# TD3: FastTD3's CheetahRunArgs, its DMC recipe (1,024 envs, discount 0.97, 3-step returns, noise 0.1), with the
+# critic's support [0, 35]: every discounted return of rewards in [0, 1], where FastTD3's +-500 wastes all but 4 atoms.
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
                 num_timesteps=10_240_000)
+_LONG_RUNS = (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
 _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
-    "dmc-acrobot-swingup": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
-    "dmc-acrobot-swingup-sparse": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
+    "dmc-acrobot-swingup": _LONG_RUNS, "dmc-acrobot-swingup-sparse": _LONG_RUNS,
     "dmc-ball-in-cup-catch": (dict(discounting=0.95), {}, 900.0),
     "dmc-cartpole-balance": ({}, {}, 900.0),
-    "dmc-cartpole-balance-sparse": ({}, {}, None),
     "dmc-cartpole-swingup": ({}, {}, 900.0),
-    "dmc-cartpole-swingup-sparse": ({}, {}, None),
+    "dmc-cartpole-balance-sparse": ({}, {}, None), "dmc-cartpole-swingup-sparse": ({}, {}, None),
     "dmc-cheetah-run": ({}, dict(num_timesteps=10_000_000), 700.0),
     "dmc-finger-spin": (dict(discounting=0.95), dict(num_timesteps=10_000_000), 900.0),
     "dmc-finger-turn-easy": ({}, dict(num_timesteps=10_000_000), 700.0),
     "dmc-finger-turn-hard": ({}, dict(num_timesteps=10_000_000), None),
-    "dmc-fish-swim": ({}, {}, None),
-    "dmc-fish-upright": ({}, {}, None),  # Playground registers no fish upright: its base recipes
+    "dmc-fish-swim": ({}, {}, None), "dmc-fish-upright": ({}, {}, None),  # no fish upright in Playground: base recipes
     "dmc-hopper-hop": ({}, dict(num_timesteps=10_000_000), None),
     "dmc-hopper-stand": ({}, dict(num_timesteps=10_000_000), 700.0),
-    "dmc-humanoid-run": ({}, {}, None),
-    "dmc-humanoid-stand": ({}, {}, None),
+    "dmc-humanoid-run": ({}, {}, None), "dmc-humanoid-stand": ({}, {}, None),
     "dmc-humanoid-walk": ({}, dict(num_timesteps=10_000_000), None),
     "dmc-manipulator-bring-ball": ({}, {}, None),  # Playground has no manipulator: its base recipes
     "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
     "dmc-point-mass-easy": ({}, {}, None),
-    "dmc-quadruped-run": ({}, {}, 700.0),  # Playground has no quadruped: its base recipes
-    "dmc-quadruped-walk": ({}, {}, 700.0),
-    "dmc-reacher-easy": ({}, {}, 900.0),
-    "dmc-reacher-hard": ({}, {}, None),
-    "dmc-swimmer-swimmer6": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None),
-    "dmc-walker-stand": ({}, {}, 900.0),
-    "dmc-walker-walk": ({}, {}, 900.0),
+    "dmc-quadruped-run": ({}, {}, 700.0), "dmc-quadruped-walk": ({}, {}, 700.0),  # no quadruped in Playground
+    "dmc-reacher-easy": ({}, {}, 900.0), "dmc-reacher-hard": ({}, {}, None),
+    "dmc-swimmer-swimmer6": _LONG_RUNS, "dmc-swimmer-swimmer15": _LONG_RUNS,  # no swimmer15 in Playground: swimmer6
+    "dmc-walker-stand": ({}, {}, 900.0), "dmc-walker-walk": ({}, {}, 900.0),
     "dmc-walker-run": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), 700.0),
 }
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():

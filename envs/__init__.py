@@ -68,6 +68,7 @@ TASKS = (
     ("dmc-reacher-easy", "envs.tasks.dmc_reacher:DmcReacherEasy", 1000, ("DmcReacher",)),
     ("dmc-reacher-hard", "envs.tasks.dmc_reacher:DmcReacherHard", 1000, ()),
     ("dmc-swimmer-swimmer6", "envs.tasks.dmc_swimmer:DmcSwimmerSwimmer6", 1000, ("DmcSwimmer",)),
+    ("dmc-swimmer-swimmer15", "envs.tasks.dmc_swimmer:DmcSwimmerSwimmer15", 1000, ()),
     ("dmc-walker-stand", "envs.tasks.dmc_walker:DmcWalkerStand", 1000, ("DmcWalker",)),
     ("dmc-walker-walk", "envs.tasks.dmc_walker:DmcWalkerWalk", 1000, ()),
     ("dmc-walker-run", "envs.tasks.dmc_walker:DmcWalkerRun", 1000, ()),

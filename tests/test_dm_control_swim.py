@@ -1,9 +1,9 @@
-"""dm_control's swimming domains, fish (upright, swim) and swimmer (swimmer6), against dm_control
-1.0.50's own envs: the models (the swimmer's built as dm_control's `_make_model(6)` builds it; the one
-edit, collisions removed, is neutral), the specs, the observation and reward of dm_control's own
-states (no physics compiled), the reset distributions with each episode's target (the default run),
-and, in the slow run, single steps from dm_control's own states with each episode's target handed to
-dm_control's physics, and the reset's observation.
+"""dm_control's swimming domains, fish (upright, swim) and swimmer (swimmer6, swimmer15), against
+dm_control 1.0.50's own envs: the models (the swimmers built as dm_control's `_make_model(n)` builds
+them; the one edit, collisions removed, is neutral), the specs, the observation and reward of
+dm_control's own states (no physics compiled), the reset distributions with each episode's target
+(the default run), and, in the slow run, single steps from dm_control's own states with each
+episode's target handed to dm_control's physics, and the reset's observation.
 
 Fish upright steps the same model as swim (only the target's colour differs, held to dm_control's):
 its physics is proven by swim's steps and its observation and reward by its readings."""
@@ -30,14 +30,17 @@ from envs.interop.dm_control import (Comparison, assert_spec_is_dm_controls,  # 
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 
 TASKS = {"dmc-fish-upright": ("fish", "upright"), "dmc-fish-swim": ("fish", "swim"),
-         "dmc-swimmer-swimmer6": ("swimmer", "swimmer6")}
+         "dmc-swimmer-swimmer6": ("swimmer", "swimmer6"), "dmc-swimmer-swimmer15": ("swimmer", "swimmer15")}
 # The flag that makes zeroing contype/conaffinity neutral, per domain.
 DISABLED = {"fish": mujoco.mjtDisableBit.mjDSBL_CONSTRAINT, "swimmer": mujoco.mjtDisableBit.mjDSBL_CONTACT}
 # The target: its world geom (each episode's geom_pos) and, for the swimmer, its light.
 TARGET = {"fish": ("target", None), "swimmer": ("target", "target_light")}
 # float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
-# (plus 1e-4 relative) and the reward's. Measured worst: see docs/tasks.md's proof table.
-BOUNDS = {"dmc-fish-swim": {"obs": 1e-4, "reward": 1e-5}, "dmc-swimmer-swimmer6": {"obs": 1e-4, "reward": 1e-5}}
+# (plus 1e-4 relative) and the reward's. Measured worst: see docs/tasks.md's proof table. Swimmer15's
+# gyros carry float32's rounding through 15 Euler steps of a 17-dof chain in the fluid: a looser
+# bound there (in x64 the same steps agree to float64 rounding, so it is not MJX's algorithm).
+BOUNDS = {"dmc-fish-swim": {"obs": 1e-4, "reward": 1e-5}, "dmc-swimmer-swimmer6": {"obs": 1e-4, "reward": 1e-5},
+          "dmc-swimmer-swimmer15": {"obs": 2e-3, "reward": 1e-5}}
 COUNT = 64  # start states per task: one batch shape, one compiled program
 
 
@@ -63,7 +66,7 @@ def assert_models_equal(ours: mujoco.MjModel, theirs: mujoco.MjModel, skip: set[
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_swim_tasks_are_dm_controls(name):
     """Specs, and our model equal to the one dm_control's env steps in every number (the swimmer's
-    segments, motors and sensors as `_make_model(6)` adds them; fish upright's hidden target) but the
+    segments, motors and sensors as `_make_model(n)` adds them; fish upright's hidden target) but the
     target's per-episode position (`state.info` here) and the geoms' contype and conaffinity: 0 here,
     where dm_control's model disables collisions by flag."""
     env, theirs = assert_spec_is_dm_controls(name)
@@ -78,7 +81,7 @@ def test_swim_tasks_are_dm_controls(name):
     assert their_model.geom_contype.any() and their_model.opt.disableflags & int(DISABLED[env.domain])
 
 
-@pytest.mark.parametrize("domain, task", [("fish", "swim"), ("swimmer", "swimmer6")])
+@pytest.mark.parametrize("domain, task", [("fish", "swim"), ("swimmer", "swimmer6"), ("swimmer", "swimmer15")])
 def test_removing_collisions_is_neutral_in_c_mujoco(domain, task):
     """dm_control's own model and the same with every contype and conaffinity 0 give bit-equal C
     MuJoCo trajectories (100 physics steps of random controls from a reset, set moving), and clearing
@@ -101,7 +104,7 @@ def test_removing_collisions_is_neutral_in_c_mujoco(domain, task):
         runs.append(np.concatenate([data.qpos, data.qvel, data.qacc, data.sensordata]))
     assert np.abs(runs[0][:model.nq] - theirs.physics.data.qpos).max() > 1e-3, "the body must move"
     np.testing.assert_array_equal(runs[0], runs[1])
-    name = next(n for n, (d, _) in TASKS.items() if d == domain)
+    name = next(n for n, pair in TASKS.items() if pair == (domain, task))
     with pytest.raises(ValueError, match=DISABLED[domain].name), pytest.warns(UserWarning):
         envs.make(name, opt={"disableflags": int(model.opt.disableflags) & ~int(DISABLED[domain])})
 
@@ -111,15 +114,24 @@ def test_removing_collisions_is_neutral_in_c_mujoco(domain, task):
 EFFECTOR, REACH = {"fish": "mouth", "swimmer": "nose"}, {"fish": 0.09, "swimmer": 0.5}
 # A stirred state's velocities, N(0, SPEED) per dof: about the spread of dm_control's own random-action
 # episodes (fish: the root's linear and angular velocity, then the hinges; swimmer: the two slides,
-# rootz, the hinges). Twice the fish's makes dm_control's own physics unstable (mjWARN_BADQACC).
-SPEED = {"fish": np.array((0.02,) * 3 + (0.5,) * 3 + (3.0,) * 7), "swimmer": np.array((0.1, 0.1, 1.0) + (1.5,) * 5)}
+# rootz, then each hinge, however many). Twice the fish's makes dm_control's own physics unstable
+# (mjWARN_BADQACC), and so does swimmer6's spread on swimmer15 (hinges limited to +-24 degrees, a
+# 1.5 m chain in the fluid; random actions never reach such states): a tenth of it there.
+SPEED = {"fish": ((0.02,) * 3 + (0.5,) * 3, 3.0), "swimmer": ((0.1, 0.1, 1.0), 1.5)}
+SPEED_SCALE = {"swimmer15": 0.1}
 
 
-def stir(physics, rng, domain):
+def speed(domain: str, task: str, nv: int) -> np.ndarray:
+    """SPEED's spread for each of a model's `nv` dofs: the root's, then the hinges'."""
+    root, hinge = SPEED[domain]
+    return SPEED_SCALE.get(task, 1.0) * np.array(root + (hinge,) * (nv - len(root)))
+
+
+def stir(physics, rng, domain, task):
     """A state random actions rarely reach: the body turned and set moving, and the target (where the
     task has one) moved near the mouth or nose."""
     named = physics.named
-    physics.data.qvel[:] = rng.normal(0.0, SPEED[domain])
+    physics.data.qvel[:] = rng.normal(0.0, speed(domain, task, physics.model.nv))
     if domain == "fish":
         quat = rng.normal(size=4)
         named.data.qpos["root"][3:7] = quat / np.linalg.norm(quat)
@@ -136,7 +148,7 @@ def test_observation_and_reward_of_dm_controls_states(name):
     """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
     here), stirred every third step: the joints, the uprightness, the target in the mouth's or head's
     frame, the swimmer's velocimeters and gyros in dm_control's order, and the reward."""
-    perturb = functools.partial(stir, domain=TASKS[name][0])
+    perturb = functools.partial(stir, domain=TASKS[name][0], task=TASKS[name][1])
     comparison = compare_readings_with_dm_control(name, episodes=4, num_steps=12, perturb=perturb)
     comparison.assert_within({"obs": 1e-5, "reward": 1e-6}, rtol=1e-5)
     assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
@@ -151,7 +163,7 @@ def their_targets(domain: str, task: str, count: int) -> np.ndarray:
     return np.array(found)
 
 
-@pytest.mark.parametrize("name", ["dmc-fish-swim", "dmc-swimmer-swimmer6"])
+@pytest.mark.parametrize("name", ["dmc-fish-swim", "dmc-swimmer-swimmer6", "dmc-swimmer-swimmer15"])
 def test_reset_distribution_matches_dm_control(name):
     """2,000 draws of each: the joints, the root's orientation (fish: uniform on the sphere) and the
     episode's target in distribution (the swimmer's: the share within its close box too), at rest.
@@ -183,7 +195,7 @@ def start_states(env, rng):
     chosen = np.linspace(0, len(rollouts.qpos) - 1, COUNT).round().astype(int)
     qpos, qvel = rollouts.qpos[chosen].copy(), rollouts.qvel[chosen].copy()
     target = rollouts.episode["target"][chosen].copy()
-    qvel[1::4] = rng.normal(0.0, SPEED[env.domain], qvel[1::4].shape)
+    qvel[1::4] = rng.normal(0.0, speed(env.domain, env.task, env.mj_model.nv), qvel[1::4].shape)
     data, effector = mujoco.MjData(env.mj_model), env.mj_model.geom(EFFECTOR[env.domain]).id
     for index in range(0, COUNT, 2):
         data.qpos[:] = qpos[index]

@@ -70,6 +70,7 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-reacher-easy-v0": ("dmc-reacher-easy", 1000),
     "dmc-reacher-hard-v0": ("dmc-reacher-hard", 1000),
     "dmc-swimmer-swimmer6-v0": ("dmc-swimmer-swimmer6", 1000),
+    "dmc-swimmer-swimmer15-v0": ("dmc-swimmer-swimmer15", 1000),
     "dmc-walker-stand-v0": ("dmc-walker-stand", 1000),
     "dmc-walker-walk-v0": ("dmc-walker-walk", 1000),
     "dmc-walker-run-v0": ("dmc-walker-run", 1000),

@@ -1,19 +1,20 @@
-"""The DeepMind Control Suite's 6-link swimmer (dm_control/suite/swimmer.py), stepped by MJX:
-`envs.make("dmc-swimmer-swimmer6")`. A planar chain of a head and five segments, each hinged to the
-one before and driven by a motor, in a fluid (density 3000, contacts disabled; Euler, timestep
-0.002, 15 physics steps per control step: dt 0.03) swims its nose to a target that moves every
-episode. The MJCF is dm_control's `swimmer.xml`, read from the installed package, with the
-segments, motors and sensors added as dm_control's `_make_model(6)` adds them to its XML (here on
-MuJoCo's `MjSpec`; the test proves the compiled model equal to dm_control's).
+"""The DeepMind Control Suite's swimmers (dm_control/suite/swimmer.py), stepped by MJX:
+`envs.make("dmc-swimmer-swimmer6")` (6 links) and `envs.make("dmc-swimmer-swimmer15")` (15 links).
+A planar chain of a head and n - 1 segments, each hinged to the one before and driven by a motor,
+in a fluid (density 3000, contacts disabled; Euler, timestep 0.002, 15 physics steps per control
+step: dt 0.03) swims its nose to a target that moves every episode. The MJCF is dm_control's
+`swimmer.xml`, read from the installed package, with the segments, motors and sensors added as
+dm_control's `_make_model(n)` adds them to its XML (here on MuJoCo's `MjSpec`; the test proves the
+compiled models equal to dm_control's).
 
-- Action: Box(-1, 1, (5,)): the five joints' motors.
-- Observation (25), dm_control's order: joints (5) = qpos[3:] (the hinges between segments),
-  to_target (2) = target - nose (geom_xpos) in the head's frame, x and y; body_velocities (18) =
-  x, y linear and z angular velocity of the head and each segment, from the velocimeter and gyro
-  sensors (sensordata[12:], past the four 3-D frame sensors).
+- Action: Box(-1, 1, (n - 1,)): the joints' motors (5 for swimmer6, 14 for swimmer15).
+- Observation (swimmer6: 25, swimmer15: 61), dm_control's order: joints (n - 1) = qpos[3:] (the
+  hinges between segments), to_target (2) = target - nose (geom_xpos) in the head's frame, x and y;
+  body_velocities (3 n) = x, y linear and z angular velocity of the head and each segment, from the
+  velocimeter and gyro sensors (sensordata[12:], past the four 3-D frame sensors).
 - Reward: tolerance(|to_target|, (0, r), margin 5 r, long_tail), r the target's radius (0.1).
-- Reset: dm_control's joint randomiser (rootz U(-pi, pi), the hinges uniform in +-60 degrees,
-  rootx and rooty, unlimited slides, at 0), at rest; the target at x, y U(-b, b) with b = 0.3 with
+- Reset: dm_control's joint randomiser (rootz U(-pi, pi), the hinges uniform in their range,
+  +-360 / n degrees, rootx and rooty, unlimited slides, at 0), at rest; the target at x, y U(-b, b) with b = 0.3 with
   probability 0.2, else 2.
 - Episode: 1,000 steps (30 s simulated), never terminated.
 
@@ -130,3 +131,8 @@ class DmcSwimmer(EpisodeTarget, DmControlEnv):
 class DmcSwimmerSwimmer6(DmcSwimmer):
     task, n_bodies = "swimmer6", 6
     observation_shapes = (("joints", 5), ("to_target", 2), ("body_velocities", 18))
+
+
+class DmcSwimmerSwimmer15(DmcSwimmer):
+    task, n_bodies = "swimmer15", 15
+    observation_shapes = (("joints", 14), ("to_target", 2), ("body_velocities", 45))
