@@ -172,7 +172,7 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-hopper-stand": ({}, dict(num_timesteps=10_000_000), 700.0),
     "dmc-humanoid-run": ({}, {}, None), "dmc-humanoid-stand": ({}, {}, None),
     "dmc-humanoid-walk": ({}, dict(num_timesteps=10_000_000), None),
-    "dmc-manipulator-bring-ball": ({}, {}, None),  # Playground has no manipulator: its base recipes
+    "dmc-manipulator-bring-ball": ({}, {}, None), "dmc-manipulator-bring-peg": ({}, {}, None),  # none in Playground
     "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
     "dmc-point-mass-easy": ({}, {}, None),
     "dmc-quadruped-run": ({}, {}, 700.0), "dmc-quadruped-walk": ({}, {}, 700.0),  # no quadruped in Playground

@@ -1,8 +1,10 @@
-"""dm_control's manipulator bring_ball against dm_control 1.0.50's own env: the model (trimmed as
-dm_control's `make_model` trims it), the spec, the observation and reward of dm_control's own states
-(no physics compiled), the reset distribution with each episode's target; in the slow run, single
-steps from dm_control's own states with each episode's target handed to dm_control's physics (only the
-step compiled); in the heavy run, the same steps after our resets' program and the resets' observation."""
+"""dm_control's manipulator bring_ball and bring_peg against dm_control 1.0.50's own envs, each task
+proven by the same tests: the model (trimmed as dm_control's `make_model` trims it), the spec, the
+observation and reward of dm_control's own states (no physics compiled), the target placed as C
+MuJoCo's kinematics places it, the reset distribution with each episode's target; in the slow run,
+single steps from dm_control's own states with each episode's target handed to dm_control's physics
+(only the step compiled); in the heavy run, the same steps after our resets' program and the resets'
+observation."""
 
 from __future__ import annotations
 
@@ -24,65 +26,114 @@ from envs.interop.dm_control import (Comparison, Steps, assert_spec_is_dm_contro
                                      c_mujoco_contacts, compare_readings_with_dm_control, dm_control_observations,
                                      dm_control_rollouts, dm_control_steps, flatten, load, put_state, steps_from)
 from envs.mjx_env import mjx  # noqa: E402
+from envs.tasks.dmc_manipulator import ALL_PROPS  # noqa: E402
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 from tests.test_dm_control_swim import assert_models_equal  # noqa: E402
 
-NAME = "dmc-manipulator-bring-ball"
+NAMES = ("dmc-manipulator-bring-ball", "dmc-manipulator-bring-peg")
 COUNT = 32  # start states of the slow run: one batch shape, one compiled program
 DRAWS = 2000  # resets drawn on each side
-# The target's offset from the ball in a stirred state, per coordinate: the reward's margin plus its
+# The target's offset from the prop in a stirred state, per coordinate: the reward's margin plus its
 # bounds (0.03), so the reward spans its range.
 REACH = 0.03
+# The peg's target turned from the peg by up to this (rad): its tip term then spans its range too
+# (the tip 0.113 m from the body's origin). The ball's target turns anywhere (its reward ignores the angle).
+TURN = 0.3
 # float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
 # (plus 1e-4 relative) and the reward's. Measured worst: see docs/tasks.md's proof table.
 BOUNDS = {"obs": 1e-3, "reward": 1e-4}
-# The start states with the ball put in the closing hand (a quarter): MJX's contact solve of the squeeze
-# parts from C MuJoCo's in the ball's spin and the touch sensors, by the same amount in x64 (not float32
+# The start states with the prop put in the closing hand (a quarter): MJX's contact solve of the squeeze
+# parts from C MuJoCo's in the prop's spin and the touch sensors, by the same amount in x64 (not float32
 # rounding: MJX's elliptic cones against C MuJoCo's, as the feasibility study saw for manipulator's rarer
-# states), so these hold their positions and rewards to BOUNDS and the rest to GRIP_BOUND.
+# states), so these hold their positions and rewards to BOUNDS and the rest to GRIP_BOUND: the peg's,
+# a light thin blade, spins ten times as fast as the ball in a squeeze, its gap with it.
 GRIPS = slice(1, None, 4)
-GRIP_BOUND = 3e-2
+GRIP_BOUND = {"dmc-manipulator-bring-ball": 3e-2, "dmc-manipulator-bring-peg": 1e-1}
+# Grips that may pass those bounds, positions included: a grazing contact's onset within the step that
+# one solve sees and the other does not (a hair apart after the squeeze's substeps) turns the squeezed
+# prop's spin otherwise, as contact onsets do (docs/tasks.md). The peg's three geoms graze the fingertips
+# where the round ball does not; their rewards stay held to BOUNDS.
+FLIPS = {"dmc-manipulator-bring-ball": 0, "dmc-manipulator-bring-peg": 1}
 TOUCH = slice(24, 29)
 POSITIONS = np.r_[0:16, 29:37, 40:44]  # arm_pos, hand_pos, object_pos, target_pos
 
 
-def test_spec_and_model_are_dm_controls():
+@pytest.mark.parametrize("name", NAMES)
+def test_spec_and_model_are_dm_controls(name):
     """Spec (5 motors in [-1, 1], 10 x 0.001 s, 1,000 steps, 44 observations in dm_control's order) and
     our model equal to the one dm_control's env steps in every number but the target body's pose
-    (each episode's, `state.info` here)."""
-    env, theirs = assert_spec_is_dm_controls(NAME)
+    (each episode's, `state.info` here): the task's prop and its target kept, the other props removed."""
+    env, theirs = assert_spec_is_dm_controls(name)
     model, their_model = env.mj_model, theirs.physics.model.ptr
-    ours = copy.copy(model)
+    ours, target = copy.copy(model), model.body(env.target).id
     for field in ("body_pos", "body_quat"):
-        getattr(ours, field)[model.body("target_ball").id] = getattr(their_model, field)[model.body("target_ball").id]
-    assert_models_equal(ours, their_model, set(), NAME)
-    assert model.nbody == their_model.nbody and model.body("ball") and "peg" not in model.names.decode()
+        getattr(ours, field)[target] = getattr(their_model, field)[target]
+    assert_models_equal(ours, their_model, set(), name)
+    kept = {prop for prop in ALL_PROPS if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, prop) >= 0}
+    assert model.nbody == their_model.nbody and kept == {env.prop, env.target}
 
 
-def stir(physics, rng):
-    """The target moved near the ball (the reward's range), every other time the ball put in the hand."""
-    named = physics.named
-    if rng.uniform() < 0.5:
-        named.data.qpos[["ball_x", "ball_z"]] = named.data.site_xpos["grasp", ["x", "z"]]
-        physics.forward()
-    near = named.data.site_xpos["ball", ["x", "z"]] + rng.uniform(-REACH, REACH, 2)
-    angle = rng.uniform(-np.pi, np.pi)
-    named.model.body_pos["target_ball", ["x", "z"]] = near
-    named.model.body_quat["target_ball", ["qw", "qy"]] = np.cos(angle / 2), np.sin(angle / 2)
+def in_hand(model: mujoco.MjModel, data: mujoco.MjData, prop: str) -> dict[str, float]:
+    """The prop's joints as dm_control's in-hand start sets them (after a forward pass of `data`): at
+    the grasp site, the peg turned as the grasp site is (the ball's angle kept: it is round)."""
+    grasp = model.site("grasp").id
+    place = {f"{prop}_x": data.site_xpos[grasp, 0], f"{prop}_z": data.site_xpos[grasp, 2]}
+    if prop == "peg":
+        place[f"{prop}_y"] = np.pi - np.arctan2(data.site_xmat[grasp, 6], data.site_xmat[grasp, 0])
+    return place
 
 
-def test_observation_and_reward_of_dm_controls_states():
+def near_angle(prop_angle: float, prop: str, rng) -> float:
+    """A target angle within the reward's reach: the peg's near the peg's, the ball's anywhere."""
+    return prop_angle + rng.uniform(-TURN, TURN) if prop == "peg" else rng.uniform(-np.pi, np.pi)
+
+
+def stirrer(prop: str):
+    def stir(physics, rng):
+        """The target moved near the prop (the reward's range), every other time the prop put in the hand."""
+        named, target = physics.named, f"target_{prop}"
+        if rng.uniform() < 0.5:
+            for joint, value in in_hand(physics.model.ptr, physics.data.ptr, prop).items():
+                named.data.qpos[joint] = value
+            physics.forward()
+        near = named.data.xpos[prop, ["x", "z"]] + rng.uniform(-REACH, REACH, 2)
+        angle = near_angle(float(named.data.qpos[f"{prop}_y"][0]), prop, rng)
+        named.model.body_pos[target, ["x", "z"]] = near
+        named.model.body_quat[target, ["qw", "qy"]] = np.cos(angle / 2), np.sin(angle / 2)
+    return stir
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_observation_and_reward_of_dm_controls_states(name):
     """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
     here), stirred every third step: the arm's angles and velocities, the touch sensors, the hand's,
-    ball's and target's poses, and the reward."""
-    comparison = compare_readings_with_dm_control(NAME, episodes=4, num_steps=8, perturb=stir)
+    prop's and target's poses, and the reward."""
+    comparison = compare_readings_with_dm_control(name, episodes=4, num_steps=8,
+                                                  perturb=stirrer(envs.make(name).unwrapped.prop))
     comparison.assert_within({"obs": 1e-5, "reward": 1e-5}, rtol=1e-5)
     assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
     assert np.ptp(comparison.theirs.obs[:, 24:29]) > 0.1, "something must touch"
 
 
-def our_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    env = envs.make(NAME).unwrapped
+@pytest.mark.parametrize("name", NAMES)
+def test_target_is_placed_as_c_mujoco_places_it(name):
+    """`with_episode` puts the target body, its sites (the reward's) and its geoms (the pictures') where C
+    MuJoCo's kinematics of dm_control's edited model puts them (the peg's sites and geoms off its origin)."""
+    env = envs.make(name).unwrapped
+    theirs = load("manipulator", env.task, seed=1)
+    theirs.reset()
+    data = mujoco.MjData(env.mj_model)  # the MJCF's target pose
+    data.qpos[:] = theirs.physics.data.qpos
+    mujoco.mj_kinematics(env.mj_model, data)
+    placed = env.with_episode(mjx.put_data(env.mj_model, data, impl="jax"), env.get_episode(theirs.physics))
+    their_data = theirs.physics.data.ptr
+    for field in ("xpos", "xquat", "xmat", "site_xpos", "site_xmat", "geom_xpos", "geom_xmat"):
+        np.testing.assert_allclose(np.asarray(getattr(placed, field)).reshape(len(getattr(data, field)), -1),
+                                   getattr(their_data, field), atol=1e-6, err_msg=field)
+
+
+def our_draws(name: str, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    env = envs.make(name).unwrapped
 
     def draw(key):
         qpos, qvel, episode = env.draw_start(key)
@@ -92,8 +143,9 @@ def our_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tuple(np.asarray(x, np.float64) for x in jax.jit(jax.vmap(draw))(keys))
 
 
-def their_draws(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    env, theirs = envs.make(NAME).unwrapped, load("manipulator", "bring_ball", seed=2)
+def their_draws(name: str, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    env = envs.make(name).unwrapped
+    theirs = load("manipulator", env.task, seed=2)
     qpos, qvel, target = [], [], []
     for _ in range(count):
         theirs.reset()
@@ -109,15 +161,16 @@ def assert_same_share(ours: np.ndarray, theirs: np.ndarray, what: str) -> None:
         (what, ours.mean(), theirs.mean())
 
 
-def test_reset_distribution_matches_dm_control():
-    """2,000 draws of each: the arm's joints (finger = thumb), the ball's position, angle and thrown
+@pytest.mark.parametrize("name", NAMES)
+def test_reset_distribution_matches_dm_control(name):
+    """2,000 draws of each: the arm's joints (finger = thumb), the prop's position, angle and thrown
     velocity, and the target's pose in distribution; the shares of starts on the target and at rest
-    within 5 standard errors; nothing touches at any of ours in C MuJoCo, nothing but the ball's x moves."""
-    env = envs.make(NAME).unwrapped
-    qpos, qvel, target = our_draws(DRAWS)
-    their_qpos, their_qvel, their_target = their_draws(DRAWS)
+    within 5 standard errors; nothing touches at any of ours in C MuJoCo, nothing but the prop's x moves."""
+    env = envs.make(name).unwrapped
+    qpos, qvel, target = our_draws(name, DRAWS)
+    their_qpos, their_qvel, their_target = their_draws(name, DRAWS)
     assert_same_distribution(qpos, their_qpos, "qpos")
-    assert_same_distribution(qvel[:, 8], their_qvel[:, 8], "ball_x velocity")
+    assert_same_distribution(qvel[:, 8], their_qvel[:, 8], "the prop's x velocity")
     assert_same_distribution(target, their_target, "target")
     assert not np.delete(qvel, 8, axis=1).any() and not np.delete(their_qvel, 8, axis=1).any()
     np.testing.assert_array_equal(qpos[:, 4], qpos[:, 6])
@@ -131,32 +184,39 @@ def test_reset_distribution_matches_dm_control():
 # ---- single steps (slow: one compiled program) ---------------------------------------------------
 def start_states(env, rng):
     """`COUNT` of dm_control's own states along random-action episodes from its resets, with their
-    episodes' targets; every other one with its target moved near the ball (the reward's range), a
-    quarter (`GRIPS`) with the ball put in the hand at rest and the hand closing on it."""
+    episodes' targets; every other one with its target moved near the prop (the reward's range), a
+    quarter (`GRIPS`) with the prop put in the hand at rest (`in_hand`) and the hand closing on it."""
     rollouts = dm_control_rollouts(env, episodes=4, num_steps=40)
     chosen = np.linspace(0, len(rollouts.qpos) - 1, COUNT).round().astype(int)
     qpos, qvel = rollouts.qpos[chosen].copy(), rollouts.qvel[chosen].copy()
     target = rollouts.episode["target"][chosen].copy()
+    # The prop's joints x, z, y are qpos 8:11 (after the arm's 8): its x, z are its body's position.
     target[::2, :2] = qpos[::2, 8:10] + rng.uniform(-REACH, REACH, (len(target[::2]), 2))
-    data, grasp = mujoco.MjData(env.mj_model), env.mj_model.site("grasp").id
+    if env.prop == "peg":  # its tip's term: the target turned near the peg (the ball's keeps its episode's)
+        angle = np.array([near_angle(q, env.prop, rng) for q in qpos[::2, 10]])
+        target[::2, 2:] = np.stack([np.cos(angle / 2), np.sin(angle / 2)], 1)
+    data = mujoco.MjData(env.mj_model)
     for index in range(COUNT)[GRIPS]:
         data.qpos[:] = qpos[index]
         mujoco.mj_kinematics(env.mj_model, data)
-        qpos[index, 8:10], qvel[index, 8:] = data.site_xpos[grasp, [0, 2]], 0.0
+        for joint, value in in_hand(env.mj_model, data, env.prop).items():
+            qpos[index, env.mj_model.joint(joint).qposadr[0]] = value
+        qvel[index, 8:] = 0.0
     actions = rng.uniform(-1.0, 1.0, (COUNT, env.action_size))
     actions[GRIPS, 4] = 1.0
     return qpos, qvel, rollouts.qacc_warmstart[chosen], actions, target
 
 
 @pytest.mark.slow
-def test_steps_match_dm_control():
+@pytest.mark.parametrize("name", NAMES)
+def test_steps_match_dm_control(name):
     """One control step (10 physics steps with contacts, elliptic cones) from each of dm_control's
     states, its data (warm start included) put on the device as it is and the episode's target in
     `state.info`, against dm_control's step from the same state with the target handed to its physics
     (`put_episode`). Only the step compiles (the reset's program is the heavy run's)."""
-    env = envs.make(NAME).unwrapped
+    env = envs.make(name).unwrapped
     qpos, qvel, warmstart, actions, target = start_states(env, np.random.default_rng(0))
-    theirs, datas, obs, rewards = load("manipulator", "bring_ball"), [], [], []
+    theirs, datas, obs, rewards = load("manipulator", env.task), [], [], []
     for index in range(COUNT):
         theirs.reset()
         env.put_episode(theirs.physics, {"target": target[index]})
@@ -173,45 +233,48 @@ def test_steps_match_dm_control():
     ours = jax.jit(jax.vmap(env.step))(state, jnp.asarray(actions))
     comparison = Comparison(Steps(np.asarray(ours.obs), np.asarray(ours.reward), 1.0 - np.asarray(ours.done)),
                             Steps(np.array(obs), np.array(rewards), np.ones(COUNT)))
-    assert_steps_within(comparison)
+    assert_steps_within(comparison, name)
     assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
     assert (comparison.theirs.obs[GRIPS, TOUCH] > 0).any(1).all(), "every grip must touch"
 
 
-def assert_steps_within(comparison: Comparison) -> None:
-    """The free states' steps to BOUNDS; the grips' positions and rewards to BOUNDS, the rest to GRIP_BOUND."""
+def assert_steps_within(comparison: Comparison, name: str) -> None:
+    """The free states' steps to BOUNDS; the grips' positions and rewards to BOUNDS, the rest to
+    GRIP_BOUND, but for at most FLIPS grips (each within 1e-4 relative too)."""
     free = np.ones(len(comparison.theirs.reward), bool)
     free[GRIPS] = False
     Comparison(*(Steps(steps.obs[free], steps.reward[free], steps.discount[free])
                  for steps in (comparison.ours, comparison.theirs))).assert_within(BOUNDS)
     ours, theirs = comparison.ours.obs[GRIPS], comparison.theirs.obs[GRIPS]
-    np.testing.assert_allclose(ours[:, POSITIONS], theirs[:, POSITIONS], atol=BOUNDS["obs"], rtol=1e-4)
-    np.testing.assert_allclose(ours, theirs, atol=GRIP_BOUND, rtol=1e-4)
+    error, scale = np.abs(ours - theirs), 1e-4 * np.abs(theirs)
+    held = ((error[:, POSITIONS] <= BOUNDS["obs"] + scale[:, POSITIONS]).all(1)
+            & (error <= GRIP_BOUND[name] + scale).all(1))
+    assert np.count_nonzero(~held) <= FLIPS[name], ("grips past the bounds", np.flatnonzero(~held), error.max(1))
     np.testing.assert_allclose(comparison.ours.reward, comparison.theirs.reward, atol=BOUNDS["reward"], rtol=1e-4)
     np.testing.assert_array_equal(comparison.ours.discount, comparison.theirs.discount)
 
 
 # ---- resets and steps together (heavy: the reset's program too) -----------------------------------
-@pytest.fixture(scope="module")
-def manipulator_case():
-    env = envs.make(NAME).unwrapped
+@pytest.fixture(scope="module", params=NAMES)
+def manipulator_case(request):
+    env = envs.make(request.param).unwrapped
     qpos, qvel, _, actions, target = start_states(env, np.random.default_rng(0))
     starts = steps_from(env, qpos.astype(np.float32), qvel.astype(np.float32), actions,
                         {"target": target.astype(np.float32)})
-    return env, starts, dm_control_steps(env, starts)
+    return request.param, env, starts, dm_control_steps(env, starts)
 
 
 @pytest.mark.heavy
 def test_steps_after_resets_match_dm_control(manipulator_case):
     """The slow run's steps again through `steps_from` (our reset's program, then the state put in)."""
-    env, starts, theirs = manipulator_case
-    assert_steps_within(Comparison(starts.steps, theirs))
+    name, env, starts, theirs = manipulator_case
+    assert_steps_within(Comparison(starts.steps, theirs), name)
     assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
 
 
 @pytest.mark.heavy
 def test_reset_observation_is_dm_controls(manipulator_case):
     """Our resets (the same program's) are dm_control's observation of the same state and target."""
-    env, starts, _ = manipulator_case
+    _, env, starts, _ = manipulator_case
     theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
     np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)

@@ -1,36 +1,41 @@
 """The DeepMind Control Suite's manipulator (dm_control/suite/manipulator.py), stepped by MJX:
-`envs.make("dmc-manipulator-bring-ball")`. A planar arm (root, shoulder, elbow, wrist hinges) with a
-two-fingered hand (thumb and finger coupled by a tendon equality, each with a fingertip) brings a
-ball to a ghost target (Euler, elliptic friction cones, timestep 0.001, 10 physics steps per control
-step: dt 0.01). The MJCF is dm_control's `manipulator.xml`, read from the installed package, less
-the props the task does not use, as dm_control's `make_model(use_peg=False, insert=False)` removes
-them (the peg, its target, the slot and the cup).
+`envs.make("dmc-manipulator-bring-ball")` and `envs.make("dmc-manipulator-bring-peg")`. A planar arm
+(root, shoulder, elbow, wrist hinges) with a two-fingered hand (thumb and finger coupled by a tendon
+equality, each with a fingertip) brings a prop to a ghost target of its shape (Euler, elliptic
+friction cones, timestep 0.001, 10 physics steps per control step: dt 0.01). The MJCF is
+dm_control's `manipulator.xml`, read from the installed package, less the props the task does not
+use, as dm_control's `make_model(use_peg, insert=False)` removes them: bring_ball keeps the ball and
+its target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
+target.
 
 - Action: Box(-1, 1, (5,)): root, shoulder, elbow, wrist motors and the grasp tendon's motor.
 - Observation (44), dm_control's order: arm_pos (16) = (sin, cos) of each of the 8 arm joints
   (arm_root, arm_shoulder, arm_elbow, arm_wrist, finger, fingertip, thumb, thumbtip), row by row;
   arm_vel (8) = their qvel; touch (5) = log1p of the palm, finger, thumb, fingertip and thumbtip
   touch sensors (acceleration stage: the last substep's value, as in dm_control's legacy step);
-  hand_pos (4), object_pos (4), target_pos (4) = the hand's, the ball's and the target's bodies' 2-D
-  poses (xpos x, z, then xquat w, y); object_vel (3) = the ball's qvel (ball_x, ball_z, ball_y).
-- Reward: tolerance(|ball site - target site|, (0, 0.01), margin 0.02), gaussian.
+  hand_pos (4), object_pos (4), target_pos (4) = the hand's, the prop's and the target's bodies' 2-D
+  poses (xpos x, z, then xquat w, y); object_vel (3) = the prop's qvel (x, z, y).
+- Reward, with close(d) = tolerance(d, (0, 0.01), margin 0.02), gaussian: bring_ball
+  close(|ball site - target site|); bring_peg max(bringing, grasping / 3), bringing the mean of
+  close(peg site - target_peg site) and close(peg_tip - target_peg_tip), grasping the mean of
+  close(peg_grasp - the hand's grasp site) and close(peg_pinch - the hand's pinch site).
 - Reset: dm_control's rejection loop, until nothing touches (its `ncon > 0` after a forward pass;
   here a `lax.while_loop` on MJX's contact slots closer than their margin): the arm joints uniform
   in their ranges (the root U(-pi, pi)), the finger set to the thumb's angle; the target at x
-  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y; the ball, with probability 0.1 in the hand
+  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y; the prop, with probability 0.1 in the hand
   (at the grasp site, turned as the grasp site is), 0.1 on the target (its position and angle),
   else at x U(-0.5, 0.5), z U(0, 0.7), angle U(0, 2 pi) and thrown at x velocity U(-5, 5). The
   velocity is the loop's one draw that a later try does not overwrite: a start in the hand or on the
   target keeps the last thrown velocity of a rejected try (0 if none), as dm_control's loop leaves it.
 - Episode: 1,000 steps (10 s simulated), never terminated.
 
-The target's pose is per episode (dm_control edits `model.body_pos`/`body_quat` of the `target_ball`
-body in every try of its loop): kept in `state.info["target"]` as the model holds it (x, z, qw, qy)
-and written after each physics call into the body's, its site's and its geom's derived poses
+The target's pose is per episode (dm_control edits `model.body_pos`/`body_quat` of the target body
+in every try of its loop): kept in `state.info["target"]` as the model holds it (x, z, qw, qy) and
+written after each physics call into the body's, its sites' and its geoms' derived poses
 (`with_episode`), where dm_control's edited model puts them. The target is a ghost (contype and
 conaffinity 0, fixed to the world): its pose moves nothing else, so every env and every MuJoCo Warp
 world steps the task's one model. The insert tasks move the colliding cup or slot instead, which
-needs a model per env; they and the peg's reward are not offered.
+needs a model per env; they are not offered.
 """
 
 from __future__ import annotations
@@ -57,8 +62,8 @@ OBJECT_SPEED = 5.0  # a free start's x velocity U(-5, 5) (m/s)
 
 
 class DmcManipulator(DmControlEnv):
-    """dm_control's `manipulator.Bring` for a prop (`prop`: "ball"; the peg would need its own
-    reward): the model as `make_model` trims it, the rejection-sampled reset, the target's pose."""
+    """dm_control's `manipulator.Bring` for a prop (`prop`: "ball" or "peg"; each task class sets it
+    and its reward): the model as `make_model` trims it, the rejection-sampled reset, the target's pose."""
 
     costly_reset = True
     domain = "manipulator"
@@ -92,6 +97,21 @@ class DmcManipulator(DmControlEnv):
         joints = [model.joint(f"{self.prop}_{axis}") for axis in "xzy"]  # dm_control's _object_joints
         self._object, self._object_vel = (np.array([j.qposadr[0] for j in joints]),
                                           np.array([j.dofadr[0] for j in joints]))
+        # The target's sites and geoms in its body's frame (the ball's at its origin, the peg's along
+        # it), for `with_episode` to place them where MuJoCo's kinematics would.
+        body = self._target_body = model.body(self.target).id
+        self._target_sites = self._local_frames(np.flatnonzero(model.site_bodyid == body), model.site_pos,
+                                                model.site_quat)
+        self._target_geoms = self._local_frames(np.flatnonzero(model.geom_bodyid == body), model.geom_pos,
+                                                model.geom_quat)
+
+    @staticmethod
+    def _local_frames(ids: np.ndarray, pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(ids, their positions, their rotation matrices) in the body's frame."""
+        mats = np.zeros((len(ids), 9))
+        for mat, q in zip(mats, quat[ids]):
+            mujoco.mju_quat2Mat(mat, q)
+        return ids, pos[ids].copy(), mats.reshape(-1, 3, 3)
 
     # ---- reset ---------------------------------------------------------------------
     def _try(self, key: jax.Array, qvel: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -145,22 +165,28 @@ class DmcManipulator(DmControlEnv):
 
     # ---- the target's per-episode pose -----------------------------------------------
     def with_episode(self, data: mjx.Data, info) -> mjx.Data:
-        # A body fixed to the world: its pose is its model pose, its site and geom sit at its origin.
+        # A body fixed to the world: its pose is its model pose; its sites and geoms keep their places
+        # in its frame (MuJoCo's kinematics: the body's pose composed with theirs).
         x, z, w, y = info["target"]
-        body, site, geom = (self.mj_model.body(self.target).id, self.mj_model.site(self.target).id,
-                            self.mj_model.geom(self.target).id)
-        position = data.xpos[body].at[jnp.array([0, 2])].set(jnp.stack([x, z]))
+        body = self._target_body
+        position = data.xpos[body].at[jnp.array([0, 2])].set(jnp.stack([x, z])).astype(data.xpos.dtype)
         zero, one = jnp.zeros_like(w), jnp.ones_like(w)
-        quat = jnp.stack([w, zero, y, zero])
+        quat = jnp.stack([w, zero, y, zero]).astype(data.xquat.dtype)
         # MuJoCo's mju_quat2Mat of (w, 0, y, 0): a turn about y.
         xmat = jnp.stack([jnp.stack([w * w - y * y, zero, 2 * w * y]), jnp.stack([zero, one, zero]),
                           jnp.stack([-2 * w * y, zero, w * w - y * y])]).astype(data.xmat.dtype)
-        position, quat = position.astype(data.xpos.dtype), quat.astype(data.xquat.dtype)
+
+        def placed(frames):
+            ids, pos, mats = frames
+            return ids, position + jnp.asarray(pos, xmat.dtype) @ xmat.T, xmat @ jnp.asarray(mats, xmat.dtype)
+
+        sites, site_xpos, site_xmat = placed(self._target_sites)
+        geoms, geom_xpos, geom_xmat = placed(self._target_geoms)
         return data.replace(xpos=data.xpos.at[body].set(position), xquat=data.xquat.at[body].set(quat),
-                            xmat=data.xmat.at[body].set(xmat), site_xpos=data.site_xpos.at[site].set(position),
-                            site_xmat=data.site_xmat.at[site].set(xmat),
-                            geom_xpos=data.geom_xpos.at[geom].set(position),
-                            geom_xmat=data.geom_xmat.at[geom].set(xmat))
+                            xmat=data.xmat.at[body].set(xmat), site_xpos=data.site_xpos.at[sites].set(site_xpos),
+                            site_xmat=data.site_xmat.at[sites].set(site_xmat),
+                            geom_xpos=data.geom_xpos.at[geoms].set(geom_xpos),
+                            geom_xmat=data.geom_xmat.at[geoms].set(geom_xmat))
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
@@ -189,9 +215,25 @@ class DmcManipulator(DmControlEnv):
         first, second = self.mj_model.site(first).id, self.mj_model.site(second).id
         return jnp.linalg.norm(data.site_xpos[first] - data.site_xpos[second])
 
+    def close(self, data: mjx.Data, first: str, second: str) -> jax.Array:
+        """dm_control's `_is_close` of two sites' distance."""
+        return tolerance(self.site_distance(data, first, second), (0.0, CLOSE), margin=2 * CLOSE)
+
 
 class DmcManipulatorBringBall(DmcManipulator):
     task = "bring_ball"
 
     def reward(self, data, action, prev):
-        return tolerance(self.site_distance(data, self.prop, self.target), (0.0, CLOSE), margin=2 * CLOSE)
+        return self.close(data, "ball", "target_ball")
+
+
+class DmcManipulatorBringPeg(DmcManipulator):
+    task = "bring_peg"
+    prop = "peg"
+
+    def reward(self, data, action, prev):
+        # dm_control's `_peg_reward`: the peg at the target, both its middle and its tip (its
+        # orientation), else a third of holding it at the hand's grasp and pinch sites.
+        grasping = (self.close(data, "peg_grasp", "grasp") + self.close(data, "peg_pinch", "pinch")) / 2
+        bringing = (self.close(data, "peg", "target_peg") + self.close(data, "target_peg_tip", "peg_tip")) / 2
+        return jnp.maximum(bringing, grasping / 3)
