@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
+import envs
+
 # Brax's notebook recipe for its inverted pendulums and ant (PPO), shared by three rows.
 _BRAX_NOTEBOOK_PENDULUMS = dict(num_evals=20, reward_scaling=10.0, unroll_length=5, num_minibatches=32,
                                 num_updates_per_batch=4, discounting=0.97, learning_rate=3e-4, entropy_cost=1e-2,
@@ -155,32 +157,30 @@ _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # critic's support [0, 35]: every discounted return of rewards in [0, 1], where FastTD3's +-500 wastes all but 4 atoms.
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
                 num_timesteps=10_240_000)
-_LONG_RUNS = (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), None)  # Playground's long runs
+_SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
+_LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
 _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-acrobot-swingup": _LONG_RUNS, "dmc-acrobot-swingup-sparse": _LONG_RUNS,
     "dmc-ball-in-cup-catch": (dict(discounting=0.95), {}, 900.0),
-    "dmc-cartpole-balance": ({}, {}, 900.0),
-    "dmc-cartpole-swingup": ({}, {}, 900.0),
+    "dmc-cartpole-balance": ({}, {}, 900.0), "dmc-cartpole-swingup": ({}, {}, 900.0),
     "dmc-cartpole-balance-sparse": ({}, {}, None), "dmc-cartpole-swingup-sparse": ({}, {}, None),
-    "dmc-cheetah-run": ({}, dict(num_timesteps=10_000_000), 700.0),
-    "dmc-finger-spin": (dict(discounting=0.95), dict(num_timesteps=10_000_000), 900.0),
-    "dmc-finger-turn-easy": ({}, dict(num_timesteps=10_000_000), 700.0),
-    "dmc-finger-turn-hard": ({}, dict(num_timesteps=10_000_000), None),
-    "dmc-fish-swim": ({}, {}, None), "dmc-fish-upright": ({}, {}, None),  # no fish upright in Playground: base recipes
-    "dmc-hopper-hop": ({}, dict(num_timesteps=10_000_000), None),
-    "dmc-hopper-stand": ({}, dict(num_timesteps=10_000_000), 700.0),
-    "dmc-humanoid-run": ({}, {}, None), "dmc-humanoid-stand": ({}, {}, None),
-    "dmc-humanoid-walk": ({}, dict(num_timesteps=10_000_000), None),
-    "dmc-manipulator-bring-ball": ({}, {}, None), "dmc-manipulator-bring-peg": ({}, {}, None),  # none in Playground
+    "dmc-cheetah-run": ({}, _SAC_10M, 700.0),
+    "dmc-finger-spin": (dict(discounting=0.95), _SAC_10M, 900.0),
+    "dmc-finger-turn-easy": ({}, _SAC_10M, 700.0), "dmc-finger-turn-hard": ({}, _SAC_10M, None),
+    "dmc-fish-swim": ({}, {}, None),
+    "dmc-hopper-hop": ({}, _SAC_10M, None), "dmc-hopper-stand": ({}, _SAC_10M, 700.0),
+    "dmc-humanoid-run": ({}, {}, None), "dmc-humanoid-stand": ({}, {}, None), "dmc-humanoid-walk": ({}, _SAC_10M, None),
     "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
     "dmc-point-mass-easy": ({}, {}, None),
     "dmc-quadruped-run": ({}, {}, 700.0), "dmc-quadruped-walk": ({}, {}, 700.0),  # no quadruped in Playground
     "dmc-reacher-easy": ({}, {}, 900.0), "dmc-reacher-hard": ({}, {}, None),
     "dmc-swimmer-swimmer6": _LONG_RUNS, "dmc-swimmer-swimmer15": _LONG_RUNS,  # no swimmer15 in Playground: swimmer6
     "dmc-walker-stand": ({}, {}, 900.0), "dmc-walker-walk": ({}, {}, 900.0),
-    "dmc-walker-run": (dict(num_timesteps=100_000_000), dict(num_timesteps=10_000_000), 700.0),
+    "dmc-walker-run": (dict(num_timesteps=100_000_000), _SAC_10M, 700.0),
 }
+# Tasks Playground does not register (fish upright, the manipulator's, ...): its base recipes.
+_DMC_TASKS |= {name: ({}, {}, None) for name, *_ in envs.TASKS if name.startswith("dmc-") and name not in _DMC_TASKS}
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
     SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}},
