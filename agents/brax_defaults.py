@@ -46,9 +46,10 @@ _FASTTD3 = dict(num_envs=1024, batch_size=32768, num_updates=2, policy_frequency
                 noise_clip=0.5, std_min=0.001, std_max=0.4, num_atoms=101, init_scale=0.01,
                 actor_hidden=(512, 256, 128), critic_hidden=(1024, 512, 256), compute_dtype="bfloat16",
                 min_replay_size=10 * 1024, max_replay_size=1 << 20, num_evals=11)
-# The agent of a continuous task without --agent, where not "ppo": SAC's row beat Gymnasium's goal
-# where PPO's fell short (docs/agents.md, "Per-task recipes").
-DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac"}
+# The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env,
+# beat PPO's by far (docs/agents.md, "Per-task recipes"; docs/tasks.md, the dm_control tasks' TD3 runs).
+DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", "dmc-walker-stand": "td3",
+                                 "dmc-walker-walk": "td3", "dmc-finger-spin": "td3"}
 
 SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     # Gymnasium's Pendulum-v1 (solved at -200). Measured here.
