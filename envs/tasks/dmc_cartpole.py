@@ -69,6 +69,9 @@ class DmcCartPole(DmControlEnv):
     n_poles: ClassVar[int] = 1
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
+        # One pole: dm_control's XML as it is, loaded as before the chains existed.
+        if self.n_poles == 1:
+            return super().load_mj_model(path)
         return cartpole_spec(path, self.n_poles).compile()
 
     def initial_qpos_qvel(self, key):
