@@ -49,6 +49,8 @@ TASKS = (
     ("dmc-cartpole-balance-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleBalanceSparse", 1000, ()),
     ("dmc-cartpole-swingup", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUp", 1000, ()),
     ("dmc-cartpole-swingup-sparse", "envs.tasks.dmc_cartpole:DmcCartPoleSwingUpSparse", 1000, ()),
+    ("dmc-cartpole-two-poles", "envs.tasks.dmc_cartpole:DmcCartPoleTwoPoles", 1000, ()),
+    ("dmc-cartpole-three-poles", "envs.tasks.dmc_cartpole:DmcCartPoleThreePoles", 1000, ()),
     ("dmc-cheetah-run", "envs.tasks.dmc_cheetah:DmcCheetahRun", 1000, ()),
     ("dmc-finger-spin", "envs.tasks.dmc_finger:DmcFingerSpin", 1000, ("DmcFinger",)),
     ("dmc-finger-turn-easy", "envs.tasks.dmc_finger:DmcFingerTurnEasy", 1000, ("DmcFingerTurn",)),

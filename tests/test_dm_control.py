@@ -16,7 +16,8 @@ pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are p
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
 from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, assert_resets_touch_nothing,  # noqa: E402
-                                     assert_spec_is_dm_controls, compare_with_dm_control,
+                                     assert_spec_is_dm_controls, compare_readings_with_dm_control,
+                                     compare_with_dm_control,
                                      dm_control_observations, dm_control_reset_samples, dm_control_steps, load,
                                      shim_mujoco_4, steps_from, transitions)
 from envs.tasks.dm_control_suite import tolerance  # noqa: E402
@@ -29,6 +30,7 @@ TASKS = {
     "dmc-ball-in-cup-catch": ("ball_in_cup", "catch"), "dmc-acrobot-swingup": ("acrobot", "swingup"), "dmc-acrobot-swingup-sparse": ("acrobot", "swingup_sparse"),
     "dmc-cartpole-balance": ("cartpole", "balance"), "dmc-cartpole-balance-sparse": ("cartpole", "balance_sparse"),
     "dmc-cartpole-swingup": ("cartpole", "swingup"), "dmc-cartpole-swingup-sparse": ("cartpole", "swingup_sparse"),
+    "dmc-cartpole-two-poles": ("cartpole", "two_poles"), "dmc-cartpole-three-poles": ("cartpole", "three_poles"),
     "dmc-cheetah-run": ("cheetah", "run"), "dmc-hopper-hop": ("hopper", "hop"), "dmc-hopper-stand": ("hopper", "stand"),
     "dmc-pendulum-swingup": ("pendulum", "swingup"),
     "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-reacher-easy": ("reacher", "easy"),
@@ -176,6 +178,61 @@ def test_reacher_steps_on_the_target_match_dm_control():
     theirs = dm_control_steps(env, starts)
     Comparison(starts.steps, theirs).assert_within(bounds("dmc-reacher-hard"))
     assert 0.1 < theirs.reward.mean() < 0.9, "both rewards reached"
+
+
+# ---- cartpole's chains of poles (dm_control's EXTRA two_poles, three_poles) ---------------------------
+POLES = ("dmc-cartpole-two-poles", "dmc-cartpole-three-poles")
+
+
+@pytest.mark.parametrize("name", POLES)
+def test_pole_chain_models_are_dm_controls(name):
+    """Our `cartpole_spec(n)` compiles to the model dm_control's `_make_model(n)` XML gives, in every
+    number and name (the chain, the floor and cameras moved), but the `energy` flag we clear."""
+    from tests.test_dm_control_swim import assert_models_equal
+
+    env, theirs = assert_spec_is_dm_controls(name)
+    their_model = theirs.physics.model.ptr
+    assert_models_equal(env.mj_model, their_model, {"opt.enableflags"}, name)
+    assert their_model.opt.enableflags == int(mujoco.mjtEnableBit.mjENBL_ENERGY) and env.mj_model.opt.enableflags == 0
+    assert env.mj_model.nbody == 2 + env.n_poles
+
+
+def stir_poles(physics, rng):
+    """The poles anywhere around their hinges, spinning (random actions from a swing-up reset leave
+    them hanging: every upright value, the sparse thresholds' neighbourhood included, is reached)."""
+    physics.data.qpos[1:] = rng.uniform(-np.pi, np.pi, physics.model.nq - 1)
+    physics.data.qvel[:] = rng.normal(0.0, 3.0, physics.model.nv)
+
+
+@pytest.mark.parametrize("name", POLES)
+def test_pole_chain_readings_of_dm_controls_states(name):
+    """Each pole's world zz and xz in dm_control's order, the poles' mean uprightness and the slowest
+    hinge's velocity term in the reward, read from dm_control's own states (no physics compiled)."""
+    comparison = compare_readings_with_dm_control(name, perturb=stir_poles)
+    comparison.assert_within(bounds(name))
+    assert np.ptp(comparison.theirs.reward) > 0.3, "the reward must vary"
+    assert np.ptp(comparison.theirs.obs, axis=0).min() > 0.5, "every observation element must vary"
+
+
+@pytest.mark.parametrize("name", [pytest.param("dmc-cartpole-three-poles", marks=pytest.mark.slow),
+                                  pytest.param("dmc-cartpole-two-poles", marks=pytest.mark.heavy)])
+def test_pole_chain_steps_match_dm_control(name):
+    """One control step from 64 states anywhere on the rail, the hinges at any angle, spinning at
+    N(0, 2) rad/s (the whole chain's dynamics, not only the hanging rest that random actions from
+    resets stay near), and each reset's observation. Two poles' physics is three's code on a chain
+    one pole shorter (its model proven equal above): its steps run in the heavy run."""
+    env = envs.make(name).unwrapped
+    rng = np.random.default_rng(0)
+    qpos = rng.uniform(-np.pi, np.pi, (64, env.mj_model.nq))
+    qpos[:, 0] = rng.uniform(-1.7, 1.7, 64)
+    qvel = rng.normal(0.0, 2.0, (64, env.mj_model.nv))
+    starts = steps_from(env, qpos.astype(np.float32), qvel.astype(np.float32), rng.uniform(-1, 1, (64, 1)))
+    theirs = dm_control_steps(env, starts)
+    Comparison(starts.steps, theirs).assert_within(bounds(name))
+    assert np.all(theirs.discount == 1.0) and np.all(starts.steps.discount == 1.0)
+    assert np.ptp(theirs.reward) > 0.3 and np.ptp(theirs.obs, axis=0).min() > 0.5, "reward and observation must vary"
+    their_resets = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
+    np.testing.assert_allclose(starts.reset_obs, their_resets, atol=bounds(name)["obs"], rtol=1e-4)
 
 
 # ---- resets ----------------------------------------------------------------------------------------

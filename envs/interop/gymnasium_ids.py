@@ -51,6 +51,8 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-cartpole-balance-sparse-v0": ("dmc-cartpole-balance-sparse", 1000),
     "dmc-cartpole-swingup-v0": ("dmc-cartpole-swingup", 1000),
     "dmc-cartpole-swingup-sparse-v0": ("dmc-cartpole-swingup-sparse", 1000),
+    "dmc-cartpole-two-poles-v0": ("dmc-cartpole-two-poles", 1000),
+    "dmc-cartpole-three-poles-v0": ("dmc-cartpole-three-poles", 1000),
     "dmc-cheetah-run-v0": ("dmc-cheetah-run", 1000),
     "dmc-finger-spin-v0": ("dmc-finger-spin", 1000),
     "dmc-finger-turn-easy-v0": ("dmc-finger-turn-easy", 1000),
