@@ -62,6 +62,7 @@ TASKS = (
     ("dmc-humanoid-stand", "envs.tasks.dmc_humanoid:DmcHumanoidStand", 1000, ("DmcHumanoid",)),
     ("dmc-humanoid-walk", "envs.tasks.dmc_humanoid:DmcHumanoidWalk", 1000, ()),
     ("dmc-humanoid-run", "envs.tasks.dmc_humanoid:DmcHumanoidRun", 1000, ()),
+    ("dmc-humanoid-run-pure-state", "envs.tasks.dmc_humanoid:DmcHumanoidRunPureState", 1000, ()),
     ("dmc-manipulator-bring-ball", "envs.tasks.dmc_manipulator:DmcManipulatorBringBall", 1000, ("DmcManipulator",)),
     ("dmc-manipulator-bring-peg", "envs.tasks.dmc_manipulator:DmcManipulatorBringPeg", 1000, ()),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),

@@ -1,12 +1,13 @@
-"""dm_control's humanoid stand, walk and run against dm_control 1.0.50's own envs: single steps from
+"""dm_control's humanoid stand, walk, run and run_pure_state against dm_control 1.0.50's own envs: single steps from
 dm_control's own physics states (falls and floor contacts) and from states standing near the goal,
 the reset's observation and distribution (collision-free draws), and, with no physics compiled, the
-observation and reward of dm_control's states for the three tasks.
+observation and reward of dm_control's states for the four tasks.
 
 The humanoid's physics (161 contact pairs, 5 substeps, the collision-free loop at reset) compiles for
 minutes on two cores: the step proof compiles one program (`steps_from`: a batch of resets and one
 step from the given states) for stand and runs under `slow`; walk and run are stand's physics with
-other rewards, proven by their readings."""
+other rewards, and run_pure_state is run's with MuJoCo's state (qpos, qvel) as its observation, all
+proven by their readings."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from envs.interop.dm_control import (Comparison, assert_resets_touch_nothing, as
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 
 TASKS = {"dmc-humanoid-stand": ("humanoid", "stand"), "dmc-humanoid-walk": ("humanoid", "walk"),
-         "dmc-humanoid-run": ("humanoid", "run")}
+         "dmc-humanoid-run": ("humanoid", "run"), "dmc-humanoid-run-pure-state": ("humanoid", "run_pure_state")}
 COUNT = 64  # states: one batch shape, one compiled program
 # float32 (ours) against float64 (dm_control), one control step (+ 1e-4 relative). At a few states
 # of a fall, with limbs lying on the floor, MJX's contact solve parts from C MuJoCo's far beyond this,

@@ -64,6 +64,7 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-humanoid-stand-v0": ("dmc-humanoid-stand", 1000),
     "dmc-humanoid-walk-v0": ("dmc-humanoid-walk", 1000),
     "dmc-humanoid-run-v0": ("dmc-humanoid-run", 1000),
+    "dmc-humanoid-run-pure-state-v0": ("dmc-humanoid-run-pure-state", 1000),
     "dmc-manipulator-bring-ball-v0": ("dmc-manipulator-bring-ball", 1000),
     "dmc-manipulator-bring-peg-v0": ("dmc-manipulator-bring-peg", 1000),
     "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),

@@ -1,5 +1,5 @@
 """The DeepMind Control Suite's humanoid (dm_control/suite/humanoid.py), stepped by MJX:
-`envs.make("dmc-humanoid-stand")`, `-walk` and `-run`. A 21-hinge humanoid on a free joint, 21 motors
+`envs.make("dmc-humanoid-stand")`, `-walk`, `-run` and `-run-pure-state`. A 21-hinge humanoid on a free joint, 21 motors
 (Euler, timestep 0.005, 5 physics steps per control step: dt 0.025) stands up, walks at 1 m/s or runs
 at 10 m/s. The MJCF is dm_control's `humanoid.xml`, read from the installed package (its touch,
 force and other sensors are stepped but not observed).
@@ -8,7 +8,8 @@ force and other sensors are stepped but not observed).
 - Observation (67), dm_control's order: joint_angles (21) = qpos[7:]; head_height (1) = head xpos z;
   extremities (12) = the left hand, left foot, right hand and right foot relative to the torso, in
   the torso's frame; torso_vertical (3) = torso xmat zx, zy, zz; com_velocity (3) = the torso
-  subtree's linear velocity sensor; velocity (27) = qvel.
+  subtree's linear velocity sensor; velocity (27) = qvel. run-pure-state (dm_control's EXTRA task,
+  `pure_state=True`): position (28) = qpos, velocity (27) = qvel; otherwise run.
 - Reward: small_control * standing * upright * (stand: dont_move; walk, run: move), with standing =
   tolerance(head z, (1.4, inf), margin 0.35), upright = tolerance(torso zz, (0.9, inf), margin 1.9,
   value_at_margin 0, linear), small_control = (4 + mean tolerance(ctrl, margin 1, value_at_margin 0,
@@ -83,3 +84,12 @@ class DmcHumanoidWalk(DmcHumanoid):
 
 class DmcHumanoidRun(DmcHumanoid):
     task, move_speed = "run", RUN_SPEED
+
+
+class DmcHumanoidRunPureState(DmcHumanoidRun):
+    """dm_control's `run_pure_state`: run's physics, reset and reward; the observation is MuJoCo's state."""
+    task = "run_pure_state"
+    observation_shapes = (("position", 28), ("velocity", 27))
+
+    def observations(self, data):
+        return {"position": data.qpos, "velocity": data.qvel}
