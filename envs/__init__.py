@@ -69,6 +69,7 @@ TASKS = (
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
     ("dmc-quadruped-walk", "envs.tasks.dmc_quadruped:DmcQuadrupedWalk", 1000, ("DmcQuadruped",)),
     ("dmc-quadruped-run", "envs.tasks.dmc_quadruped:DmcQuadrupedRun", 1000, ()),
+    ("dmc-quadruped-fetch", "envs.tasks.dmc_quadruped:DmcQuadrupedFetch", 1000, ()),
     ("dmc-reacher-easy", "envs.tasks.dmc_reacher:DmcReacherEasy", 1000, ("DmcReacher",)),
     ("dmc-reacher-hard", "envs.tasks.dmc_reacher:DmcReacherHard", 1000, ()),
     ("dmc-swimmer-swimmer6", "envs.tasks.dmc_swimmer:DmcSwimmerSwimmer6", 1000, ("DmcSwimmer",)),

@@ -24,7 +24,8 @@ from envs.interop.dm_control import (Comparison, assert_spec_is_dm_controls, c_m
                                      dm_control_steps, steps_from)
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 
-TASKS = {"dmc-quadruped-walk": ("quadruped", "walk"), "dmc-quadruped-run": ("quadruped", "run")}
+TASKS = {"dmc-quadruped-walk": ("quadruped", "walk"), "dmc-quadruped-run": ("quadruped", "run"),
+         "dmc-quadruped-fetch": ("quadruped", "fetch")}
 COUNT = 64  # states: one batch shape, one compiled program
 BOUNDS = {"obs": 1e-2, "reward": 1e-4}
 
@@ -35,12 +36,28 @@ def push(physics, rng):
     physics.data.qvel[3:6] = rng.normal(0.0, 1.0, 3)
 
 
+def near_the_ball(physics, rng):
+    """Fetch: pushed as above, then either the ball within U(+-0.6) of the target (its radius 0.4) and
+    the body within U(+-1.5) of the ball (the workspace site, 0.8 ahead, reaches within 0.45), or both
+    anywhere in the arena (U(+-13.5), the reset's spawn square; the terms' margin is 21 m): reach and
+    fetch both in and beyond their bounds."""
+    push(physics, rng)
+    near = rng.random() < 0.5
+    ball = rng.uniform(-0.6, 0.6, 2) if near else rng.uniform(-13.5, 13.5, 2)
+    physics.named.data.qpos["ball_root"][:2] = ball
+    physics.named.data.qpos["root"][:2] = ball + rng.uniform(-1.5, 1.5, 2) if near else rng.uniform(-13.5, 13.5, 2)
+
+
+PERTURB = {"dmc-quadruped-fetch": near_the_ball}
+
+
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_quadruped_observation_and_reward_of_dm_controls_states(name):
     """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
     here): the hinges, the actuators' act, the velocimeter, the IMU and the toes' force and torque
-    sensors (acceleration-stage) in dm_control's order, and the reward."""
-    comparison = compare_readings_with_dm_control(name, episodes=3, num_steps=8, perturb=push)
+    sensors (acceleration-stage) in dm_control's order, fetch's ball and target in the torso's frame,
+    and the reward."""
+    comparison = compare_readings_with_dm_control(name, episodes=3, num_steps=8, perturb=PERTURB.get(name, push))
     comparison.assert_within({"obs": 1e-5, "reward": 1e-6}, rtol=1e-5)
     assert np.ptp(comparison.theirs.reward) > 0.3, "the reward must vary"
 
@@ -52,7 +69,8 @@ def test_quadruped_tasks_are_dm_controls():
         model, their_model = env.mj_model, theirs.physics.model.ptr
         for size in ("nq", "nv", "nu", "na", "nbody", "ngeom", "nsite", "nsensor", "nsensordata", "neq"):
             assert getattr(model, size) == getattr(their_model, size), f"{name} {size}"
-        for field in ("geom_size", "geom_type", "sensor_type", "sensor_objid", "actuator_ctrlrange", "body_pos"):
+        for field in ("geom_size", "geom_type", "geom_pos", "geom_quat", "geom_condim", "geom_friction", "sensor_type",
+                      "sensor_objid", "actuator_ctrlrange", "body_pos", "body_mass", "site_pos", "site_size", "qpos0"):
             np.testing.assert_array_equal(getattr(model, field), getattr(their_model, field), err_msg=f"{name} {field}")
 
 

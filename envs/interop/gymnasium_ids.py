@@ -71,6 +71,7 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
     "dmc-quadruped-walk-v0": ("dmc-quadruped-walk", 1000),
     "dmc-quadruped-run-v0": ("dmc-quadruped-run", 1000),
+    "dmc-quadruped-fetch-v0": ("dmc-quadruped-fetch", 1000),
     "dmc-reacher-easy-v0": ("dmc-reacher-easy", 1000),
     "dmc-reacher-hard-v0": ("dmc-reacher-hard", 1000),
     "dmc-swimmer-swimmer6-v0": ("dmc-swimmer-swimmer6", 1000),

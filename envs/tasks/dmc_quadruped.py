@@ -1,5 +1,5 @@
-"""The DeepMind Control Suite's quadruped walk and run (dm_control/suite/quadruped.py), stepped by MJX:
-`envs.make("dmc-quadruped-walk")` and `-run`. A four-legged body with an ellipsoid torso on a free
+"""The DeepMind Control Suite's quadruped walk, run and fetch (dm_control/suite/quadruped.py), stepped
+by MJX: `envs.make("dmc-quadruped-walk")`, `-run` and `-fetch`. A four-legged body with an ellipsoid torso on a free
 joint, 12 position actuators with a first-order filter (`act`) and 4 couplings (Euler, timestep
 0.005, 4 physics steps per control step: dt 0.02) moves forward at 0.5 m/s (walk) or 5 m/s (run).
 The MJCF is dm_control's `quadruped.xml`, read from the installed package, edited as dm_control's
@@ -18,6 +18,17 @@ the ball, the target site, the terrain geom and the rangefinder sensors removed.
   joints at qpos0, at rest; the body starts embedded at z = 0 and rises 1 cm per try until nothing
   touches (dm_control's `_find_non_contacting_height`: a reset and a forward pass per try, up to
   10,000; here a `lax.while_loop` on MJX's contact slots closer than their margin, without a cap).
+- Fetch (dm_control's EXTRA task, `make_model(walls_and_ball=True)`: the floor's size the MJCF's 15,
+  the four walls, the ball (a free sphere, condim 6) and the target site kept): bring the ball to the
+  target at the origin. Observation (90): walk's, then ball_state (9) = the ball's position and linear
+  velocity relative to the torso's and its angular velocity (qvel), each in the torso's frame;
+  target_position (3) = the target relative to the torso, in its frame. Reward: upright * reach *
+  (0.5 + 0.5 fetch), reach = tolerance(horizontal workspace-site-to-ball distance, (0, workspace
+  radius + ball radius), margin floor size * sqrt 2, value_at_margin 0, linear), fetch the same of the
+  horizontal ball-to-target distance within the target's radius. Reset: a random yaw U(0, 2 pi) and
+  a position U(±13.5)^2 (0.9 x the floor's size), the height searched as above there (the ball at
+  qpos0, 3 m up at the origin); then the ball at U(±13.5)^2, 2 m up, its horizontal velocity
+  5 N(0, 1)^2, the rest at rest (the ball is not checked for contact: dm_control's order of draws).
 - Episode: 1,000 steps (20 s simulated), never terminated.
 """
 
@@ -79,18 +90,24 @@ class DmcQuadruped(DmControlEnv):
         self._imu = sensor_values(model, mujoco.mjtSensor.mjSENS_GYRO, mujoco.mjtSensor.mjSENS_ACCELEROMETER)
         self._force_torque = sensor_values(model, mujoco.mjtSensor.mjSENS_FORCE, mujoco.mjtSensor.mjSENS_TORQUE)
 
-    def at_height(self, orientation: jax.Array, tries: jax.Array) -> jax.Array:
-        """qpos0 with the root at (0, 0, tries x 1 cm) and `orientation`."""
+    def at_height(self, orientation: jax.Array, tries: jax.Array, xy: jax.Array | None = None) -> jax.Array:
+        """qpos0 with the root at (x, y, tries x 1 cm) and `orientation` (x, y: `xy`, else 0)."""
         qpos = jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype)
-        position = jnp.stack([0.0, 0.0, tries * HEIGHT_STEP]).astype(qpos.dtype)
+        xy = jnp.zeros(2) if xy is None else xy
+        position = jnp.concatenate([xy, jnp.stack([tries * HEIGHT_STEP])]).astype(qpos.dtype)
         return qpos.at[self._root:self._root + 3].set(position).at[self._root + 3:self._root + 7].set(orientation)
+
+    def lowest_free(self, orientation: jax.Array, xy: jax.Array | None = None) -> jax.Array:
+        """dm_control's `_find_non_contacting_height`: qpos0 posed at the first height, from 0 up in 1 cm
+        steps, where nothing touches."""
+        orientation = orientation.astype(self._initial_data.qpos.dtype)
+        tries = jax.lax.while_loop(lambda n: self.touching(self.at_height(orientation, n, xy)), lambda n: n + 1,
+                                   jnp.zeros((), jnp.int32))
+        return self.at_height(orientation, tries, xy)
 
     def initial_qpos_qvel(self, key):
         orientation = jax.random.normal(key, (4,))
-        orientation = (orientation / jnp.linalg.norm(orientation)).astype(self._initial_data.qpos.dtype)
-        tries = jax.lax.while_loop(lambda n: self.touching(self.at_height(orientation, n)), lambda n: n + 1,
-                                   jnp.zeros((), jnp.int32))
-        return self.at_height(orientation, tries), jnp.zeros(self.mj_model.nv)
+        return self.lowest_free(orientation / jnp.linalg.norm(orientation)), jnp.zeros(self.mj_model.nv)
 
     def _torso_velocity(self, data):
         return self.sensor(data, "velocimeter")
@@ -119,3 +136,70 @@ class DmcQuadrupedWalk(DmcQuadruped):
 
 class DmcQuadrupedRun(DmcQuadruped):
     task, desired_speed = "run", RUN_SPEED
+
+
+class DmcQuadrupedFetch(DmcQuadruped):
+    """dm_control's `quadruped.Fetch`: the ball brought to the target, in the walled arena."""
+    task = "fetch"
+    observation_shapes = DmcQuadruped.observation_shapes + (("ball_state", 9), ("target_position", 3))
+
+    def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
+        """dm_control's `make_model(walls_and_ball=True)`: the terrain and the rangefinders removed only."""
+        spec = mujoco.MjSpec.from_file(str(path))
+        spec.delete(spec.geom("terrain"))
+        for sensor in [s for s in spec.sensors if s.type == mujoco.mjtSensor.mjSENS_RANGEFINDER]:
+            spec.delete(sensor)
+        return spec.compile()
+
+    def __init__(self, xml: str | None = None):
+        super().__init__(xml)
+        model = self.mj_model
+        self._ball_qpos = model.joint("ball_root").qposadr[0]
+        self._ball_dof = model.joint("ball_root").dofadr[0]
+        self._spawn = 0.9 * float(model.geom("floor").size[0])  # dm_control's spawn_radius
+        self._arena = float(model.geom("floor").size[0]) * np.sqrt(2)  # the reward's margin
+        self._reach = float(model.site("workspace").size[0] + model.geom("ball").size[0])
+        self._target_radius = float(model.site("target").size[0])
+
+    def initial_qpos_qvel(self, key):
+        """Fetch's `initialize_episode`, its draws in its order: yaw, the body's x, y (searched for a free
+        height with the ball at qpos0), the ball's x, y (2 m up) and horizontal velocity."""
+        yaw_key, xy_key, ball_key, velocity_key = jax.random.split(key, 4)
+        yaw = jax.random.uniform(yaw_key, (), minval=0.0, maxval=2 * jnp.pi)
+        orientation = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+        xy = jax.random.uniform(xy_key, (2,), minval=-self._spawn, maxval=self._spawn)
+        qpos = self.lowest_free(orientation, xy)
+        ball_xy = jax.random.uniform(ball_key, (2,), minval=-self._spawn, maxval=self._spawn)
+        qpos = qpos.at[self._ball_qpos:self._ball_qpos + 3].set(jnp.append(ball_xy, 2.0).astype(qpos.dtype))
+        qvel = jnp.zeros(self.mj_model.nv, qpos.dtype)
+        velocity = 5 * jax.random.normal(velocity_key, (2,))
+        return qpos, qvel.at[self._ball_dof:self._ball_dof + 2].set(velocity.astype(qpos.dtype))
+
+    def _in_torso_frame(self, data, vectors):
+        """Row vectors in the torso's frame (dm_control's `vectors.dot(torso_frame)`)."""
+        return vectors @ self.body_xmat(data, "torso")
+
+    def _ball(self, data):
+        return data.xpos[self.mj_model.body("ball").id]
+
+    def _site(self, data, name):
+        return data.site_xpos[self.mj_model.site(name).id]
+
+    def observations(self, data):
+        torso = data.xpos[self.mj_model.body("torso").id]
+        ball_dof, root_dof = self._ball_dof, self.mj_model.joint("root").dofadr[0]
+        ball = jnp.stack([self._ball(data) - torso,
+                          data.qvel[ball_dof:ball_dof + 3] - data.qvel[root_dof:root_dof + 3],
+                          data.qvel[ball_dof + 3:ball_dof + 6]])
+        return {**super().observations(data), "ball_state": self._in_torso_frame(data, ball).ravel(),
+                "target_position": self._in_torso_frame(data, self._site(data, "target") - torso)}
+
+    def reward(self, data, action, prev):
+        upright = tolerance(self._torso_upright(data), (1.0, float("inf")), margin=2.0, value_at_margin=0.0,
+                            sigmoid="linear")
+        to_ball = jnp.linalg.norm((self._site(data, "workspace") - self._ball(data))[:2])
+        reach = tolerance(to_ball, (0.0, self._reach), margin=self._arena, value_at_margin=0.0, sigmoid="linear")
+        to_target = jnp.linalg.norm((self._site(data, "target") - self._ball(data))[:2])
+        fetch = tolerance(to_target, (0.0, self._target_radius), margin=self._arena, value_at_margin=0.0,
+                          sigmoid="linear")
+        return upright * reach * (0.5 + 0.5 * fetch)
