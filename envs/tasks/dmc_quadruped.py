@@ -27,14 +27,16 @@ the ball, the target site, the terrain geom and the rangefinder sensors removed.
   radius + ball radius), margin floor size * sqrt 2, value_at_margin 0, linear), fetch the same of the
   horizontal ball-to-target distance within the target's radius. Reset: a random yaw U(0, 2 pi) and
   a position U(±13.5)^2 (0.9 x the floor's size), the height searched as above there (the ball at
-  qpos0, 3 m up at the origin); then the ball at U(±13.5)^2, 2 m up, its horizontal velocity
-  5 N(0, 1)^2, the rest at rest (the ball is not checked for contact: dm_control's order of draws).
+  qpos0, 3 m up at the origin; every height 1e-6 m up, see `clearance`); then the ball at U(±13.5)^2,
+  2 m up, its horizontal velocity 5 N(0, 1)^2, the rest at rest (as dm_control's, the ball is placed
+  after the search and not checked for contact).
 - Episode: 1,000 steps (20 s simulated), never terminated.
 """
 
 from __future__ import annotations
 
 import os
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -67,6 +69,7 @@ class DmcQuadruped(DmControlEnv):
     observation_shapes = (("egocentric_state", 44), ("torso_velocity", 3), ("torso_upright", 1), ("imu", 6),
                           ("force_torque", 24))
     desired_speed: float
+    clearance: ClassVar[float] = 0.0  # added to every height the search tries (m): fetch's, below
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
         """dm_control's `make_model(floor_size=TIME_LIMIT * speed)` for walk and run."""
@@ -94,7 +97,7 @@ class DmcQuadruped(DmControlEnv):
         """qpos0 with the root at (x, y, tries x 1 cm) and `orientation` (x, y: `xy`, else 0)."""
         qpos = jnp.asarray(self.mj_model.qpos0, self._initial_data.qpos.dtype)
         xy = jnp.zeros(2) if xy is None else xy
-        position = jnp.concatenate([xy, jnp.stack([tries * HEIGHT_STEP])]).astype(qpos.dtype)
+        position = jnp.concatenate([xy, jnp.stack([tries * HEIGHT_STEP + self.clearance])]).astype(qpos.dtype)
         return qpos.at[self._root:self._root + 3].set(position).at[self._root + 3:self._root + 7].set(orientation)
 
     def lowest_free(self, orientation: jax.Array, xy: jax.Array | None = None) -> jax.Array:
@@ -141,6 +144,11 @@ class DmcQuadrupedRun(DmcQuadruped):
 class DmcQuadrupedFetch(DmcQuadruped):
     """dm_control's `quadruped.Fetch`: the ball brought to the target, in the walled arena."""
     task = "fetch"
+    # Upright, the body's toes touch the floor at exactly 0.52 m, where dm_control's float64 search
+    # stops (its toes on the floor to float64's rounding, no contact). In float32 that height rounds
+    # 2e-8 into the floor and the contact test flips on rounding (in MJX and in C MuJoCo alike: most
+    # searches stopped 1 cm higher, the rest touched at the reset). A micrometre up keeps the toes clear.
+    clearance = 1e-6
     observation_shapes = DmcQuadruped.observation_shapes + (("ball_state", 9), ("target_position", 3))
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
