@@ -23,14 +23,15 @@ pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are p
 
 from envs.core import State  # noqa: E402
 from envs.interop.dm_control import (Comparison, Steps, assert_spec_is_dm_controls,  # noqa: E402
-                                     c_mujoco_contacts, compare_readings_with_dm_control, dm_control_observations,
+                                     compare_readings_with_dm_control, dm_control_observations,
                                      dm_control_rollouts, dm_control_steps, flatten, load, put_state, steps_from)
 from envs.mjx_env import mjx  # noqa: E402
 from envs.tasks.dmc_manipulator import ALL_PROPS  # noqa: E402
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 from tests.test_dm_control_swim import assert_models_equal  # noqa: E402
 
-NAMES = ("dmc-manipulator-bring-ball", "dmc-manipulator-bring-peg")
+NAMES = ("dmc-manipulator-bring-ball", "dmc-manipulator-bring-peg", "dmc-manipulator-insert-ball",
+         "dmc-manipulator-insert-peg")
 COUNT = 32  # start states of the slow run: one batch shape, one compiled program
 DRAWS = 2000  # resets drawn on each side
 # The target's offset from the prop in a stirred state, per coordinate: the reward's margin plus its
@@ -65,12 +66,12 @@ def test_spec_and_model_are_dm_controls(name):
     (each episode's, `state.info` here): the task's prop and its target kept, the other props removed."""
     env, theirs = assert_spec_is_dm_controls(name)
     model, their_model = env.mj_model, theirs.physics.model.ptr
-    ours, target = copy.copy(model), model.body(env.target).id
+    ours, moved = copy.copy(model), [model.body(body).id for body in (env.target, env.receptacle) if body]
     for field in ("body_pos", "body_quat"):
-        getattr(ours, field)[target] = getattr(their_model, field)[target]
+        getattr(ours, field)[moved] = getattr(their_model, field)[moved]
     assert_models_equal(ours, their_model, set(), name)
     kept = {prop for prop in ALL_PROPS if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, prop) >= 0}
-    assert model.nbody == their_model.nbody and kept == {env.prop, env.target}
+    assert model.nbody == their_model.nbody and kept == {env.prop, env.target, env.receptacle} - {None}
 
 
 def in_hand(model: mujoco.MjModel, data: mujoco.MjData, prop: str) -> dict[str, float]:
@@ -88,18 +89,18 @@ def near_angle(prop_angle: float, prop: str, rng) -> float:
     return prop_angle + rng.uniform(-TURN, TURN) if prop == "peg" else rng.uniform(-np.pi, np.pi)
 
 
-def stirrer(prop: str):
+def stirrer(env):
     def stir(physics, rng):
-        """The target moved near the prop (the reward's range), every other time the prop put in the hand."""
-        named, target = physics.named, f"target_{prop}"
+        """The target (an insert's receptacle with it, as dm_control moves them) moved near the prop (the
+        reward's range), every other time the prop put in the hand."""
+        named, prop = physics.named, env.prop
         if rng.uniform() < 0.5:
             for joint, value in in_hand(physics.model.ptr, physics.data.ptr, prop).items():
                 named.data.qpos[joint] = value
             physics.forward()
         near = named.data.xpos[prop, ["x", "z"]] + rng.uniform(-REACH, REACH, 2)
         angle = near_angle(float(named.data.qpos[f"{prop}_y"][0]), prop, rng)
-        named.model.body_pos[target, ["x", "z"]] = near
-        named.model.body_quat[target, ["qw", "qy"]] = np.cos(angle / 2), np.sin(angle / 2)
+        env.put_episode(physics, {"target": np.r_[near, np.cos(angle / 2), np.sin(angle / 2)]})
     return stir
 
 
@@ -109,7 +110,7 @@ def test_observation_and_reward_of_dm_controls_states(name):
     here), stirred every third step: the arm's angles and velocities, the touch sensors, the hand's,
     prop's and target's poses, and the reward."""
     comparison = compare_readings_with_dm_control(name, episodes=4, num_steps=8,
-                                                  perturb=stirrer(envs.make(name).unwrapped.prop))
+                                                  perturb=stirrer(envs.make(name).unwrapped))
     comparison.assert_within({"obs": 1e-5, "reward": 1e-5}, rtol=1e-5)
     assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
     assert np.ptp(comparison.theirs.obs[:, 24:29]) > 0.1, "something must touch"
@@ -125,11 +126,25 @@ def test_target_is_placed_as_c_mujoco_places_it(name):
     data = mujoco.MjData(env.mj_model)  # the MJCF's target pose
     data.qpos[:] = theirs.physics.data.qpos
     mujoco.mj_kinematics(env.mj_model, data)
-    placed = env.with_episode(mjx.put_data(env.mj_model, data, impl="jax"), env.get_episode(theirs.physics))
+    episode = env.get_episode(theirs.physics)
+    placed = env.with_episode(mjx.put_data(env.mj_model, data, impl="jax"), episode)
     their_data = theirs.physics.data.ptr
     for field in ("xpos", "xquat", "xmat", "site_xpos", "site_xmat", "geom_xpos", "geom_xmat"):
-        np.testing.assert_allclose(np.asarray(getattr(placed, field)).reshape(len(getattr(data, field)), -1),
-                                   getattr(their_data, field), atol=1e-6, err_msg=field)
+        if env.receptacle:  # the receptacle is placed by the model (below), not by `with_episode`
+            receptacle = env.mj_model.body(env.receptacle).id
+            ids = {"geom": env.mj_model.geom_bodyid, "site": env.mj_model.site_bodyid}.get(field.split("_")[0])
+            kept = (ids if ids is not None else np.arange(env.mj_model.nbody)) != receptacle
+        else:
+            kept = slice(None)
+        np.testing.assert_allclose(np.asarray(getattr(placed, field)).reshape(len(getattr(data, field)), -1)[kept],
+                                   getattr(their_data, field)[kept], atol=1e-6, err_msg=field)
+    # The model each step runs (an insert's receptacle moved, as dm_control's edit moves it): dm_control's
+    # edited model's body poses but the ghost target's (placed above).
+    model, their_model = env.episode_model(env.mjx_model, episode), theirs.physics.model.ptr
+    others = np.arange(env.mj_model.nbody) != env.mj_model.body(env.target).id
+    for field in ("body_pos", "body_quat"):
+        np.testing.assert_allclose(np.asarray(getattr(model, field))[others], getattr(their_model, field)[others],
+                                   atol=1e-7, err_msg=field)
 
 
 def our_draws(name: str, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -178,7 +193,19 @@ def test_reset_distribution_matches_dm_control(name):
                       np.abs(their_qpos[:, 8:10] - their_target[:, :2]).max(1) < 1e-5, "starts on the target")
     # At rest only where the start is in the hand or on the target and no thrown try came before it.
     assert_same_share(qvel[:, 8] == 0, their_qvel[:, 8] == 0, "starts at rest")
-    assert c_mujoco_contacts(env.mj_model, qpos).max() == 0
+    assert their_contacts(env, qpos, target).max() == 0
+
+
+def their_contacts(env, qpos: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """C MuJoCo's contact count (dm_control's `ncon`) at each of `qpos`, dm_control's physics given
+    each one's target (an insert's receptacle moved with it)."""
+    physics, counts = load("manipulator", env.task).physics, []
+    for q, t in zip(qpos, target):
+        env.put_episode(physics, {"target": t})
+        physics.data.qpos[:] = q
+        physics.forward()
+        counts.append(physics.data.ncon)
+    return np.array(counts)
 
 
 # ---- single steps (slow: one compiled program) ---------------------------------------------------

@@ -69,6 +69,10 @@ class DmcManipulator(DmControlEnv):
     domain = "manipulator"
     control_timestep = 0.01  # dm_control's _CONTROL_TIMESTEP
     prop: ClassVar[str] = "ball"
+    # The insert tasks' receptacle ("cup" or "slot"; None: a bring task), moved with the target each
+    # episode, and the target's turn: U(-turn, turn) (dm_control's: pi, an insert's pi / 3).
+    receptacle: ClassVar[str | None] = None
+    turn: ClassVar[float] = np.pi
     episode_info = ("target",)  # the target body's (x, z, qw, qy), for envs.interop.dm_control
     observation_shapes = (("arm_pos", 16), ("arm_vel", 8), ("touch", 5), ("hand_pos", 4), ("object_pos", 4),
                           ("object_vel", 3), ("target_pos", 4))
@@ -78,10 +82,10 @@ class DmcManipulator(DmControlEnv):
         return f"target_{self.prop}"
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
-        """dm_control's `make_model(use_peg, insert=False)`: the unused props' bodies removed."""
+        """dm_control's `make_model(use_peg, insert)`: the unused props' bodies removed."""
         spec = mujoco.MjSpec.from_file(str(path))
         for prop in ALL_PROPS:
-            if prop not in (self.prop, self.target):
+            if prop not in (self.prop, self.target, self.receptacle):
                 spec.delete(spec.body(prop))
         return spec.compile()
 
@@ -123,7 +127,7 @@ class DmcManipulator(DmControlEnv):
         qpos = qpos.at[self._arm].set(arm)
         qpos = qpos.at[self._arm[4]].set(arm[6])  # dm_control's "symmetrize hand": finger = thumb
         target_xz = jax.random.uniform(target_key, (2,), dtype, jnp.array(TARGET_LOW), jnp.array(TARGET_HIGH))
-        target_angle = jax.random.uniform(angle_key, (), dtype, -jnp.pi, jnp.pi)
+        target_angle = jax.random.uniform(angle_key, (), dtype, -self.turn, self.turn)
         # The grasp site's pose for the in-hand start (dm_control's forward pass inside the loop).
         grasp = model.site("grasp").id
         hand = mjx.kinematics(self.reset_model, self.reset_data.replace(qpos=qpos))
@@ -146,7 +150,9 @@ class DmcManipulator(DmControlEnv):
             key, _, qvel, _, _ = carry
             key, try_key = jax.random.split(key)
             qpos, qvel, target = self._try(try_key, qvel)
-            return key, qpos, qvel, target, self.touching(qpos)
+            # An insert's receptacle collides: each try is tested with it where that try put it.
+            return key, qpos, qvel, target, self.touching(qpos, self.episode_model(self.reset_model,
+                                                                                   {"target": target}))
 
         dtype = self._initial_data.qpos.dtype
         start = (key, jnp.asarray(self.mj_model.qpos0, dtype), jnp.zeros(self.mj_model.nv, dtype),
@@ -164,6 +170,22 @@ class DmcManipulator(DmControlEnv):
         return self._start(key)[:2]
 
     # ---- the target's per-episode pose -----------------------------------------------
+    def _put_on_device(self, impl: str) -> None:
+        if self.receptacle is not None and impl == "warp":
+            raise ValueError(f"task {self.name}: the {self.receptacle} it moves each episode collides, so each env "
+                             "steps its own model (body_pos, body_quat); impl='warp' steps one model for all worlds: "
+                             "use impl='jax'")
+        super()._put_on_device(impl)
+
+    def episode_model(self, model: mjx.Model, info) -> mjx.Model:
+        """An insert task's model with the receptacle at the episode's target pose (dm_control's edit of
+        its `body_pos` x, z and `body_quat` w, y: the rest stays the MJCF's); a bring task's as it is."""
+        if self.receptacle is None:
+            return model
+        body, (x, z, w, y) = self.mj_model.body(self.receptacle).id, info["target"]
+        return model.replace(body_pos=model.body_pos.at[body, jnp.array([0, 2])].set(jnp.stack([x, z])),
+                             body_quat=model.body_quat.at[body, jnp.array([0, 2])].set(jnp.stack([w, y])))
+
     def with_episode(self, data: mjx.Data, info) -> mjx.Data:
         # A body fixed to the world: its pose is its model pose; its sites and geoms keep their places
         # in its frame (MuJoCo's kinematics: the body's pose composed with theirs).
@@ -190,8 +212,9 @@ class DmcManipulator(DmControlEnv):
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
-        physics.named.model.body_pos[self.target, ["x", "z"]] = info["target"][:2]
-        physics.named.model.body_quat[self.target, ["qw", "qy"]] = info["target"][2:]
+        for body in (self.target, self.receptacle) if self.receptacle else (self.target,):
+            physics.named.model.body_pos[body, ["x", "z"]] = info["target"][:2]
+            physics.named.model.body_quat[body, ["qw", "qy"]] = info["target"][2:]
 
     def get_episode(self, physics) -> dict:
         return {"target": np.concatenate([physics.named.model.body_pos[self.target, ["x", "z"]],
@@ -237,3 +260,19 @@ class DmcManipulatorBringPeg(DmcManipulator):
         grasping = (self.close(data, "peg_grasp", "grasp") + self.close(data, "peg_pinch", "pinch")) / 2
         bringing = (self.close(data, "peg", "target_peg") + self.close(data, "target_peg_tip", "peg_tip")) / 2
         return jnp.maximum(bringing, grasping / 3)
+
+
+class DmcManipulatorInsertBall(DmcManipulatorBringBall):
+    """dm_control's insert_ball: bring_ball's task and reward with the cup kept, placed at the target."""
+
+    task = "insert_ball"
+    receptacle = "cup"
+    turn = np.pi / 3
+
+
+class DmcManipulatorInsertPeg(DmcManipulatorBringPeg):
+    """dm_control's insert_peg: bring_peg's task and reward with the slot kept, placed at the target."""
+
+    task = "insert_peg"
+    receptacle = "slot"
+    turn = np.pi / 3
