@@ -1,12 +1,15 @@
 """The DeepMind Control Suite's manipulator (dm_control/suite/manipulator.py), stepped by MJX:
-`envs.make("dmc-manipulator-bring-ball")` and `envs.make("dmc-manipulator-bring-peg")`. A planar arm
+`envs.make("dmc-manipulator-bring-ball")`, `"dmc-manipulator-bring-peg"`, `"dmc-manipulator-insert-ball"` and
+`"dmc-manipulator-insert-peg"`. A planar arm
 (root, shoulder, elbow, wrist hinges) with a two-fingered hand (thumb and finger coupled by a tendon
 equality, each with a fingertip) brings a prop to a ghost target of its shape (Euler, elliptic
 friction cones, timestep 0.001, 10 physics steps per control step: dt 0.01). The MJCF is
 dm_control's `manipulator.xml`, read from the installed package, less the props the task does not
-use, as dm_control's `make_model(use_peg, insert=False)` removes them: bring_ball keeps the ball and
-its target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
-target.
+use, as dm_control's `make_model(use_peg, insert)` removes them: bring_ball keeps the ball and its
+target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
+target; insert_ball adds the cup (four capsules), insert_peg the slot (three boxes), each placed at the
+target every episode. The insert tasks are bring's with that receptacle: dm_control 1.0.50's `Bring`
+gives them bring's reward and observation (the receptacle is not observed: it is at the target).
 
 - Action: Box(-1, 1, (5,)): root, shoulder, elbow, wrist motors and the grasp tendon's motor.
 - Observation (44), dm_control's order: arm_pos (16) = (sin, cos) of each of the 8 arm joints
@@ -22,7 +25,8 @@ target.
 - Reset: dm_control's rejection loop, until nothing touches (its `ncon > 0` after a forward pass;
   here a `lax.while_loop` on MJX's contact slots closer than their margin): the arm joints uniform
   in their ranges (the root U(-pi, pi)), the finger set to the thumb's angle; the target at x
-  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y; the prop, with probability 0.1 in the hand
+  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y (an insert's U(-pi/3, pi/3), its receptacle
+  with it); the prop, with probability 0.1 in the hand
   (at the grasp site, turned as the grasp site is), 0.1 on the target (its position and angle),
   else at x U(-0.5, 0.5), z U(0, 0.7), angle U(0, 2 pi) and thrown at x velocity U(-5, 5). The
   velocity is the loop's one draw that a later try does not overwrite: a start in the hand or on the
@@ -34,8 +38,13 @@ in every try of its loop): kept in `state.info["target"]` as the model holds it 
 written after each physics call into the body's, its sites' and its geoms' derived poses
 (`with_episode`), where dm_control's edited model puts them. The target is a ghost (contype and
 conaffinity 0, fixed to the world): its pose moves nothing else, so every env and every MuJoCo Warp
-world steps the task's one model. The insert tasks move the colliding cup or slot instead, which
-needs a model per env; they are not offered.
+world steps the task's one model. The insert tasks also move the colliding cup or slot, which the
+physics must see: each env steps the task's model with that body's `body_pos`/`body_quat` rows
+edited as dm_control edits them (`episode_model`), under impl="jax" only (MuJoCo Warp's worlds step
+one model). A prop put on the target touches the receptacle at zero distance by design (the ball's
+radius is the cup's inner half-width; the peg's tip and guard rest on the slot's boxes): whether such
+a try of the reset's loop touches is decided by rounding, so fewer of our starts are on the target
+than dm_control's (docs/tasks.md).
 """
 
 from __future__ import annotations
