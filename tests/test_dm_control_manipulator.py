@@ -1,11 +1,11 @@
-"""dm_control's manipulator bring_ball, bring_peg, insert_ball and insert_peg against dm_control
-1.0.50's own envs, each task proven by the same tests: the model (trimmed as dm_control's `make_model`
+"""dm_control's manipulator bring_ball, bring_peg and insert_ball against dm_control 1.0.50's own
+envs, each task proven by the same tests: the model (trimmed as dm_control's `make_model`
 trims it), the spec, the observation and reward of dm_control's own states (no physics compiled), the
 target placed as C MuJoCo's kinematics places it (an insert's receptacle as dm_control's edited model
 holds it), the reset distribution with each episode's target; in the slow run, single steps from
 dm_control's own states with each episode's target handed to dm_control's physics (only the step
 compiled); in the heavy run, the same steps after our resets' program and the resets' observation. The
-insert tasks' reset distributions and steps are all heavy (their compiles take minutes on two cores)."""
+insert_ball's reset distribution and steps are heavy (their compiles take over a minute each on two cores)."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from envs.tasks.dmc_manipulator import ALL_PROPS  # noqa: E402
 from tests.test_dm_control import assert_same_distribution  # noqa: E402
 from tests.test_dm_control_swim import assert_models_equal  # noqa: E402
 
-NAMES = ("dmc-manipulator-bring-ball", "dmc-manipulator-bring-peg", "dmc-manipulator-insert-ball",
-         "dmc-manipulator-insert-peg")
+# insert_peg is not offered: MJX's capsule-box collision misses contacts C MuJoCo finds (docs/tasks.md).
+NAMES = ("dmc-manipulator-bring-ball", "dmc-manipulator-bring-peg", "dmc-manipulator-insert-ball")
 COUNT = 32  # start states of the slow run: one batch shape, one compiled program
 DRAWS = 2000  # resets drawn on each side
 # The target's offset from the prop in a stirred state, per coordinate: the reward's margin plus its
@@ -44,9 +44,6 @@ TURN = 0.3
 # float32 (ours) against float64 (dm_control), one control step: the observation's absolute bound
 # (plus 1e-4 relative) and the reward's. Measured worst: see docs/tasks.md's proof table.
 BOUNDS = {"obs": 1e-3, "reward": 1e-4}
-# The free states' observation bound where it is wider: insert_peg's peg resting in its slot (`settled`),
-# whose spin at one state parts by 1.0e-3 rad/s (contacts on three boxes' faces at once).
-FREE_BOUND = {"dmc-manipulator-insert-peg": 2e-3}
 # The start states with the prop put in the closing hand (a quarter): MJX's contact solve of the squeeze
 # parts from C MuJoCo's in the prop's spin and the touch sensors, by the same amount in x64 (not float32
 # rounding: MJX's elliptic cones against C MuJoCo's, as the feasibility study saw for manipulator's rarer
@@ -54,15 +51,12 @@ FREE_BOUND = {"dmc-manipulator-insert-peg": 2e-3}
 # a light thin blade, spins ten times as fast as the ball in a squeeze, its gap with it.
 GRIPS = slice(1, None, 4)
 GRIP_BOUND = {"dmc-manipulator-bring-ball": 3e-2, "dmc-manipulator-bring-peg": 1e-1,
-              "dmc-manipulator-insert-ball": 3e-2, "dmc-manipulator-insert-peg": 1e-1}
+              "dmc-manipulator-insert-ball": 3e-2}
 # Grips that may pass those bounds, positions included: a grazing contact's onset within the step that
 # one solve sees and the other does not (a hair apart after the squeeze's substeps) turns the squeezed
 # prop's spin otherwise, as contact onsets do (docs/tasks.md). The peg's three geoms graze the fingertips
 # where the round ball does not; their rewards stay held to BOUNDS.
-FLIPS = {"dmc-manipulator-bring-ball": 0, "dmc-manipulator-bring-peg": 1, "dmc-manipulator-insert-ball": 0,
-         "dmc-manipulator-insert-peg": 1}
-# Grips whose step touches (of 8), where not all must: insert_peg's closing hand misses the peg at some.
-GRIPS_TOUCHING = {"dmc-manipulator-insert-peg": 6}
+FLIPS = {"dmc-manipulator-bring-ball": 0, "dmc-manipulator-bring-peg": 1, "dmc-manipulator-insert-ball": 0}
 TOUCH = slice(24, 29)
 POSITIONS = np.r_[0:16, 29:37, 40:44]  # arm_pos, hand_pos, object_pos, target_pos
 
@@ -113,7 +107,7 @@ def stirrer(env):
     return stir
 
 
-# The insert tasks' readings are bring's functions of the same bodies (slow: the fast run's time is short).
+# insert_ball's readings are bring_ball's functions of the same bodies (slow: the fast run's time is short).
 @pytest.mark.parametrize("name", [name if "bring" in name else pytest.param(name, marks=pytest.mark.slow)
                                   for name in NAMES])
 def test_observation_and_reward_of_dm_controls_states(name):
@@ -183,10 +177,10 @@ def their_draws(name: str, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
 def assert_same_share(ours: np.ndarray, theirs: np.ndarray, what: str, tied: bool = False) -> None:
     """Two shares of DRAWS within 5 standard errors of their difference; neither rare. `tied`: an
     insert task, whose prop put on the target touches its receptacle at zero distance by design (the
-    ball's radius 0.022 m is the cup's inner half-width, 0.03 - 0.008; the peg's tip and guard rest on
-    the slot's boxes), so rounding decides whether such a try touches: C MuJoCo's float64 rejects about
-    two thirds, MJX's float32 more (the two agree on 62% of placements, measured: no better than chance).
-    Fewer of ours start on the target then (docs/tasks.md): asserted fewer, none rare."""
+    ball's radius 0.022 m is the cup's inner half-width, 0.03 - 0.008), so rounding decides whether such
+    a try touches: C MuJoCo's float64 finds the ball touching at 68% of 400 such placements, MJX's
+    float32 at 82% (the two agree at 62%, measured: chance). Fewer of ours start on the target then
+    (docs/tasks.md): asserted fewer, neither rare."""
     if tied:
         assert 0.005 < ours.mean() < theirs.mean(), (what, ours.mean(), theirs.mean())
         return
@@ -203,7 +197,7 @@ def test_reset_distribution_matches_dm_control(name):
     within 5 standard errors (an insert's: fewer, `assert_same_share`); nothing touches at any of ours
     in C MuJoCo (dm_control's physics given each one's target) but an insert's ties (at most 3% of
     starts), nothing but the prop's x moves. The
-    insert tasks' in the heavy run (their loop's compile and dm_control's 2,000 resets: a minute each)."""
+    insert_ball's in the heavy run (its loop's compile with the cup and dm_control's 2,000 resets)."""
     env = envs.make(name).unwrapped
     qpos, qvel, target = our_draws(name, DRAWS)
     their_qpos, their_qvel, their_target = their_draws(name, DRAWS)
@@ -292,7 +286,7 @@ def settled(env, qpos: np.ndarray, qvel: np.ndarray, warmstart: np.ndarray, targ
         q[:], v[:], w[:] = data.qpos, data.qvel, data.qacc_warmstart
 
 
-# The insert tasks' steps compile for 70 s or more each on two cores (their receptacle's contacts): the heavy run's.
+# insert_ball's step compiles for over a minute on two cores (the cup's contacts): the heavy run's.
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [name if "bring" in name else pytest.param(name, marks=pytest.mark.heavy)
                                   for name in NAMES])
@@ -323,8 +317,7 @@ def test_steps_match_dm_control(name):
                             Steps(np.array(obs), np.array(rewards), np.ones(COUNT)))
     assert_steps_within(comparison, name)
     assert np.ptp(comparison.theirs.reward) > 0.5, "the reward must vary"
-    touching = np.count_nonzero((comparison.theirs.obs[GRIPS, TOUCH] > 0).any(1))
-    assert touching >= GRIPS_TOUCHING.get(name, COUNT // 4), ("grips must touch", touching)
+    assert (comparison.theirs.obs[GRIPS, TOUCH] > 0).any(1).all(), "every grip must touch"
     assert not env.receptacle or receptacle_touches >= COUNT // 4, ("the prop must rest on the receptacle",
                                                                      receptacle_touches)
 
@@ -345,7 +338,7 @@ def assert_steps_within(comparison: Comparison, name: str) -> None:
     free[GRIPS] = False
     Comparison(*(Steps(steps.obs[free], steps.reward[free], steps.discount[free])
                  for steps in (comparison.ours, comparison.theirs))).assert_within(
-        {**BOUNDS, "obs": FREE_BOUND.get(name, BOUNDS["obs"])})
+        BOUNDS)
     ours, theirs = comparison.ours.obs[GRIPS], comparison.theirs.obs[GRIPS]
     error, scale = np.abs(ours - theirs), 1e-4 * np.abs(theirs)
     held = ((error[:, POSITIONS] <= BOUNDS["obs"] + scale[:, POSITIONS]).all(1)

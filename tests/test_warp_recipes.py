@@ -18,7 +18,7 @@ from envs.mjx_env import mjx
 
 # Tasks whose every env steps its own model (dm_control's manipulator insert: a colliding receptacle
 # moved each episode): impl="jax" only, and they say so (`test_jax_only_tasks_refuse_warp`).
-JAX_ONLY = ("dmc-manipulator-insert-ball", "dmc-manipulator-insert-peg")
+JAX_ONLY = ("dmc-manipulator-insert-ball",)
 PAIRS = [(task, agent) for task, rows in brax_defaults.SETTINGS.items() if task in envs.names()
          and task not in JAX_ONLY for agent in rows]
 

@@ -1,15 +1,16 @@
 """The DeepMind Control Suite's manipulator (dm_control/suite/manipulator.py), stepped by MJX:
-`envs.make("dmc-manipulator-bring-ball")`, `"dmc-manipulator-bring-peg"`, `"dmc-manipulator-insert-ball"` and
-`"dmc-manipulator-insert-peg"`. A planar arm
+`envs.make("dmc-manipulator-bring-ball")`, `"dmc-manipulator-bring-peg"` and `"dmc-manipulator-insert-ball"`.
+A planar arm
 (root, shoulder, elbow, wrist hinges) with a two-fingered hand (thumb and finger coupled by a tendon
 equality, each with a fingertip) brings a prop to a ghost target of its shape (Euler, elliptic
 friction cones, timestep 0.001, 10 physics steps per control step: dt 0.01). The MJCF is
 dm_control's `manipulator.xml`, read from the installed package, less the props the task does not
 use, as dm_control's `make_model(use_peg, insert)` removes them: bring_ball keeps the ball and its
 target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
-target; insert_ball adds the cup (four capsules), insert_peg the slot (three boxes), each placed at the
-target every episode. The insert tasks are bring's with that receptacle: dm_control 1.0.50's `Bring`
-gives them bring's reward and observation (the receptacle is not observed: it is at the target).
+target; insert_ball adds the cup (four capsules), placed at the target every episode: bring_ball with
+that receptacle (dm_control 1.0.50's `Bring` gives it bring's reward and observation; the cup is not
+observed: it is at the target). insert_peg (its slot of three boxes) is not offered: MJX's
+capsule-box collision misses contacts C MuJoCo finds (docs/tasks.md).
 
 - Action: Box(-1, 1, (5,)): root, shoulder, elbow, wrist motors and the grasp tendon's motor.
 - Observation (44), dm_control's order: arm_pos (16) = (sin, cos) of each of the 8 arm joints
@@ -38,13 +39,12 @@ in every try of its loop): kept in `state.info["target"]` as the model holds it 
 written after each physics call into the body's, its sites' and its geoms' derived poses
 (`with_episode`), where dm_control's edited model puts them. The target is a ghost (contype and
 conaffinity 0, fixed to the world): its pose moves nothing else, so every env and every MuJoCo Warp
-world steps the task's one model. The insert tasks also move the colliding cup or slot, which the
-physics must see: each env steps the task's model with that body's `body_pos`/`body_quat` rows
+world steps the task's one model. insert_ball also moves the colliding cup, which the physics must
+see: each env steps the task's model with that body's `body_pos`/`body_quat` rows
 edited as dm_control edits them (`episode_model`), under impl="jax" only (MuJoCo Warp's worlds step
-one model). A prop put on the target touches the receptacle at zero distance by design (the ball's
-radius is the cup's inner half-width; the peg's tip and guard rest on the slot's boxes): whether such
-a try of the reset's loop touches is decided by rounding, so fewer of our starts are on the target
-than dm_control's (docs/tasks.md).
+one model). The ball put on the target touches the cup at zero distance by design (its radius is the
+cup's inner half-width): whether such a try of the reset's loop touches is decided by rounding, so
+fewer of our starts are on the target than dm_control's (docs/tasks.md).
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ class DmcManipulator(DmControlEnv):
     domain = "manipulator"
     control_timestep = 0.01  # dm_control's _CONTROL_TIMESTEP
     prop: ClassVar[str] = "ball"
-    # The insert tasks' receptacle ("cup" or "slot"; None: a bring task), moved with the target each
+    # An insert task's receptacle (insert_ball's "cup"; None: a bring task), moved with the target each
     # episode, and the target's turn: U(-turn, turn) (dm_control's: pi, an insert's pi / 3).
     receptacle: ClassVar[str | None] = None
     turn: ClassVar[float] = np.pi
@@ -276,12 +276,4 @@ class DmcManipulatorInsertBall(DmcManipulatorBringBall):
 
     task = "insert_ball"
     receptacle = "cup"
-    turn = np.pi / 3
-
-
-class DmcManipulatorInsertPeg(DmcManipulatorBringPeg):
-    """dm_control's insert_peg: bring_peg's task and reward with the slot kept, placed at the target."""
-
-    task = "insert_peg"
-    receptacle = "slot"
     turn = np.pi / 3
