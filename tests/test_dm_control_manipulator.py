@@ -107,9 +107,7 @@ def stirrer(env):
     return stir
 
 
-# insert_ball's readings are bring_ball's functions of the same bodies (slow: the fast run's time is short).
-@pytest.mark.parametrize("name", [name if "bring" in name else pytest.param(name, marks=pytest.mark.slow)
-                                  for name in NAMES])
+@pytest.mark.parametrize("name", NAMES)
 def test_observation_and_reward_of_dm_controls_states(name):
     """Our observation and reward of dm_control's own physics after each of its steps (no physics runs
     here), stirred every third step: the arm's angles and velocities, the touch sensors, the hand's,
