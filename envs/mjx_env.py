@@ -317,7 +317,7 @@ class MjxEnv(Env):
 
     def episode_model(self, model: mjx.Model, info: Mapping) -> mjx.Model:
         """`model` with the episode's edits that the physics must see (`info` holds `episode_info`): a
-        colliding body dm_control moves each episode (manipulator insert's cup or slot), which a
+        colliding body dm_control moves each episode (manipulator insert_ball's cup), which a
         marker in the derived positions cannot stand for. Each env then steps its own model values
         (impl="jax" only, as `envs.randomize`'s). The default edits nothing."""
         return model
