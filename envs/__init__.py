@@ -65,6 +65,7 @@ TASKS = (
     ("dmc-humanoid-run-pure-state", "envs.tasks.dmc_humanoid:DmcHumanoidRunPureState", 1000, ()),
     ("dmc-manipulator-bring-ball", "envs.tasks.dmc_manipulator:DmcManipulatorBringBall", 1000, ("DmcManipulator",)),
     ("dmc-manipulator-bring-peg", "envs.tasks.dmc_manipulator:DmcManipulatorBringPeg", 1000, ()),
+    ("dmc-manipulator-insert-ball", "envs.tasks.dmc_manipulator:DmcManipulatorInsertBall", 1000, ()),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
     ("dmc-quadruped-walk", "envs.tasks.dmc_quadruped:DmcQuadrupedWalk", 1000, ("DmcQuadruped",)),

@@ -184,7 +184,8 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
         data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
         data = data.replace(act=a.astype(data.act.dtype)) if given_act else data
-        before = env.compute_derived(data)
+        # With the episode's model where the physics sees its edits (manipulator insert_ball's cup).
+        before = env.compute_derived(data, env.episode_model(env.mjx_model, state.info))
         after = env.step(state.replace(pipeline_state=before), action)
         resets = (reset.obs, reset.pipeline_state.qpos, reset.pipeline_state.qvel, episode_info(env, reset))
         return (before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state),

@@ -67,6 +67,7 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-humanoid-run-pure-state-v0": ("dmc-humanoid-run-pure-state", 1000),
     "dmc-manipulator-bring-ball-v0": ("dmc-manipulator-bring-ball", 1000),
     "dmc-manipulator-bring-peg-v0": ("dmc-manipulator-bring-peg", 1000),
+    "dmc-manipulator-insert-ball-v0": ("dmc-manipulator-insert-ball", 1000),
     "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),
     "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
     "dmc-quadruped-walk-v0": ("dmc-quadruped-walk", 1000),

@@ -1,12 +1,16 @@
 """The DeepMind Control Suite's manipulator (dm_control/suite/manipulator.py), stepped by MJX:
-`envs.make("dmc-manipulator-bring-ball")` and `envs.make("dmc-manipulator-bring-peg")`. A planar arm
+`envs.make("dmc-manipulator-bring-ball")`, `"dmc-manipulator-bring-peg"` and `"dmc-manipulator-insert-ball"`.
+A planar arm
 (root, shoulder, elbow, wrist hinges) with a two-fingered hand (thumb and finger coupled by a tendon
 equality, each with a fingertip) brings a prop to a ghost target of its shape (Euler, elliptic
 friction cones, timestep 0.001, 10 physics steps per control step: dt 0.01). The MJCF is
 dm_control's `manipulator.xml`, read from the installed package, less the props the task does not
-use, as dm_control's `make_model(use_peg, insert=False)` removes them: bring_ball keeps the ball and
-its target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
-target.
+use, as dm_control's `make_model(use_peg, insert)` removes them: bring_ball keeps the ball and its
+target, bring_peg the peg (a blade, a guard and a pommel: three capsule and sphere geoms) and its
+target; insert_ball adds the cup (four capsules), placed at the target every episode: bring_ball with
+that receptacle (dm_control 1.0.50's `Bring` gives it bring's reward and observation; the cup is not
+observed: it is at the target). insert_peg (its slot of three boxes) is not offered: MJX's
+capsule-box collision misses contacts C MuJoCo finds (docs/tasks.md).
 
 - Action: Box(-1, 1, (5,)): root, shoulder, elbow, wrist motors and the grasp tendon's motor.
 - Observation (44), dm_control's order: arm_pos (16) = (sin, cos) of each of the 8 arm joints
@@ -22,7 +26,8 @@ target.
 - Reset: dm_control's rejection loop, until nothing touches (its `ncon > 0` after a forward pass;
   here a `lax.while_loop` on MJX's contact slots closer than their margin): the arm joints uniform
   in their ranges (the root U(-pi, pi)), the finger set to the thumb's angle; the target at x
-  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y; the prop, with probability 0.1 in the hand
+  U(-0.4, 0.4), z U(0.1, 0.4), turned U(-pi, pi) about y (an insert's U(-pi/3, pi/3), its receptacle
+  with it); the prop, with probability 0.1 in the hand
   (at the grasp site, turned as the grasp site is), 0.1 on the target (its position and angle),
   else at x U(-0.5, 0.5), z U(0, 0.7), angle U(0, 2 pi) and thrown at x velocity U(-5, 5). The
   velocity is the loop's one draw that a later try does not overwrite: a start in the hand or on the
@@ -34,8 +39,12 @@ in every try of its loop): kept in `state.info["target"]` as the model holds it 
 written after each physics call into the body's, its sites' and its geoms' derived poses
 (`with_episode`), where dm_control's edited model puts them. The target is a ghost (contype and
 conaffinity 0, fixed to the world): its pose moves nothing else, so every env and every MuJoCo Warp
-world steps the task's one model. The insert tasks move the colliding cup or slot instead, which
-needs a model per env; they are not offered.
+world steps the task's one model. insert_ball also moves the colliding cup, which the physics must
+see: each env steps the task's model with that body's `body_pos`/`body_quat` rows
+edited as dm_control edits them (`episode_model`), under impl="jax" only (MuJoCo Warp's worlds step
+one model). The ball put on the target touches the cup at zero distance by design (its radius is the
+cup's inner half-width): whether such a try of the reset's loop touches is decided by rounding, so
+fewer of our starts are on the target than dm_control's (docs/tasks.md).
 """
 
 from __future__ import annotations
@@ -69,6 +78,10 @@ class DmcManipulator(DmControlEnv):
     domain = "manipulator"
     control_timestep = 0.01  # dm_control's _CONTROL_TIMESTEP
     prop: ClassVar[str] = "ball"
+    # An insert task's receptacle (insert_ball's "cup"; None: a bring task), moved with the target each
+    # episode, and the target's turn: U(-turn, turn) (dm_control's: pi, an insert's pi / 3).
+    receptacle: ClassVar[str | None] = None
+    turn: ClassVar[float] = np.pi
     episode_info = ("target",)  # the target body's (x, z, qw, qy), for envs.interop.dm_control
     observation_shapes = (("arm_pos", 16), ("arm_vel", 8), ("touch", 5), ("hand_pos", 4), ("object_pos", 4),
                           ("object_vel", 3), ("target_pos", 4))
@@ -78,10 +91,10 @@ class DmcManipulator(DmControlEnv):
         return f"target_{self.prop}"
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
-        """dm_control's `make_model(use_peg, insert=False)`: the unused props' bodies removed."""
+        """dm_control's `make_model(use_peg, insert)`: the unused props' bodies removed."""
         spec = mujoco.MjSpec.from_file(str(path))
         for prop in ALL_PROPS:
-            if prop not in (self.prop, self.target):
+            if prop not in (self.prop, self.target, self.receptacle):
                 spec.delete(spec.body(prop))
         return spec.compile()
 
@@ -123,7 +136,7 @@ class DmcManipulator(DmControlEnv):
         qpos = qpos.at[self._arm].set(arm)
         qpos = qpos.at[self._arm[4]].set(arm[6])  # dm_control's "symmetrize hand": finger = thumb
         target_xz = jax.random.uniform(target_key, (2,), dtype, jnp.array(TARGET_LOW), jnp.array(TARGET_HIGH))
-        target_angle = jax.random.uniform(angle_key, (), dtype, -jnp.pi, jnp.pi)
+        target_angle = jax.random.uniform(angle_key, (), dtype, -self.turn, self.turn)
         # The grasp site's pose for the in-hand start (dm_control's forward pass inside the loop).
         grasp = model.site("grasp").id
         hand = mjx.kinematics(self.reset_model, self.reset_data.replace(qpos=qpos))
@@ -146,7 +159,9 @@ class DmcManipulator(DmControlEnv):
             key, _, qvel, _, _ = carry
             key, try_key = jax.random.split(key)
             qpos, qvel, target = self._try(try_key, qvel)
-            return key, qpos, qvel, target, self.touching(qpos)
+            # An insert's receptacle collides: each try is tested with it where that try put it.
+            return key, qpos, qvel, target, self.touching(qpos, self.episode_model(self.reset_model,
+                                                                                   {"target": target}))
 
         dtype = self._initial_data.qpos.dtype
         start = (key, jnp.asarray(self.mj_model.qpos0, dtype), jnp.zeros(self.mj_model.nv, dtype),
@@ -164,6 +179,22 @@ class DmcManipulator(DmControlEnv):
         return self._start(key)[:2]
 
     # ---- the target's per-episode pose -----------------------------------------------
+    def _put_on_device(self, impl: str) -> None:
+        if self.receptacle is not None and impl == "warp":
+            raise ValueError(f"task {self.name}: the {self.receptacle} it moves each episode collides, so each env "
+                             "steps its own model (body_pos, body_quat); impl='warp' steps one model for all worlds: "
+                             "use impl='jax'")
+        super()._put_on_device(impl)
+
+    def episode_model(self, model: mjx.Model, info) -> mjx.Model:
+        """An insert task's model with the receptacle at the episode's target pose (dm_control's edit of
+        its `body_pos` x, z and `body_quat` w, y: the rest stays the MJCF's); a bring task's as it is."""
+        if self.receptacle is None:
+            return model
+        body, (x, z, w, y) = self.mj_model.body(self.receptacle).id, info["target"]
+        return model.replace(body_pos=model.body_pos.at[body, jnp.array([0, 2])].set(jnp.stack([x, z])),
+                             body_quat=model.body_quat.at[body, jnp.array([0, 2])].set(jnp.stack([w, y])))
+
     def with_episode(self, data: mjx.Data, info) -> mjx.Data:
         # A body fixed to the world: its pose is its model pose; its sites and geoms keep their places
         # in its frame (MuJoCo's kinematics: the body's pose composed with theirs).
@@ -190,8 +221,9 @@ class DmcManipulator(DmControlEnv):
 
     def put_episode(self, physics, info) -> None:
         """dm_control's physics given this episode's edits (`info`: our `state.info` entries)."""
-        physics.named.model.body_pos[self.target, ["x", "z"]] = info["target"][:2]
-        physics.named.model.body_quat[self.target, ["qw", "qy"]] = info["target"][2:]
+        for body in (self.target, self.receptacle) if self.receptacle else (self.target,):
+            physics.named.model.body_pos[body, ["x", "z"]] = info["target"][:2]
+            physics.named.model.body_quat[body, ["qw", "qy"]] = info["target"][2:]
 
     def get_episode(self, physics) -> dict:
         return {"target": np.concatenate([physics.named.model.body_pos[self.target, ["x", "z"]],
@@ -237,3 +269,11 @@ class DmcManipulatorBringPeg(DmcManipulator):
         grasping = (self.close(data, "peg_grasp", "grasp") + self.close(data, "peg_pinch", "pinch")) / 2
         bringing = (self.close(data, "peg", "target_peg") + self.close(data, "target_peg_tip", "peg_tip")) / 2
         return jnp.maximum(bringing, grasping / 3)
+
+
+class DmcManipulatorInsertBall(DmcManipulatorBringBall):
+    """dm_control's insert_ball: bring_ball's task and reward with the cup kept, placed at the target."""
+
+    task = "insert_ball"
+    receptacle = "cup"
+    turn = np.pi / 3
