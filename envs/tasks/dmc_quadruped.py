@@ -58,6 +58,13 @@ def sensor_values(model: mujoco.MjModel, *kinds: int) -> np.ndarray:
     return np.concatenate([np.arange(model.sensor_adr[i], model.sensor_adr[i] + model.sensor_dim[i]) for i in sensors])
 
 
+def compiled_without_rangefinders(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """`spec` compiled without its rangefinders, as every `make_model` but escape's leaves them out."""
+    for sensor in [s for s in spec.sensors if s.type == mujoco.mjtSensor.mjSENS_RANGEFINDER]:
+        spec.delete(sensor)
+    return spec.compile()
+
+
 class DmcQuadruped(DmControlEnv):
     """dm_control's `quadruped.Move(desired_speed)`; the two tasks below fix it."""
     costly_reset = True
@@ -80,9 +87,7 @@ class DmcQuadruped(DmControlEnv):
             spec.delete(spec.geom(name))
         spec.delete(spec.body("ball"))
         spec.delete(spec.site("target"))
-        for sensor in [s for s in spec.sensors if s.type == mujoco.mjtSensor.mjSENS_RANGEFINDER]:
-            spec.delete(sensor)
-        return spec.compile()
+        return compiled_without_rangefinders(spec)
 
     def __init__(self, xml: str | None = None):
         super().__init__(xml)
@@ -155,9 +160,7 @@ class DmcQuadrupedFetch(DmcQuadruped):
         """dm_control's `make_model(walls_and_ball=True)`: the terrain and the rangefinders removed only."""
         spec = mujoco.MjSpec.from_file(str(path))
         spec.delete(spec.geom("terrain"))
-        for sensor in [s for s in spec.sensors if s.type == mujoco.mjtSensor.mjSENS_RANGEFINDER]:
-            spec.delete(sensor)
-        return spec.compile()
+        return compiled_without_rangefinders(spec)
 
     def __init__(self, xml: str | None = None):
         super().__init__(xml)
