@@ -68,6 +68,7 @@ TASKS = (
     ("dmc-manipulator-insert-ball", "envs.tasks.dmc_manipulator:DmcManipulatorInsertBall", 1000, ()),
     ("dmc-pendulum-swingup", "envs.tasks.dmc_pendulum:DmcPendulumSwingUp", 1000, ()),
     ("dmc-point-mass-easy", "envs.tasks.dmc_point_mass:DmcPointMassEasy", 1000, ()),
+    ("dmc-point-mass-hard", "envs.tasks.dmc_point_mass:DmcPointMassHard", 1000, ()),
     ("dmc-quadruped-walk", "envs.tasks.dmc_quadruped:DmcQuadrupedWalk", 1000, ("DmcQuadruped",)),
     ("dmc-quadruped-run", "envs.tasks.dmc_quadruped:DmcQuadrupedRun", 1000, ()),
     ("dmc-quadruped-fetch", "envs.tasks.dmc_quadruped:DmcQuadrupedFetch", 1000, ()),

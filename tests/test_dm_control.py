@@ -4,6 +4,8 @@ tasks' specs, and `tolerance` against dm_control's `rewards.tolerance`."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -18,8 +20,8 @@ pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are p
 from envs.interop.dm_control import (MUJOCO_4_DROPPED, Comparison, assert_resets_touch_nothing,  # noqa: E402
                                      assert_spec_is_dm_controls, compare_readings_with_dm_control,
                                      compare_with_dm_control,
-                                     dm_control_observations, dm_control_reset_samples, dm_control_steps, load,
-                                     shim_mujoco_4, steps_from, transitions)
+                                     Steps, dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
+                                     dm_control_steps, load, shim_mujoco_4, steps_from, transitions)
 from envs.tasks.dm_control_suite import tolerance  # noqa: E402
 
 # Slow run: dm_control's step and reset proofs (the fast run is `make test`'s five minutes; docs/claims.md).
@@ -33,7 +35,8 @@ TASKS = {
     "dmc-cartpole-two-poles": ("cartpole", "two_poles"), "dmc-cartpole-three-poles": ("cartpole", "three_poles"),
     "dmc-cheetah-run": ("cheetah", "run"), "dmc-hopper-hop": ("hopper", "hop"), "dmc-hopper-stand": ("hopper", "stand"),
     "dmc-pendulum-swingup": ("pendulum", "swingup"),
-    "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-reacher-easy": ("reacher", "easy"),
+    "dmc-point-mass-easy": ("point_mass", "easy"), "dmc-point-mass-hard": ("point_mass", "hard"),
+    "dmc-reacher-easy": ("reacher", "easy"),
     "dmc-reacher-hard": ("reacher", "hard"), "dmc-walker-stand": ("walker", "stand"),
     "dmc-walker-walk": ("walker", "walk"), "dmc-walker-run": ("walker", "run"),
 }
@@ -179,6 +182,54 @@ def test_reacher_steps_on_the_target_match_dm_control():
     theirs = dm_control_steps(env, starts)
     Comparison(starts.steps, theirs).assert_within(bounds("dmc-reacher-hard"))
     assert 0.1 < theirs.reward.mean() < 0.9, "both rewards reached"
+
+
+# ---- point_mass hard (dm_control's EXTRA task: the tendons' coefficients drawn per episode) -------------
+IDENTITY = np.array([1.0, 0.0, 0.0, 1.0], np.float32)  # the MJCF's wrap_prm: easy's tendons
+
+
+def test_point_mass_hard_steps_match_dm_control():
+    """One step from dm_control's own states (4 episodes of its random actions) and from 64 states near
+    the target, each with its episode's `wrap_prm` (dm_control's draws) copied in; the same states with
+    the MJCF's coefficients in ours (the episode's ignored) must fail the proof. Also each reset's
+    observation, and the coefficients' draw against dm_control's."""
+    env = envs.make("dmc-point-mass-hard").unwrapped
+    theirs = dm_control_rollouts(env, episodes=4, num_steps=40)
+    qpos, qvel, actions = states_near_the_goal("dmc-point-mass-easy")
+    prm = theirs.episode["wrap_prm"]
+    qpos, qvel = np.concatenate([theirs.qpos, qpos]).astype(np.float32), np.concatenate([theirs.qvel, qvel]).astype(np.float32)
+    actions, prm = np.concatenate([theirs.actions, actions]), np.concatenate([prm, prm[::-1][:64]]).astype(np.float32)
+    # One compile: each state twice, with its coefficients and with the MJCF's.
+    starts = steps_from(env, np.tile(qpos, (2, 1)), np.tile(qvel, (2, 1)), np.tile(actions, (2, 1)),
+                        {"wrap_prm": np.concatenate([prm, np.tile(IDENTITY, (len(prm), 1))])})
+    count = len(prm)
+    half = lambda steps, part: Steps(*(x[part * count:(part + 1) * count] for x in (steps.obs, steps.reward, steps.discount)))
+    ours = dataclasses.replace(starts, steps=half(starts.steps, 0), episode={"wrap_prm": prm},
+                               **{k: getattr(starts, k)[:count] for k in ("qpos", "qvel", "act", "qacc_warmstart",
+                                                                          "actions")})
+    their_steps = dm_control_steps(env, ours)
+    Comparison(ours.steps, their_steps).assert_within(bounds("dmc-point-mass-hard"))
+    assert np.ptp(their_steps.reward) > 0.1 and np.ptp(their_steps.obs, axis=0).min() > 0, "reward and obs must vary"
+    ignored = Comparison(half(starts.steps, 1), their_steps)
+    assert ignored.worst()["obs"] > 100 * bounds("dmc-point-mass-hard")["obs"]
+    with pytest.raises(AssertionError, match="observation"):
+        ignored.assert_within(bounds("dmc-point-mass-hard"))
+    their_resets = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
+    np.testing.assert_allclose(starts.reset_obs, their_resets, atol=bounds("dmc-point-mass-hard")["obs"], rtol=1e-4)
+    # The reset's coefficients: two unit vectors, never nearly parallel, drawn as dm_control draws them.
+    keys = jax.random.split(jax.random.PRNGKey(4), 2000)
+    drawn = np.asarray(jax.jit(jax.vmap(lambda key: env.draw_episode(key)[1]["wrap_prm"]))(keys), np.float64)
+    dm = load("point_mass", "hard")
+    their_prm = []
+    for _ in range(2000):
+        dm.reset()
+        their_prm.append(dm.physics.model.wrap_prm.copy())
+    their_prm = np.array(their_prm)
+    with_dot = lambda p: np.column_stack([p, np.abs((p[:, :2] * p[:, 2:]).sum(1))])
+    assert_same_distribution(with_dot(drawn), with_dot(their_prm), "wrap_prm, |dir1 . dir2|")
+    for p in (drawn, their_prm):
+        np.testing.assert_allclose(np.linalg.norm(p.reshape(-1, 2, 2), axis=2), 1.0, atol=1e-6)
+        assert with_dot(p)[:, 4].max() <= 0.9 and with_dot(p)[:, 4].min() < 0.01
 
 
 # ---- cartpole's chains of poles (dm_control's EXTRA two_poles, three_poles) ---------------------------

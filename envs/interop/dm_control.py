@@ -185,7 +185,8 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
         data = data.replace(act=a.astype(data.act.dtype)) if given_act else data
         # With the episode's model where the physics sees its edits (manipulator insert_ball's cup).
-        before = env.compute_derived(data, env.episode_model(env.mjx_model, state.info))
+        # and its markers placed (point_mass hard's tendons, which its step reads).
+        before = env.with_episode(env.compute_derived(data, env.episode_model(env.mjx_model, state.info)), state.info)
         after = env.step(state.replace(pipeline_state=before), action)
         resets = (reset.obs, reset.pipeline_state.qpos, reset.pipeline_state.qvel, episode_info(env, reset))
         return (before.act, before.qacc_warmstart, after.obs, after.reward, 1.0 - after.done, episode_info(env, state),

@@ -70,6 +70,7 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-manipulator-insert-ball-v0": ("dmc-manipulator-insert-ball", 1000),
     "dmc-pendulum-swingup-v0": ("dmc-pendulum-swingup", 1000),
     "dmc-point-mass-easy-v0": ("dmc-point-mass-easy", 1000),
+    "dmc-point-mass-hard-v0": ("dmc-point-mass-hard", 1000),
     "dmc-quadruped-walk-v0": ("dmc-quadruped-walk", 1000),
     "dmc-quadruped-run-v0": ("dmc-quadruped-run", 1000),
     "dmc-quadruped-fetch-v0": ("dmc-quadruped-fetch", 1000),
