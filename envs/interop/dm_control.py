@@ -184,7 +184,7 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
         data = state.pipeline_state.replace(qpos=q.astype(state.pipeline_state.qpos.dtype),
                                             qvel=v.astype(state.pipeline_state.qvel.dtype))
         data = data.replace(act=a.astype(data.act.dtype)) if given_act else data
-        # With the episode's model where the physics sees its edits (manipulator insert_ball's cup).
+        # With the episode's model where the physics sees its edits (manipulator insert_ball's cup)
         # and its markers placed (point_mass hard's tendons, which its step reads).
         before = env.with_episode(env.compute_derived(data, env.episode_model(env.mjx_model, state.info)), state.info)
         after = env.step(state.replace(pipeline_state=before), action)
