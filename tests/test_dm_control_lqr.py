@@ -146,11 +146,13 @@ def stepped(request):
     env = envs.make(request.param).unwrapped
     qpos, qvel, actions, stiffness = start_states(env)
     count = len(qpos)
+    both = np.concatenate([stiffness, np.full_like(stiffness, 20.0)]).astype(np.float32)
     starts = steps_from(env, np.tile(qpos, (2, 1)).astype(np.float32), np.tile(qvel, (2, 1)).astype(np.float32),
-                        np.tile(actions, (2, 1)), {"stiffness": np.concatenate(
-                            [stiffness, np.full_like(stiffness, 20.0)]).astype(np.float32)})
-    half = lambda steps, part: Steps(*(x[part * count:(part + 1) * count] for x in (steps.obs, steps.reward,  # noqa: E731
-                                                                                   steps.discount)))
+                        np.tile(actions, (2, 1)), {"stiffness": both})
+
+    def half(steps: Steps, part: int) -> Steps:
+        return Steps(*(x[part * count:(part + 1) * count] for x in (steps.obs, steps.reward, steps.discount)))
+
     # dm_control is handed the actions themselves (`to_env_action` would clip them to our Box).
     ours = dataclasses.replace(starts, steps=half(starts.steps, 0), actions=actions, episode={"stiffness": stiffness},
                                **{k: getattr(starts, k)[:count] for k in ("qpos", "qvel", "act", "qacc_warmstart")})
