@@ -63,6 +63,8 @@ TASKS = (
     ("dmc-humanoid-walk", "envs.tasks.dmc_humanoid:DmcHumanoidWalk", 1000, ()),
     ("dmc-humanoid-run", "envs.tasks.dmc_humanoid:DmcHumanoidRun", 1000, ()),
     ("dmc-humanoid-run-pure-state", "envs.tasks.dmc_humanoid:DmcHumanoidRunPureState", 1000, ()),
+    ("dmc-lqr-lqr-2-1", "envs.tasks.dmc_lqr:DmcLqrLqr21", 1000, ("DmcLqr",)),
+    ("dmc-lqr-lqr-6-2", "envs.tasks.dmc_lqr:DmcLqrLqr62", 1000, ()),
     ("dmc-manipulator-bring-ball", "envs.tasks.dmc_manipulator:DmcManipulatorBringBall", 1000, ("DmcManipulator",)),
     ("dmc-manipulator-bring-peg", "envs.tasks.dmc_manipulator:DmcManipulatorBringPeg", 1000, ()),
     ("dmc-manipulator-insert-ball", "envs.tasks.dmc_manipulator:DmcManipulatorInsertBall", 1000, ()),

@@ -45,7 +45,7 @@ PROVEN_ELSEWHERE = ("dmc-finger-spin", "dmc-finger-turn-easy", "dmc-finger-turn-
                     "dmc-quadruped-run", "dmc-quadruped-fetch", "dmc-humanoid-stand", "dmc-humanoid-walk",
                     "dmc-humanoid-run", "dmc-humanoid-run-pure-state", "dmc-fish-upright", "dmc-fish-swim",
                     "dmc-swimmer-swimmer6", "dmc-swimmer-swimmer15", "dmc-manipulator-bring-ball",
-                    "dmc-manipulator-bring-peg", "dmc-manipulator-insert-ball")
+                    "dmc-manipulator-bring-peg", "dmc-manipulator-insert-ball", "dmc-lqr-lqr-2-1", "dmc-lqr-lqr-6-2")
 # One task per domain in the fast suite (one compile each); the others share its physics and differ
 # in reward and reset (the reset distributions of all are in the fast suite, their steps in the slow).
 FAST = ("dmc-acrobot-swingup", "dmc-ball-in-cup-catch", "dmc-cartpole-swingup", "dmc-cheetah-run", "dmc-hopper-hop", "dmc-pendulum-swingup",

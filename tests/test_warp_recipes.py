@@ -17,9 +17,9 @@ from envs import mjx_env, mjx_warp, wrap_for_training
 from envs.mjx_env import mjx
 
 # Tasks whose every env steps its own model (dm_control's manipulator insert: a colliding receptacle
-# moved each episode; point_mass hard: tendon coefficients drawn each episode): impl="jax" only, and
-# they say so (`test_jax_only_tasks_refuse_warp`).
-JAX_ONLY = ("dmc-manipulator-insert-ball", "dmc-point-mass-hard")
+# moved each episode; point_mass hard: tendon coefficients drawn each episode; lqr: joint stiffness
+# drawn each episode): impl="jax" only, and they say so (`test_jax_only_tasks_refuse_warp`).
+JAX_ONLY = ("dmc-manipulator-insert-ball", "dmc-point-mass-hard", "dmc-lqr-lqr-2-1", "dmc-lqr-lqr-6-2")
 PAIRS = [(task, agent) for task, rows in brax_defaults.SETTINGS.items() if task in envs.names()
          and task not in JAX_ONLY for agent in rows]
 

@@ -200,13 +200,20 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                        episode, *resets)
 
 
+def action_bounds(env: Env, spec) -> tuple[np.ndarray, np.ndarray]:
+    """Where random actions are drawn on dm_control's env: its action spec, but our Box's [-1, 1] where
+    the spec is unbounded (lqr's motors have no ctrlrange: +-mjMAXVAL, forces no state survives)."""
+    unbounded = (spec.minimum <= -mujoco.mjMAXVAL) | (spec.maximum >= mujoco.mjMAXVAL)
+    return (np.where(unbounded, env.action_low, spec.minimum), np.where(unbounded, env.action_high, spec.maximum))
+
+
 def dm_control_rollouts(env: Env, episodes: int = 4, num_steps: int = 250, seed: int = 0) -> Transitions:
     """States of dm_control's own env of `env`'s task along `episodes` episodes of `num_steps` random
-    actions (uniform in its action spec; C MuJoCo, float64): each step's start state (qpos, qvel,
+    actions (uniform in its action spec, `action_bounds`; C MuJoCo, float64): each step's start state (qpos, qvel,
     act, warm start, the task's per-episode edits read back by `get_episode`), its action and what
     it returned. Start states for `steps_from` that dm_control itself reached (touches, spins)."""
     theirs = load(env.domain, env.task, seed)
-    rng, spec = np.random.default_rng(seed), theirs.action_spec()
+    rng, (low, high) = np.random.default_rng(seed), action_bounds(env, theirs.action_spec())
     record = {name: [] for name in ("qpos", "qvel", "act", "qacc_warmstart", "actions", "obs", "reward", "discount")}
     episode = []
     for _ in range(episodes):
@@ -216,7 +223,7 @@ def dm_control_rollouts(env: Env, episodes: int = 4, num_steps: int = 250, seed:
             for name in ("qpos", "qvel", "act", "qacc_warmstart"):
                 record[name].append(getattr(physics.data, name).copy())
             episode.append(env.get_episode(physics))
-            action = rng.uniform(spec.minimum, spec.maximum)
+            action = rng.uniform(low, high)
             step = theirs.step(action)
             record["actions"].append(action), record["obs"].append(flatten(step.observation))
             record["reward"].append(step.reward), record["discount"].append(step.discount)
@@ -322,7 +329,7 @@ def compare_readings_with_dm_control(env: Env | str, episodes: int = 8, num_step
 
     env = (make(env) if isinstance(env, str) else env).unwrapped
     theirs, rng = load(env.domain, env.task, seed), np.random.default_rng(seed)
-    spec = theirs.action_spec()
+    low, high = action_bounds(env, theirs.action_spec())
     datas, obs, rewards, discounts = [], [], [], []
     for _ in range(episodes):
         theirs.reset()
@@ -330,7 +337,7 @@ def compare_readings_with_dm_control(env: Env | str, episodes: int = 8, num_step
             if perturb is not None and step % 3 == 0:
                 perturb(theirs.physics, rng)
                 theirs.physics.forward()
-            result = theirs.step(rng.uniform(spec.minimum, spec.maximum))
+            result = theirs.step(rng.uniform(low, high))
             datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
             obs.append(flatten(result.observation)), rewards.append(result.reward), discounts.append(result.discount)
     batch = jax.tree.map(lambda *leaves: np.stack(leaves), *datas)
@@ -397,6 +404,9 @@ def dm_control_reset_samples(domain: str, task: str, count: int,
 # The judge's episodes are dm_control's seeds from here on: seeds that neither training (JAX keys)
 # nor the proof (dm_control seeds 0 and 1) uses, so a judged policy meets episodes it never saw.
 JUDGE_FIRST_SEED = 1_000
+# dm_control's lqr tasks have no time limit (their episodes end only at the goal): the judge stops
+# them where our TimeLimit does (their rows of `envs.TASKS`), the length of every other task's episode.
+ENDLESS_EPISODE_STEPS = 1_000
 
 
 def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
@@ -405,14 +415,16 @@ def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed
     Gymnasium task on Gymnasium's env): episode i is `suite.load(domain, task)` seeded with
     `first_seed + i`, reset, then stepped with `policy(observation)` (dm_control's observation
     flattened in its order, as our task observes it; the action in the actuators' ctrlrange, as
-    `agents.load_policy` gives it) until dm_control's episode ends (1,000 control steps) or after
-    `max_steps` steps. The return sums dm_control's rewards."""
+    `agents.load_policy` gives it) until dm_control's episode ends (1,000 control steps; lqr, which
+    has no time limit: at its goal or after `ENDLESS_EPISODE_STEPS`) or after `max_steps` steps. The
+    return sums dm_control's rewards."""
     env = (make(env) if isinstance(env, str) else env).unwrapped
     returns = []
     for episode in range(episodes):
         theirs = load(env.domain, env.task, first_seed + episode)
         step, total, steps = theirs.reset(), 0.0, 0
-        while not step.last() and (max_steps is None or steps < max_steps):
+        limit = ENDLESS_EPISODE_STEPS if max_steps is None and np.isinf(theirs._step_limit) else max_steps
+        while not step.last() and (limit is None or steps < limit):
             step = theirs.step(np.asarray(policy(flatten(step.observation)), np.float64))
             total, steps = total + float(step.reward), steps + 1
         returns.append(total)

@@ -65,6 +65,8 @@ IDS: dict[str, tuple[str, int]] = {
     "dmc-humanoid-walk-v0": ("dmc-humanoid-walk", 1000),
     "dmc-humanoid-run-v0": ("dmc-humanoid-run", 1000),
     "dmc-humanoid-run-pure-state-v0": ("dmc-humanoid-run-pure-state", 1000),
+    "dmc-lqr-lqr-2-1-v0": ("dmc-lqr-lqr-2-1", 1000),
+    "dmc-lqr-lqr-6-2-v0": ("dmc-lqr-lqr-6-2", 1000),
     "dmc-manipulator-bring-ball-v0": ("dmc-manipulator-bring-ball", 1000),
     "dmc-manipulator-bring-peg-v0": ("dmc-manipulator-bring-peg", 1000),
     "dmc-manipulator-insert-ball-v0": ("dmc-manipulator-insert-ball", 1000),

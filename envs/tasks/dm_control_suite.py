@@ -17,10 +17,12 @@ never copied here) and its task's rules:
   `initialize_episode` (`initial_qpos_qvel` here), then `mj_forward`.
 - **Episode**: 1,000 control steps (every domain's `time_limit / control_timestep`), never
   terminated, `discount` 1 on every step (dm_control's `LAST` step included): `envs.make`'s
-  TimeLimit truncates.
+  TimeLimit truncates. Lqr is the exception (`dmc_lqr`): no time limit in dm_control (1,000 steps
+  here), and an episode that ends at its goal with discount 0.
 - **Observation**: dm_control's OrderedDict flattened in its order (`observations`, each value
   raveled, as `control.flatten_observation`), in the physics' dtype (float32 unless x64).
-- **Reward**: in [0, 1], built from `tolerance`, dm_control's `rewards.tolerance` in JAX.
+- **Reward**: in [0, 1], built from `tolerance`, dm_control's `rewards.tolerance` in JAX (lqr's:
+  1 less a quadratic cost, unbounded below).
 
 Every task makes one edit to dm_control's models, here: the `energy` flag (acrobot, cartpole,
 pendulum) is cleared, because MJX refuses it; it only fills `data.energy`, which no task reads.
@@ -267,7 +269,7 @@ class DmControlEnv(MjxEnv):
         return {}
 
     def terminated(self, data: mjx.Data) -> jax.Array:
-        return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1)
+        return jnp.zeros((), bool)  # dm_control's suite never ends an episode early (discount 1), lqr aside
 
     # ---- what the domains read alike --------------------------------------------------
     def body_xmat(self, data: mjx.Data, body: str) -> jax.Array:
