@@ -155,7 +155,7 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # TD3: FastTD3's CheetahRunArgs, its DMC recipe (1,024 envs, discount 0.97, 3-step returns, noise 0.1), with the
-# critic's support [0, 35]: every discounted return of rewards in [0, 1], where FastTD3's +-500 wastes all but 4 atoms.
+# support [0, 35] (lqr's [-35, 35]: its rewards fall below 0): the discounted returns; FastTD3's +-500 wastes atoms.
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
                 num_timesteps=10_240_000)
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
@@ -186,7 +186,7 @@ for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
     SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}},
                        "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
-                       "td3": {"default": {**_DMC_TD3, **_solve}}}
+                       "td3": {"default": {**_DMC_TD3, **_solve, **({"v_min": -35.0} if "-lqr-" in _task else {})}}}
 del _task, _ppo, _sac, _goal, _solve
 
 
