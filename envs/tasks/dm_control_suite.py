@@ -174,6 +174,9 @@ class DmControlEnv(MjxEnv):
     # `state.info` entries holding per-episode model edits (reacher's target), which
     # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
     episode_info: ClassVar[tuple[str, ...]] = ()
+    # What an episode changes in the model where each env then steps a model of its own (insert_ball's
+    # colliding cup, point_mass hard's tendons, lqr's springs): impl="jax" only. None: one model for all.
+    per_env_model: ClassVar[str | None] = None
     # observation="pixels" as DrQ-v2 benchmarks dm_control's suite: 84x84 RGB from camera 0 (the default
     # camera: the MJCF's first), three frames stacked, each action held for two control steps (an episode
     # is then 500 env steps). A domain filmed by another camera (quadruped: 2) adds "camera" here.
@@ -197,6 +200,9 @@ class DmControlEnv(MjxEnv):
         return super().configured(impl, opt, **buffers)
 
     def _put_on_device(self, impl: str) -> None:
+        if self.per_env_model is not None and impl == "warp":
+            raise ValueError(f"task {self.name}: {self.per_env_model} each episode, so each env steps its own model; "
+                             "impl='warp' steps one model for all worlds: use impl='jax'")
         self.mj_model.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         super()._put_on_device(impl)
 

@@ -83,17 +83,12 @@ class DmcLqr(DmControlEnv):
     domain = "lqr"
     n_bodies: ClassVar[int]
     n_actuators: ClassVar[int]
+    per_env_model = "its joints' stiffness (jnt_stiffness) is drawn"
     episode_info = ("stiffness",)  # the joints' stiffness, dm_control's model edit, for envs.interop.dm_control
 
     def load_mj_model(self, path: os.PathLike) -> mujoco.MjModel:
         middle = np.full(self.n_bodies, sum(STIFFNESS_RANGE) / 2)
         return lqr_spec(path, self.n_bodies, self.n_actuators, middle).compile()
-
-    def _put_on_device(self, impl: str) -> None:
-        if impl == "warp":
-            raise ValueError(f"task {self.name}: its joints' stiffness is drawn each episode, so each env steps its "
-                             "own model (jnt_stiffness); impl='warp' steps one model for all worlds: use impl='jax'")
-        super()._put_on_device(impl)
 
     # ---- the episode's springs ----------------------------------------------------------
     def draw_episode(self, key):

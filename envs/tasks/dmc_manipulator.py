@@ -179,13 +179,6 @@ class DmcManipulator(DmControlEnv):
         return self._start(key)[:2]
 
     # ---- the target's per-episode pose -----------------------------------------------
-    def _put_on_device(self, impl: str) -> None:
-        if self.receptacle is not None and impl == "warp":
-            raise ValueError(f"task {self.name}: the {self.receptacle} it moves each episode collides, so each env "
-                             "steps its own model (body_pos, body_quat); impl='warp' steps one model for all worlds: "
-                             "use impl='jax'")
-        super()._put_on_device(impl)
-
     def episode_model(self, model: mjx.Model, info) -> mjx.Model:
         """An insert task's model with the receptacle at the episode's target pose (dm_control's edit of
         its `body_pos` x, z and `body_quat` w, y: the rest stays the MJCF's); a bring task's as it is."""
@@ -276,4 +269,5 @@ class DmcManipulatorInsertBall(DmcManipulatorBringBall):
 
     task = "insert_ball"
     receptacle = "cup"
+    per_env_model = "the cup collides and moves (body_pos, body_quat)"
     turn = np.pi / 3

@@ -92,11 +92,9 @@ class DmcPointMassHard(DmcPointMassEasy):
 
     task = "hard"
     episode_info = ("wrap_prm",)  # dm_control's per-episode edit, for envs.interop.dm_control
+    per_env_model = "its tendons' coefficients (wrap_prm) are drawn"
 
     def _put_on_device(self, impl: str) -> None:
-        if impl == "warp":
-            raise ValueError(f"task {self.name}: its tendons' coefficients (wrap_prm) are drawn each episode, so each "
-                             "env steps its own tendons; impl='warp' steps one model for all worlds: use impl='jax'")
         wraps = self.mj_model.wrap_objid.reshape(2, 2)
         if self.mj_model.nv != 2 or not (wraps == [[0, 1], [0, 1]]).all():  # the layout `with_tendons` assumes
             raise ValueError(f"task {self.name}: expected tendons t1, t2 over joints root_x, root_y")
