@@ -151,9 +151,10 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
 _DMC_PPO = dict(_PLAYGROUND_PPO, policy_hidden=(32,) * 4, value_hidden=(256,) * 5)
 _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # TD3: FastTD3's CheetahRunArgs, its DMC recipe (1,024 envs, discount 0.97, 3-step returns, noise 0.1), with the
-# critic's support [0, 35]: every discounted return of rewards in [0, 1], where FastTD3's +-500 wastes all but 4 atoms.
+# critic's support [0, 35]: every discounted return of rewards in [0, 1], where FastTD3's +-500 wastes all but 4 atoms;
+# and the LayerNorm critic its authors suggest for DMC: without it, seeds' actors saturate and stand still (docs/tasks.md).
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
-                num_timesteps=10_240_000)
+                num_timesteps=10_240_000, critic_layer_norm=True)
 # Per task over _DMC_TD3: lqr's rewards fall below 0; the pendulum's swing-up outlasts discount 0.97's horizon (on a
 # CPU, 0.99 learned it where 0.97 did not: docs/tasks.md).
 _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(v_min=-35.0),

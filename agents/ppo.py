@@ -382,16 +382,10 @@ class PPO:
         param_key, env_key, loop_key = jax.random.split(key, 3)
         params = self.init_params(*jax.random.split(param_key))
         return TrainState(
-            params=params,
-            opt_state=self.optimizer.init(ppo_losses.PPONetworkParams(policy=params[1], value=params[2])),
-            env_state=self.train_env.reset(env_key),
-            key=loop_key,
-            env_steps=jnp.zeros((), jnp.int32),
-            best_params=params,
-            best_return=jnp.full((), -jnp.inf, jnp.float32),
-            solve_step=jnp.full((), -1, jnp.int32),
-            hyperparams=hyperparams,
-        )
+            params=params, opt_state=self.optimizer.init(ppo_losses.PPONetworkParams(policy=params[1], value=params[2])),
+            env_state=self.train_env.reset(env_key), key=loop_key, env_steps=jnp.zeros((), jnp.int32),
+            best_params=params, best_return=jnp.full((), -jnp.inf, jnp.float32), solve_step=jnp.full((), -1, jnp.int32),
+            hyperparams=hyperparams)
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 

@@ -63,6 +63,7 @@ class TD3Config:
     init_scale: float = 0.01  # std of the actor's last layer at initialisation
     actor_hidden: tuple[int, ...] = (128, 64, 32)  # FastTD3: (512, 256, 128)
     critic_hidden: tuple[int, ...] = (256, 128, 64)  # FastTD3: (1024, 512, 256)
+    critic_layer_norm: bool = False  # LayerNorm before each critic ReLU (FastTD3's authors suggest it for DMC)
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
     max_replay_size: int = 100_000  # transitions per seed
@@ -141,12 +142,14 @@ class DistributionalQ(nn.Module):
     num_atoms: int
     hidden: tuple[int, ...]
     dtype: Any = jnp.float32
+    layer_norm: bool = False
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
         x = jnp.concatenate([obs, action], axis=-1)
         for width in self.hidden:
-            x = nn.relu(_dense(width, self.dtype)(x))
+            x = _dense(width, self.dtype)(x)
+            x = nn.relu(nn.LayerNorm(dtype=self.dtype)(x) if self.layer_norm else x)
         return _dense(self.num_atoms, self.dtype)(x).astype(jnp.float32)  # logits over the atoms
 
 
@@ -215,7 +218,7 @@ class TD3:
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
         self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype)
-        self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype)
+        self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype, config.critic_layer_norm)
         self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
         self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)

@@ -186,6 +186,23 @@ def test_bfloat16_runs_the_networks_matmuls_in_bf16_with_float32_params():
     assert np.isfinite(float(trained["critic_loss"])) and np.isfinite(float(trained["actor_loss"]))
 
 
+def test_the_layer_norm_critic_normalizes_each_hidden_layer_before_its_relu():
+    from agents.td3 import DistributionalQ
+    obs, action = jax.random.normal(jax.random.PRNGKey(1), (4, 3)), jax.random.normal(jax.random.PRNGKey(2), (4, 2))
+    critic = DistributionalQ(num_atoms=5, hidden=(8, 6), layer_norm=True)
+    params = critic.init(jax.random.PRNGKey(0), obs, action)
+    p = jax.tree.map(np.asarray, params["params"])
+    x = np.concatenate([obs, action], axis=-1)
+    for i in range(2):  # numpy's layer norm (flax's epsilon, 1e-6), then ReLU
+        x = x @ p[f"Dense_{i}"]["kernel"] + p[f"Dense_{i}"]["bias"]
+        x = (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + 1e-6)
+        x = np.maximum(x * p[f"LayerNorm_{i}"]["scale"] + p[f"LayerNorm_{i}"]["bias"], 0.0)
+    expected = x @ p["Dense_2"]["kernel"] + p["Dense_2"]["bias"]
+    np.testing.assert_allclose(critic.apply(params, obs, action), expected, rtol=1e-5, atol=1e-5)
+    plain = DistributionalQ(num_atoms=5, hidden=(8, 6)).init(jax.random.PRNGKey(0), obs, action)["params"]
+    assert sorted(plain) == ["Dense_0", "Dense_1", "Dense_2"]
+
+
 def td3_batch(td3, ts):
     return unpack(ts.buffer.data[:8], td3.obs_size, td3.action_size)
 
