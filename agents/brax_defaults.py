@@ -45,9 +45,10 @@ _FASTTD3 = dict(num_envs=1024, batch_size=32768, num_updates=2, policy_frequency
                 actor_hidden=(512, 256, 128), critic_hidden=(1024, 512, 256), compute_dtype="bfloat16",
                 min_replay_size=10 * 1024, max_replay_size=1 << 20, num_evals=11)
 # The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env,
-# beat PPO's by far (docs/agents.md, "Per-task recipes"; docs/tasks.md, the dm_control tasks' TD3 runs).
-DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", "dmc-walker-stand": "td3",
-                                 "dmc-walker-walk": "td3", "dmc-finger-spin": "td3"}
+# beat PPO's by far, finger turn_easy's as the finger's spin (docs/agents.md, "Per-task recipes"; docs/tasks.md).
+DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", **dict.fromkeys((
+    "dmc-walker-stand", "dmc-walker-walk", "dmc-finger-spin", "dmc-finger-turn-easy", "dmc-cheetah-run",
+    "dmc-pendulum-swingup"), "td3")}
 
 SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     # Gymnasium's Pendulum-v1 (solved at -200). Measured here.
