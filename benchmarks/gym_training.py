@@ -136,6 +136,9 @@ def stop(started: list[tuple[dict, subprocess.Popen]], timeout: float | None) ->
         except subprocess.TimeoutExpired:
             training.kill()
             training.wait()
+        except KeyboardInterrupt:  # a second Ctrl-C, or an outer time bound's: the trainings got it too
+            record["interrupted"] = "stopped by a second interrupt while saving: its last saved chunk stands"
+            training.wait()
         record["wall_s"] = time.perf_counter() - record.pop("started")
         if training.returncode != 0 and "interrupted" not in record:
             record["skipped"] = f"exit status {training.returncode}"

@@ -38,3 +38,34 @@ def test_the_reports_print_the_iqm():
             "iqm": 3200.0, "worst": 2900.0, "wall_s": 500.0, "solve_steps": [None] * 4}
     assert "median 3200.0, IQM 3200.0, worst 2900.0" in learning.line(case)
     assert learning._spread(seeds) == {"median": 3200.0, "iqm": 3200.0, "worst": 2900.0}
+
+
+def test_gym_training_keeps_the_records_when_a_second_interrupt_arrives_while_the_runs_save():
+    """An outer time bound's SIGINT reaches the benchmark while it waits for its Ctrl-C'd trainings to
+    save: every record still comes back, with its wall time and why it ended, for `describe` to read."""
+    import subprocess
+
+    class Training:  # still running at its time; then saving, where the second interrupt may find it
+        def __init__(self, interrupt):
+            self.interrupt, self.returncode, self.waits = interrupt, None, 0
+
+        def wait(self, timeout=None):
+            self.waits += 1
+            if self.waits == 1:
+                raise subprocess.TimeoutExpired("train", timeout)
+            if self.waits == 2 and self.interrupt:
+                raise KeyboardInterrupt
+            self.returncode = -2
+
+        def send_signal(self, signal):
+            pass
+
+    trainings = [Training(interrupt=True), Training(interrupt=False)]
+    started = [({"out": f"run{i}", "started": 0.0}, t) for i, t in enumerate(trainings)]
+    try:
+        records = gym_training.stop(started, timeout=0.0)
+    except KeyboardInterrupt:
+        pytest.fail("the second interrupt escaped gym_training.stop, and with it every record")
+    assert [r["out"] for r in records] == ["run0", "run1"] and all(r["wall_s"] > 0 for r in records)
+    assert "second interrupt" in records[0]["interrupted"] and records[1]["interrupted"] == "stopped after 0 s"
+    assert not any("skipped" in r for r in records)
