@@ -137,7 +137,8 @@ def stop(started: list[tuple[dict, subprocess.Popen]], timeout: float | None) ->
             training.kill()
             training.wait()
         except KeyboardInterrupt:  # a second Ctrl-C, or an outer time bound's: the trainings got it too
-            record["interrupted"] = "stopped by a second interrupt while saving: its last saved chunk stands"
+            record["interrupted"] = (f"{record.get('interrupted', 'running')}, then a second interrupt while it "
+                                     "saved: its last saved chunk stands")
             training.wait()
         record["wall_s"] = time.perf_counter() - record.pop("started")
         if training.returncode != 0 and "interrupted" not in record:

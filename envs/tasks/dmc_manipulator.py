@@ -179,6 +179,10 @@ class DmcManipulator(DmControlEnv):
         return self._start(key)[:2]
 
     # ---- the target's per-episode pose -----------------------------------------------
+    @property
+    def per_env_model(self) -> str | None:  # DmControlEnv's refusal of impl="warp": an insert's receptacle
+        return None if self.receptacle is None else f"the {self.receptacle} collides and moves (body_pos, body_quat)"
+
     def episode_model(self, model: mjx.Model, info) -> mjx.Model:
         """An insert task's model with the receptacle at the episode's target pose (dm_control's edit of
         its `body_pos` x, z and `body_quat` w, y: the rest stays the MJCF's); a bring task's as it is."""
@@ -269,5 +273,4 @@ class DmcManipulatorInsertBall(DmcManipulatorBringBall):
 
     task = "insert_ball"
     receptacle = "cup"
-    per_env_model = "the cup collides and moves (body_pos, body_quat)"
     turn = np.pi / 3
