@@ -290,7 +290,6 @@ class WarpRenderer:
 
     def render(self, data, info=None) -> tuple[jax.Array, jax.Array]:
         mjx, task = self.mjx, self.task
-        data = data if info is None else task.with_episode(data, info)  # a step's positions, markers placed
 
         def render_worlds(data):  # every leaf has a leading world axis
             worlds = data.qpos.shape[0]
@@ -327,8 +326,9 @@ class WarpRenderer:
             return render_batch(data), (True, True)
 
         # The camera and geoms where data.qpos puts them (a step leaves the previous step's positions),
-        # with the episode's model: its edits (reacher's target) move geoms.
-        return render_one(task.compute_derived(data, model))
+        # then the episode's markers (reacher's target) placed over them.
+        data = task.compute_derived(data)
+        return render_one(data if info is None else task.with_episode(data, info))
 
 
 class Pixels(Wrapper):
