@@ -9,6 +9,7 @@ replaced here by its JAX ones under a model whose options have Warp's fields."""
 import dataclasses
 
 import jax
+import numpy as np
 import pytest
 
 import envs
@@ -133,3 +134,41 @@ def test_jax_only_tasks_refuse_warp(warp_faked, task):
     """A task that steps a model per env refuses impl="warp" when built, naming impl='jax'."""
     with pytest.raises(ValueError, match="use impl='jax'"):
         envs.make(task, impl="warp")
+
+
+@pytest.mark.slow
+def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(warp_faked):
+    """`WarpRenderer`'s own code on the CPU, MuJoCo Warp's tracer faked: each world it traces holds
+    the positions of its state's qpos with the episode's target placed over them (reacher easy;
+    derived after the target, the target would sit at the model's position), unbatched and under vmap. The fake "renders" the target's and the
+    fingertip's positions as the first two pixels."""
+    env = envs.make("dmc-reacher-easy", impl="warp", observation="pixels", width=2, height=2, frame_stack=1,
+                    action_repeat=1)
+    task = env.unwrapped
+    target, finger = task.mj_model.geom("target").id, task.mj_model.geom("finger").id
+
+    class Context:
+        def pytree(self):
+            return None
+
+    def render(model, data, handle):  # one world: (pixels, 3) colours, (pixels,) depths
+        rgb = jax.numpy.stack([data.geom_xpos[target], data.geom_xpos[finger], data.qpos[:1].repeat(3),
+                               data.qpos[1:].repeat(3)])
+        return rgb, rgb[:, 0], None
+
+    env.renderer.mjx = type("FakeMjx", (), dict(
+        create_render_context=staticmethod(lambda *args, **kwargs: Context()),
+        refit_bvh=staticmethod(lambda model, data, handle: data), render=staticmethod(render),
+        get_rgb=staticmethod(lambda handle, cam, rgb: rgb.reshape(rgb.shape[0], 2, 2, 3)),
+        get_depth=staticmethod(lambda handle, cam, depth, scale: depth.reshape(depth.shape[0], 2, 2, 1) / scale)))
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(0), 2))
+    states = jax.jit(jax.vmap(env.step))(states, jax.numpy.array([[1.0, -1.0], [-0.5, 0.5]]))
+    batched, _ = jax.jit(jax.vmap(env.render))(states.pipeline_state, states.info)
+    one = jax.tree.map(lambda x: x[1], states)
+    alone, _ = jax.jit(env.render)(one.pipeline_state, one.info)
+    np.testing.assert_allclose(alone, batched[1], atol=1e-6)
+    for i in range(2):
+        data = jax.tree.map(lambda x: x[i], states.pipeline_state)
+        moved = mjx.kinematics(task.reset_model, task.reset_data.replace(qpos=data.qpos))
+        np.testing.assert_allclose(batched[i, 0, 0, :2], states.info["target"][i], atol=1e-6)
+        np.testing.assert_allclose(batched[i, 0, 1], moved.geom_xpos[finger], atol=1e-5)
