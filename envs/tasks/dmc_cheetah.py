@@ -11,6 +11,7 @@ installed package.
   at zero control to let it settle, the clock back at 0 (dm_control's `initialize_episode`). As in
   dm_control, the first of those steps integrates the accelerations of `mj_resetData`'s state
   (qpos0 at rest, whose `mj_forward` ran before the joints were drawn) from the drawn joints.
+  The settling steps' line search stops after 8 iterations (`SETTLE_LS_ITERATIONS`; MuJoCo's 50).
 - Episode: 1,000 steps (10 s simulated), never terminated.
 """
 
@@ -25,6 +26,10 @@ from envs.tasks.dm_control_suite import DmControlEnv, tolerance
 
 RUN_SPEED = 10.0  # dm_control's _RUN_SPEED (m/s)
 SETTLE_STEPS = 200  # physics steps at reset before the episode starts
+# The settling steps' line search stops after this many iterations (MuJoCo's default: 50). MJX's JAX
+# line search is a scan of `ls_iterations` bodies that, batched, all run even once it has converged,
+# so the cap sets the reset's cost; the settled states stay as dm_control's (tests/test_dm_control.py).
+SETTLE_LS_ITERATIONS = 8
 
 
 class DmcCheetahRun(DmControlEnv):
@@ -38,11 +43,17 @@ class DmcCheetahRun(DmControlEnv):
         drawn = jnp.asarray(model.qpos0).at[limited].set(jax.random.uniform(key, (len(limited),), minval=low,
                                                                                 maxval=high))
         # dm_control's first settling step is mj_step2 on the forward pass of qpos0 at rest.
-        model = self.reset_model  # MJX's JAX implementation under either impl (mjx.euler is JAX's alone)
+        model = self.settle_model  # MJX's JAX implementation under either impl (mjx.euler is JAX's alone)
         rest = mjx.forward(model, self.reset_data)
         first = mjx.euler(model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
         settled = jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(model, d), first)
         return settled.qpos, settled.qvel
+
+    @property
+    def settle_model(self):
+        """The reset's model (`reset_model`) with its line search capped at `SETTLE_LS_ITERATIONS`."""
+        ls_iterations = min(self.reset_model.opt.ls_iterations, SETTLE_LS_ITERATIONS)
+        return self.reset_model.tree_replace({"opt.ls_iterations": ls_iterations})
 
     def observations(self, data):
         return {"position": data.qpos[1:], "velocity": data.qvel}
