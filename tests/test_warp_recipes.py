@@ -140,8 +140,8 @@ def test_jax_only_tasks_refuse_warp(warp_faked, task):
 def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(warp_faked):
     """`WarpRenderer`'s own code on the CPU, MuJoCo Warp's tracer faked: each world it traces holds
     the positions of its state's qpos with the episode's target placed over them (reacher easy;
-    derived after the target, the target would sit at the model's position), unbatched and under vmap. The fake "renders" the target's and the
-    fingertip's positions as the first two pixels."""
+    derived after the target, the target would sit at the model's position), unbatched and under
+    vmap. The fake "renders" the target's and the fingertip's positions as the first two pixels."""
     env = envs.make("dmc-reacher-easy", impl="warp", observation="pixels", width=2, height=2, frame_stack=1,
                     action_repeat=1)
     task = env.unwrapped
@@ -151,9 +151,8 @@ def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(wa
         def pytree(self):
             return None
 
-    def render(model, data, handle):  # one world: (pixels, 3) colours, (pixels,) depths
-        rgb = jax.numpy.stack([data.geom_xpos[target], data.geom_xpos[finger], data.qpos[:1].repeat(3),
-                               data.qpos[1:].repeat(3)])
+    def render(model, data, handle):  # one world: (pixels, 3) colours, (pixels,) depths; 2x2 pixels
+        rgb = jax.numpy.stack([data.geom_xpos[target], data.geom_xpos[finger], *data.geom_xpos[:2]])
         return rgb, rgb[:, 0], None
 
     env.renderer.mjx = type("FakeMjx", (), dict(
