@@ -184,12 +184,21 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
 }
 # Tasks Playground does not register (fish upright, the manipulator's, ...): its base recipes.
 _DMC_TASKS |= {name: ({}, {}, None) for name, *_ in envs.TASKS if name.startswith("dmc-") and name not in _DMC_TASKS}
+# DrQ-v2's mean return from 84x84 pixels at 1M frames (3M for its hard tasks), facebookresearch/drqv2
+# curves/*.csv: the "pixels" recipe's solve_return (issue 66's goals).
+DRQV2_SCORES = {"dmc-cartpole-swingup": 863.0, "dmc-walker-walk": 765.0, "dmc-cheetah-run": 714.0,
+                "dmc-quadruped-walk": 711.0, "dmc-walker-run": 680.0, "dmc-quadruped-run": 723.0,
+                "dmc-hopper-hop": 354.0}
+# From camera images (the task's pixel_defaults: 84x84, three frames, action repeat 2): the cart-pole's
+# pixel recipe (`_PIXEL_PPO`, measured here), 10M env steps (20M control steps) in chunks of 0.5M.
+_DMC_PIXEL_PPO = dict(_PIXEL_PPO, num_timesteps=10_000_000, num_evals=21)
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
-    SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}},
+    _pixel_solve = {"solve_return": DRQV2_SCORES[_task]} if _task in DRQV2_SCORES else {}
+    SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}, "pixels": {**_DMC_PIXEL_PPO, **_pixel_solve}},
                        "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
                        "td3": {"default": {**_DMC_TD3, **_solve, **_DMC_TD3_TASKS.get(_task, {})}}}
-del _task, _ppo, _sac, _goal, _solve
+del _task, _ppo, _sac, _goal, _solve, _pixel_solve
 
 
 # The Gymnasium tasks' "cpu" preset (`cpu_settings`): the task's default row resized by CPU_SIZES (its

@@ -89,6 +89,16 @@ def test_pixels_take_the_pixel_recipe_and_ppo():
         _choose_agent(TASK, "sac", PIXELS)
 
 
+def test_dm_control_tasks_from_pixels_take_the_pixel_recipe_with_drqv2s_goal():
+    """A dmc-* task on camera images trains PPO's pixel recipe, with DrQ-v2's score as its goal where
+    issue 66 names one; from its state it keeps Playground's recipe and the state goal."""
+    config = _agent_config("dmc-cartpole-swingup", "ppo", None, {}, None, None, observation="pixels")
+    assert (config.num_envs, config.batch_size, config.solve_return) == (256, 256, 863.0)
+    assert _agent_config("dmc-cartpole-swingup", "ppo", None, {}, None, None).num_envs == 2048
+    assert _agent_config("dmc-finger-spin", "ppo", None, {}, None, None, observation="pixels").solve_return is None
+    assert set(brax_defaults.DRQV2_SCORES) <= {name for name, *_ in envs.TASKS}
+
+
 def test_pixels_on_a_discrete_task_get_one_truthful_message_from_every_agent_and_the_api():
     """Cases 68/69: DQN said "use ppo" and PPO "use dqn"; through the Python API DQN failed inside
     JAX. Every way in now says no agent trains that combination, and what does, before any compile."""
