@@ -86,11 +86,15 @@ def gymnasium_returns(out_dir: Path, env_name: str, episodes: int, seed_index: i
 
 def dm_control_returns(out_dir: Path, env_name: str, episodes: int, seed_index: int | None = None) -> list[float]:
     """Returns of the run's saved policy (`seed_index`, default the run's best seed) on dm_control's
-    own env of its DeepMind Control Suite task `env_name` (`envs.returns_on_dm_control`)."""
+    own env of its DeepMind Control Suite task `env_name` (`envs.returns_on_dm_control`); a run on
+    camera images is judged on dm_control's pictures, with the run's camera options."""
     import agents
     import envs
+    from agents import checkpoint
+    from envs.pixels import PIXEL_OPTIONS
 
-    return envs.returns_on_dm_control(agents.load_policy(out_dir, seed_index), env_name, episodes)
+    camera = {k: v for k, v in checkpoint.load_config(out_dir).env_options.items() if k in PIXEL_OPTIONS}
+    return envs.returns_on_dm_control(agents.load_policy(out_dir, seed_index), envs.make(env_name, **camera), episodes)
 
 
 def reference_returns(out_dir: Path, env_name: str, episodes: int,

@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from agents.env_options import parse_option
+from tests.test_gym_interop import run_python
 from tests.test_pixels import c_mujoco_depth
 
 pytest.importorskip("dm_control")
@@ -64,3 +65,44 @@ def test_reachers_target_is_drawn_where_its_episode_puts_it():
         np.testing.assert_allclose(depth[depth > 0], expected[depth > 0], atol=1e-4, rtol=0)
         assert not np.allclose(plain, depth)  # the unedited model draws the target elsewhere
     assert target_pixels > 0
+
+
+@pytest.mark.slow  # ~15 s in a fresh process: dm_control renders only where it was first imported with MUJOCO_GL=egl
+def test_the_judge_shows_a_pixel_policy_dm_controls_own_pictures():
+    """`returns_on_dm_control` of a pixel env hands the policy dm_control's own rendered frames of the
+    env's camera and size, the last three oldest first (a reset's frame repeated), holds each action
+    for the env's action repeat, and sums dm_control's rewards: checked against dm_control's env of
+    the same seed stepped and rendered here by hand."""
+    result = run_python("""
+        import numpy as np
+        import envs
+        from envs.interop.dm_control import JUDGE_FIRST_SEED, load, returns_on_dm_control
+
+        env = envs.make("dmc-cartpole-swingup", observation="pixels", width=32, height=24)
+        actions = [np.array([a]) for a in (0.9, -0.6, 1.0, -1.0)]
+        seen = []
+        def policy(observation):
+            seen.append(observation.copy())
+            return actions[len(seen) - 1]
+        [judged] = returns_on_dm_control(policy, env, episodes=1, max_steps=8)
+
+        theirs = load("cartpole", "swingup", JUDGE_FIRST_SEED, renders=True)
+        theirs.reset()
+        frames, total = [theirs.physics.render(24, 32, camera_id=0)], 0.0
+        for action in actions:
+            for _ in range(env.action_repeat):
+                total += theirs.step(action).reward
+            frames.append(theirs.physics.render(24, 32, camera_id=0))
+        assert len(seen) == 4 and seen[0].dtype == np.uint8 and seen[0].shape == (24, 32, 9)
+        stacks = [np.concatenate(f, -1) for f in ([frames[0]] * 3, [frames[0], frames[0], frames[1]],
+                                                   frames[0:3], frames[1:4])]
+        for i, (got, want) in enumerate(zip(seen, stacks)):
+            assert (got == want).all(), i
+        assert (frames[3] != frames[0]).any()  # the cart moved: the frames tell the steps apart
+        assert judged == total, (judged, total)
+        print("judged")
+    """, MUJOCO_GL="egl")
+    if "EGL" in result.stderr and "judged" not in result.stdout:
+        pytest.skip("no EGL on this machine: " + result.stderr.strip().splitlines()[-1])
+    assert result.returncode == 0, result.stderr
+    assert "judged" in result.stdout

@@ -21,10 +21,11 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
 - `returns_on_dm_control(policy, env)` (also `envs.returns_on_dm_control`): a policy's returns on
-  dm_control's own env, the judge of a trained run (`python -m benchmarks.gym_training`).
+  dm_control's own env, the judge of a trained run (`python -m benchmarks.gym_training`); from
+  dm_control's own pictures for a pixel env (`Camera`).
 
 dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
-(`load`, with MUJOCO_GL=disable unless the variable is set).
+(`load`, with MUJOCO_GL=disable, or egl to render, unless the variable is set).
 """
 
 from __future__ import annotations
@@ -69,22 +70,25 @@ def shim_mujoco_4() -> None:
             del sizes.array_sizes[struct][name]
 
 
-def load(domain: str, task: str, seed: int = 0):
+def load(domain: str, task: str, seed: int = 0, renders: bool = False):
     """dm_control's `suite.load(domain, task)` seeded with `seed`, on the installed mujoco. Where
     dm_control is first imported here and `MUJOCO_GL` is unset, it is imported with
-    MUJOCO_GL=disable (nothing here renders; without it dm_control tries GLFW, which warns on a
-    machine without a display) and the variable is removed again: set MUJOCO_GL=egl before the
-    first import for dm_control's pixels in the same process."""
+    MUJOCO_GL=disable (without it dm_control tries GLFW, which warns on a machine without a
+    display), or with MUJOCO_GL=egl where the env `renders` (headless OpenGL; Mesa's on a CPU), and
+    the variable is removed again."""
     if "dm_control.suite" not in sys.modules and "MUJOCO_GL" not in os.environ:
-        os.environ["MUJOCO_GL"] = "disable"
+        os.environ["MUJOCO_GL"] = "egl" if renders else "disable"
         try:
             shim_mujoco_4()
             import dm_control.suite  # noqa: F401  (dm_control reads MUJOCO_GL when first imported)
         finally:
             del os.environ["MUJOCO_GL"]
     shim_mujoco_4()
-    from dm_control import suite
+    from dm_control import _render, suite
 
+    if renders and _render.BACKEND in (None, "disable"):
+        raise RuntimeError(f"dm_control was imported with MUJOCO_GL={_render.BACKEND}, so its {domain} {task} "
+                           "cannot render: set MUJOCO_GL=egl before the process first imports dm_control")
     return suite.load(domain, task, task_kwargs={"random": seed})
 
 
@@ -410,22 +414,70 @@ ENDLESS_EPISODE_STEPS = 1_000
 
 
 def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
-                   max_steps: int | None = None) -> list[float]:
+                          max_steps: int | None = None) -> list[float]:
     """The returns of `policy` on dm_control's own env of `env`'s task (the twin of judging a
     Gymnasium task on Gymnasium's env): episode i is `suite.load(domain, task)` seeded with
-    `first_seed + i`, reset, then stepped with `policy(observation)` (dm_control's observation
-    flattened in its order, as our task observes it; the action in the actuators' ctrlrange, as
-    `agents.load_policy` gives it) until dm_control's episode ends (1,000 control steps; lqr, which
-    has no time limit: at its goal or after `ENDLESS_EPISODE_STEPS`) or after `max_steps` steps. The
-    return sums dm_control's rewards."""
-    env = (make(env) if isinstance(env, str) else env).unwrapped
+    `first_seed + i`, reset, then stepped with `policy(observation)` (the action in the actuators'
+    ctrlrange, as `agents.load_policy` gives it) until dm_control's episode ends (1,000 control
+    steps; lqr, which has no time limit: at its goal or after `ENDLESS_EPISODE_STEPS`) or after
+    `max_steps` control steps. The return sums dm_control's rewards. The observation is dm_control's
+    flattened in its order, as our task observes it; for a pixel env (`observation="pixels"`) it is
+    dm_control's own picture (`Camera`), each action held for the env's `action_repeat` steps."""
+    env = make(env) if isinstance(env, str) else env
+    camera = Camera.of(env)
+    repeat = 1 if camera is None else camera.action_repeat
     returns = []
     for episode in range(episodes):
-        theirs = load(env.domain, env.task, first_seed + episode)
+        theirs = load(env.unwrapped.domain, env.unwrapped.task, first_seed + episode, renders=camera is not None)
         step, total, steps = theirs.reset(), 0.0, 0
         limit = ENDLESS_EPISODE_STEPS if max_steps is None and np.isinf(theirs._step_limit) else max_steps
+        observation = flatten(step.observation) if camera is None else camera.reset(theirs.physics)
         while not step.last() and (limit is None or steps < limit):
-            step = theirs.step(np.asarray(policy(flatten(step.observation)), np.float64))
-            total, steps = total + float(step.reward), steps + 1
+            action = np.asarray(policy(observation), np.float64)
+            for _ in range(repeat):
+                step = theirs.step(action)
+                total, steps = total + float(step.reward), steps + 1
+                if step.last() or steps == limit:
+                    break
+            observation = flatten(step.observation) if camera is None else camera.observe(theirs.physics)
         returns.append(total)
     return returns
+
+
+@dataclasses.dataclass
+class Camera:
+    """A pixel env's observation made by dm_control's renderer (`physics.render`, OpenGL: its
+    textures, lights and shadows), as `envs.pixels.Pixels` makes ours: uint8 RGB frames of its camera,
+    the last `frame_stack` of them oldest first, a reset's frame repeated."""
+
+    camera: int
+    width: int
+    height: int
+    frame_stack: int
+    action_repeat: int
+    frames: list = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def of(cls, env: Env) -> "Camera | None":
+        """The camera of `env`'s `Pixels` wrapper; None for an env observed by its state."""
+        from envs.pixels import Pixels
+
+        while env is not None and not isinstance(env, Pixels):
+            env = vars(env).get("env")
+        if env is None:
+            return None
+        if env.depth:
+            raise ValueError("returns_on_dm_control: a pixel env with depth=True; dm_control's judge draws RGB "
+                             "frames only (train with depth=False to judge on dm_control)")
+        return cls(env.cam, env.width, env.height, env.frame_stack, env.action_repeat)
+
+    def picture(self, physics) -> np.ndarray:
+        return physics.render(self.height, self.width, camera_id=self.camera)
+
+    def reset(self, physics) -> np.ndarray:
+        self.frames = [self.picture(physics)] * self.frame_stack
+        return np.concatenate(self.frames, -1)
+
+    def observe(self, physics) -> np.ndarray:
+        self.frames = [*self.frames[1:], self.picture(physics)]
+        return np.concatenate(self.frames, -1)
