@@ -275,6 +275,11 @@ def main(argv=None) -> None:
     os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
     if bool(args.runs) == bool(args.judge):
         parser.error("give --run (train, then judge) or --judge RECORDS (judge saved runs), not both or neither")
+    saved = json.loads(Path(args.judge).read_text()) if args.judge else []
+    if any("observation=pixels" in text for text in args.runs or []) or any(
+            record.get("env_options", {}).get("observation") == "pixels" for record in saved):
+        # dm_control picks its renderer when first imported: a pixel run's judge renders its pictures.
+        os.environ.setdefault("MUJOCO_GL", "egl")
     judge_saved(args) if args.judge else train_all(parser, args)
 
 
