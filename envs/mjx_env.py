@@ -106,6 +106,8 @@ class MjxEnv(Env):
     # A batch of one stays a batch: one MJX env stepped unbatched was slower on a GPU than as a
     # batch of one (docs/results.md, "The GPU step"), and MuJoCo Warp steps batches of worlds.
     batch_of_one_as_scalars = False
+    # observation="pixels" under impl="warp": missed rays show the model's skybox (else black).
+    render_skybox = False
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)

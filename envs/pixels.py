@@ -266,7 +266,7 @@ def _ray_cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
 
 class WarpRenderer:
     """One camera's images by MuJoCo Warp's batch ray tracer (impl="warp"): the model's lights,
-    materials and textures, no shadows.
+    materials and textures, no shadows; the skybox where the task sets `render_skybox` (dm_control's).
 
     `mjx.create_render_context(mjm, nworld, ...)` fixes the number of worlds and cannot go under
     `vmap`; so `render` is a `custom_vmap` function (as `WarpWorlds.run`): each vmap over it folds
@@ -285,7 +285,8 @@ class WarpRenderer:
             self.contexts[worlds] = self.mjx.create_render_context(
                 self.task.mj_model, worlds, cam_res=(self.width, self.height), render_rgb=True,
                 render_depth=True, render_seg=False, cam_active=[self.cam], use_textures=True,
-                use_shadows=False, enabled_geom_groups=list(GEOM_GROUPS))
+                use_shadows=False, render_skybox=self.task.render_skybox,
+                enabled_geom_groups=list(GEOM_GROUPS))
         return self.contexts[worlds]
 
     def render(self, data, info=None) -> tuple[jax.Array, jax.Array]:

@@ -141,11 +141,14 @@ def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(wa
     """`WarpRenderer`'s own code on the CPU, MuJoCo Warp's tracer faked: each world it traces holds
     the positions of its state's qpos with the episode's target placed over them (reacher easy;
     derived after the target, the target would sit at the model's position), unbatched and under
-    vmap. The fake "renders" the target's and the fingertip's positions as the first two pixels."""
+    vmap; its contexts draw dm_control's skybox. The fake "renders" the target's and the fingertip's
+    positions as the first two pixels."""
     env = envs.make("dmc-reacher-easy", impl="warp", observation="pixels", width=2, height=2, frame_stack=1,
                     action_repeat=1)
     task = env.unwrapped
     target, finger = task.mj_model.geom("target").id, task.mj_model.geom("finger").id
+
+    contexts = []  # the options of each render context built
 
     class Context:
         def pytree(self):
@@ -156,7 +159,7 @@ def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(wa
         return rgb, rgb[:, 0], None
 
     env.renderer.mjx = type("FakeMjx", (), dict(
-        create_render_context=staticmethod(lambda *args, **kwargs: Context()),
+        create_render_context=staticmethod(lambda *args, **kwargs: contexts.append(kwargs) or Context()),
         refit_bvh=staticmethod(lambda model, data, handle: data), render=staticmethod(render),
         get_rgb=staticmethod(lambda handle, cam, rgb: rgb.reshape(rgb.shape[0], 2, 2, 3)),
         get_depth=staticmethod(lambda handle, cam, depth, scale: depth.reshape(depth.shape[0], 2, 2, 1) / scale)))
@@ -171,3 +174,6 @@ def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(wa
         moved = mjx.kinematics(task.reset_model, task.reset_data.replace(qpos=data.qpos))
         np.testing.assert_allclose(batched[i, 0, 0, :2], states.info["target"][i], atol=1e-6)
         np.testing.assert_allclose(batched[i, 0, 1], moved.geom_xpos[finger], atol=1e-5)
+    # dm_control's pictures show its skybox; a task of our own keeps Warp's black background.
+    assert contexts and all(options["render_skybox"] for options in contexts)
+    assert not envs.make("cartpole-swingup-mjx").unwrapped.render_skybox

@@ -181,6 +181,9 @@ class DmControlEnv(MjxEnv):
     # camera: the MJCF's first), three frames stacked, each action held for two control steps (an episode
     # is then 500 env steps). A domain filmed by another camera (quadruped: 2) adds "camera" here.
     pixel_defaults: ClassVar[dict] = {"width": 84, "height": 84, "frame_stack": 3, "action_repeat": 2}
+    # Under impl="warp" pictures show the model's skybox, as dm_control's do: a policy from pixels is
+    # judged on dm_control's pictures.
+    render_skybox: ClassVar[bool] = True
 
     def __init__(self, xml: str | None = None):
         super().__init__(xml if xml is not None else dm_control_asset(f"{self.domain}.xml"))
