@@ -109,8 +109,7 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
                                 max_replay_size=1048576, min_replay_size=8192, solve_return=3800.0)},
-        # TD3: FastTD3's recipe with a quarter of its envs per seed, so that eight seeds fit one GPU in
-        # issue 65's budget (record "td3-speed"). Not trained yet: a starting point.
+        # TD3: FastTD3's with a quarter of its envs per seed, eight seeds to a GPU (record "td3-speed"); a starting point
         "td3": {"default": dict(_FASTTD3, num_envs=256, min_replay_size=10 * 256, num_timesteps=1_843_200,
                                 v_min=-100.0, v_max=500.0, solve_return=3800.0)},
     },
@@ -174,8 +173,7 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
     "dmc-fish-swim": ({}, {}, None),
     "dmc-hopper-hop": ({}, _SAC_10M, None), "dmc-hopper-stand": ({}, _SAC_10M, 700.0),
     "dmc-humanoid-run": ({}, {}, None), "dmc-humanoid-stand": ({}, {}, None), "dmc-humanoid-walk": ({}, _SAC_10M, None),
-    "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0),
-    "dmc-point-mass-easy": ({}, {}, None),
+    "dmc-pendulum-swingup": (dict(num_updates_per_batch=4), {}, 700.0), "dmc-point-mass-easy": ({}, {}, None),
     "dmc-quadruped-run": ({}, {}, 700.0), "dmc-quadruped-walk": ({}, {}, 700.0),  # no quadruped in Playground
     "dmc-reacher-easy": ({}, {}, 900.0), "dmc-reacher-hard": ({}, {}, None),
     "dmc-swimmer-swimmer6": _LONG_RUNS, "dmc-swimmer-swimmer15": _LONG_RUNS,  # no swimmer15 in Playground: swimmer6
@@ -184,25 +182,19 @@ _DMC_TASKS: dict[str, tuple[dict[str, Any], dict[str, Any], float | None]] = {
 }
 # Tasks Playground does not register (fish upright, the manipulator's, ...): its base recipes.
 _DMC_TASKS |= {name: ({}, {}, None) for name, *_ in envs.TASKS if name.startswith("dmc-") and name not in _DMC_TASKS}
-# DrQ-v2's mean return from 84x84 pixels at 1M frames (3M for its hard tasks), facebookresearch/drqv2
-# curves/*.csv: the "pixels" recipe's solve_return (issue 66's goals).
-DRQV2_SCORES = {"dmc-cartpole-swingup": 863.0, "dmc-walker-walk": 765.0, "dmc-cheetah-run": 714.0,
-                "dmc-quadruped-walk": 711.0, "dmc-walker-run": 680.0, "dmc-quadruped-run": 723.0,
-                "dmc-hopper-hop": 354.0}
-# From camera images (the task's pixel_defaults: 84x84, three frames, action repeat 2): the cart-pole's
-# pixel recipe (`_PIXEL_PPO`, measured here), 10M env steps (20M control steps) in chunks of 0.5M.
-_DMC_PIXEL_PPO = dict(_PIXEL_PPO, num_timesteps=10_000_000, num_evals=21)
+# Issue 66's goals from pixels: DrQ-v2's mean at 1M frames (3M: walker and quadruped run, hopper hop), drqv2 curves.
+DRQV2_SCORES = {"dmc-cartpole-swingup": 863.0, "dmc-walker-walk": 765.0, "dmc-cheetah-run": 714.0, "dmc-walker-run": 680.0,
+                "dmc-quadruped-walk": 711.0, "dmc-quadruped-run": 723.0, "dmc-hopper-hop": 354.0}
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
-    _pixel_solve = {"solve_return": DRQV2_SCORES[_task]} if _task in DRQV2_SCORES else {}
-    SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}, "pixels": {**_DMC_PIXEL_PPO, **_pixel_solve}},
+    SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}, "pixels": dict(  # from camera images
+                           _PIXEL_PPO, num_timesteps=10_000_000, num_evals=21, solve_return=DRQV2_SCORES.get(_task))},
                        "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
                        "td3": {"default": {**_DMC_TD3, **_solve, **_DMC_TD3_TASKS.get(_task, {})}}}
-del _task, _ppo, _sac, _goal, _solve, _pixel_solve
+del _task, _ppo, _sac, _goal, _solve
 
 
-# The Gymnasium tasks' "cpu" preset (`cpu_settings`): the task's default row resized by CPU_SIZES (its
-# own fields stay). Starting points: not run here to Gymnasium's goals.
+# The Gymnasium tasks' "cpu" preset (`cpu_settings`): the default row resized by CPU_SIZES (its own fields stay).
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
                    "walker2d", "reacher", "pusher", "swimmer")
 CPU_SIZES: dict[str, dict[str, Any]] = {
