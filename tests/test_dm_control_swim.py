@@ -229,3 +229,27 @@ def test_reset_observation_is_dm_controls(swim_case):
     name, env, starts, _ = swim_case
     theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel, starts.reset_episode)
     np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
+
+
+def test_the_swimmers_target_light_moves_with_its_target_in_warps_data():
+    """dm_control moves swimmer's `target_light` over each episode's target (`put_episode`): with
+    MuJoCo Warp's data (its renderer lights the pictures from `_impl.light_xpos`, stood in for here
+    by a pytree of that one field) `with_episode` moves the light too; the other light, its height
+    and JAX's data (no lights) are left as they are."""
+    from flax import struct
+
+    @struct.dataclass
+    class WarpLights:
+        light_xpos: jax.Array
+
+    task = envs.make("dmc-swimmer-swimmer6").unwrapped
+    model = task.mj_model
+    lights = np.asarray(model.light_pos, np.float32)
+    data = task.reset_data.replace(_impl=WarpLights(light_xpos=jax.numpy.asarray(lights)))
+    target = np.array([0.25, -0.1], np.float32)
+    moved = np.asarray(task.with_episode(data, {"target": target})._impl.light_xpos)
+    light = model.light("target_light").id
+    np.testing.assert_array_equal(moved[light], [*target, lights[light, 2]])
+    np.testing.assert_array_equal(np.delete(moved, light, 0), np.delete(lights, light, 0))
+    plain = task.with_episode(task.reset_data, {"target": target})  # JAX's data: only the sensor moves
+    assert not hasattr(plain._impl, "light_xpos")

@@ -27,7 +27,8 @@ contacts enabled is refused). The target is per episode in dm_control (`geom_pos
 and its light's `light_pos`); here it is kept in `state.info["target"]` and written after each
 physics call into `geom_xpos` and the `target_pos` frame sensor's reading (`with_episode`), where
 dm_control's edited model puts them: every env and every MuJoCo Warp world steps the task's one
-model. The target's light, which only lights dm_control's pictures, stays where the MJCF puts it.
+model. The target's light, which only lights the pictures, is moved over the target where MuJoCo
+Warp renders them (its data's `light_xpos`); the CPU's ray caster draws no lights.
 """
 
 from __future__ import annotations
@@ -103,7 +104,12 @@ class DmcSwimmer(EpisodeTarget, DmControlEnv):
         # The frame sensor on the target reads its geom_xpos too.
         sensor = int(self.mj_model.sensor("target_pos").adr[0])
         data = super().with_episode(data, info)
-        return data.replace(sensordata=data.sensordata.at[sensor:sensor + 2].set(info["target"]))
+        data = data.replace(sensordata=data.sensordata.at[sensor:sensor + 2].set(info["target"]))
+        warp = data._impl
+        if hasattr(warp, "light_xpos"):  # MuJoCo Warp's data, which its renderer lights the pictures from
+            light = int(self.mj_model.light("target_light").id)
+            data = data.replace(_impl=warp.replace(light_xpos=warp.light_xpos.at[light, :2].set(info["target"])))
+        return data
 
     def put_episode(self, physics, info) -> None:
         super().put_episode(physics, info)
