@@ -4,6 +4,7 @@ import json
 import sys
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -205,3 +206,21 @@ def test_dmc_speed_runs_on_the_cpu_with_tiny_sizes(tmp_path):
     speeds = {r["lib"]: r for r in json.loads(out.read_text()) if r["kind"] == "dmc-speed"}
     assert set(speeds) == {"mjxsuite", "dm_control"} and all(r["steps_per_s"] > 0 for r in speeds.values())
     assert speeds["mjxsuite"]["control_timestep"] == 0.01 and speeds["mjxsuite"]["overflow_steps"] == 0
+
+
+def test_pixel_ppo_speed_counts_the_grouped_convolutions_that_vmapped_seeds_make():
+    """A convolution vmapped over several seeds' kernels lowers to a grouped one (feature_group_count
+    = seeds), and so do its gradients; one seed's stay plain. The benchmark counts them in a training
+    step's HLO, beside its time."""
+    from benchmarks.pixel_ppo_speed import grouped_convolutions
+
+    def loss(kernel, images):
+        return jnp.sum(jax.lax.conv_general_dilated(images, kernel, (2, 2), "VALID",
+                                                    dimension_numbers=("NHWC", "HWIO", "NHWC")) ** 2)
+
+    kernels, images = jnp.ones((3, 3, 3, 4, 8)), jnp.ones((3, 2, 9, 9, 4))
+    both = jax.grad(loss, argnums=(0, 1))  # the forward pass, then the kernel's and the images' gradients
+    plain = jax.jit(both).lower(kernels[0], images[0]).as_text()
+    seeds = jax.jit(jax.vmap(both)).lower(kernels, images).as_text()
+    assert grouped_convolutions(plain) == {"feature_group_count": 0, "batch_group_count": 0}
+    assert grouped_convolutions(seeds) == {"feature_group_count": 3, "batch_group_count": 0}
