@@ -11,9 +11,10 @@ after its first run, as the median of `--repeats` runs.
 
     python -m benchmarks.pixel_ppo_speed --env dmc-cartpole-swingup --impl warp --seeds 1 4 --json FILE
 
-On the CPU it is a smoke test of some minutes (the ray-cast camera compiles slowly): `--impl jax --seeds 1 --env-opt width=16 --env-opt height=16 --set
-num_envs=4 --set batch_size=4 --set num_minibatches=2 --set unroll_length=2 --set
-cnn_kernel_size=(3,3,3) --set cnn_stride=(2,1,1) --repeats 1`.
+On the CPU it is a smoke test of some minutes (the ray-cast camera compiles slowly): `--impl jax
+--seeds 1 --env-opt width=16 --env-opt height=16 --set num_envs=4 --set batch_size=4 --set
+num_minibatches=2 --set unroll_length=2 --set cnn_kernel_size=(3,3,3) --set cnn_stride=(2,1,1)
+--repeats 1`.
 """
 
 from __future__ import annotations
