@@ -3,6 +3,7 @@
 import json
 import shutil
 import subprocess
+import warnings
 from collections import defaultdict
 from pathlib import Path
 
@@ -383,3 +384,39 @@ def test_interrupted_training_leaves_a_readable_file(tmp_path, monkeypatch):
     assert contents.rows["train/seed_0/loss"] == 1
     assert contents.rows["eval/seed_0/env/0/reward"] > 0
     verify_with_rerun_cli(path)
+
+
+@pytest.mark.slow  # one env of each of the suite's 16 domains built (MJX's model put on the device)
+def test_every_dm_control_domain_draws_its_scene_where_c_mujoco_puts_its_geoms(tmp_path):
+    """Each DeepMind Control Suite domain's model (the task's own, after its edits) makes a Rerun
+    scene with every geom type drawn, and the file holds each moving geom where C MuJoCo's
+    kinematics puts it along a random-action run."""
+    pytest.importorskip("dm_control")
+    first_of_each = {}
+    for name, *_ in envs.TASKS:
+        if name.startswith("dmc-"):
+            first_of_each.setdefault(envs.make(name).unwrapped.domain, name)
+    assert len(first_of_each) == 16
+    rng = np.random.default_rng(0)
+    for domain, name in first_of_each.items():
+        model = envs.make(name).unwrapped.mj_model
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # a geom type the scene cannot draw warns
+            geoms = recording.scene_from_model(model)
+        data, qpos, xpos = mujoco.MjData(model), [], []
+        for _ in range(4):
+            data.ctrl[:] = rng.uniform(-1.0, 1.0, model.nu)
+            mujoco.mj_step(model, data, 5)
+            mujoco.mj_kinematics(model, data)  # a step leaves geom_xpos of the state before its integration
+            qpos.append(data.qpos.copy()), xpos.append(data.geom_xpos.copy())
+        path = tmp_path / f"{domain}.rrd"
+        rec = recording.open_recording(path)
+        recording.log_scene(rec, model, "world", np.array(qpos), [rr.TimeColumn("step", sequence=np.arange(4))], geoms)
+        recording.close_recording(rec)
+        contents = Contents(path)
+        assert {f"world/{g.name}" for g in geoms} <= contents.entities, domain
+        moving = [g for g in geoms if not g.fixed]
+        assert moving, domain
+        for g in moving:
+            np.testing.assert_allclose(contents.column(f"world/{g.name}", "Transform3D:translation"),
+                                       np.array(xpos)[:, g.geom_id], atol=1e-5, err_msg=f"{domain} {g.name}")
