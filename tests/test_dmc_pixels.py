@@ -5,6 +5,11 @@ impl="jax" renders with MJX's JAX ray caster on the CPU; depth is checked agains
 `mj_ray` through the same pixels, with dm_control's per-episode edit made in C MuJoCo's model.
 """
 
+import os
+import subprocess
+import sys
+import textwrap
+
 import jax
 import numpy as np
 import pytest
@@ -65,6 +70,23 @@ def test_reachers_target_is_drawn_where_its_episode_puts_it():
         np.testing.assert_allclose(depth[depth > 0], expected[depth > 0], atol=1e-4, rtol=0)
         assert not np.allclose(plain, depth)  # the unedited model draws the target elsewhere
     assert target_pixels > 0
+
+
+def test_a_judge_that_cannot_render_says_how_to_fix_it():
+    """Where a process imported dm_control without rendering (`load`'s MUJOCO_GL=disable), a pixel
+    judge's `load(..., renders=True)` is refused with the fix, not left to fail in OpenGL (in a fresh
+    process: another test's import may have picked a renderer)."""
+    environment = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    result = subprocess.run([sys.executable, "-c", textwrap.dedent("""
+        from envs.interop.dm_control import load
+        load("cartpole", "swingup")
+        try:
+            load("cartpole", "swingup", renders=True)
+        except RuntimeError as error:
+            print(error)
+    """)], capture_output=True, text=True, timeout=120, env=environment)
+    assert "cannot render: set MUJOCO_GL=egl before the process first imports dm_control" in result.stdout, \
+        result.stderr
 
 
 @pytest.mark.slow  # ~15 s in a fresh process: dm_control renders only where it was first imported with MUJOCO_GL=egl

@@ -86,7 +86,7 @@ def load(domain: str, task: str, seed: int = 0, renders: bool = False):
     shim_mujoco_4()
     from dm_control import _render, suite
 
-    if renders and _render.BACKEND in (None, "disable"):
+    if renders and _render.BACKEND in (None, "off"):  # "off": MUJOCO_GL=disable's canonical name
         raise RuntimeError(f"dm_control was imported with MUJOCO_GL={_render.BACKEND}, so its {domain} {task} "
                            "cannot render: set MUJOCO_GL=egl before the process first imports dm_control")
     return suite.load(domain, task, task_kwargs={"random": seed})
