@@ -246,11 +246,11 @@ def train_all(parser, args) -> list[dict]:
     return found
 
 
-def judge_saved(args) -> list[dict]:
+def judge_saved(args, records: list[dict]) -> list[dict]:
     """The records of an earlier `--no-judge` run (`--judge FILE`), each judged where its run
     directory is."""
     found = []
-    for record in json.loads(Path(args.judge).read_text()):
+    for record in records:
         if "skipped" not in record and not Path(record["out"]).is_dir():
             record = {**record, "skipped": f"run directory {record['out']} not found here"}
         found.append(judge(record, args.episodes))
@@ -280,7 +280,7 @@ def main(argv=None) -> None:
             record.get("env_options", {}).get("observation") == "pixels" for record in saved):
         # dm_control picks its renderer when first imported: a pixel run's judge renders its pictures.
         os.environ.setdefault("MUJOCO_GL", "egl")
-    judge_saved(args) if args.judge else train_all(parser, args)
+    judge_saved(args, saved) if args.judge else train_all(parser, args)
 
 
 if __name__ == "__main__":

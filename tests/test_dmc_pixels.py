@@ -5,11 +5,6 @@ impl="jax" renders with MJX's JAX ray caster on the CPU; depth is checked agains
 `mj_ray` through the same pixels, with dm_control's per-episode edit made in C MuJoCo's model.
 """
 
-import os
-import subprocess
-import sys
-import textwrap
-
 import jax
 import numpy as np
 import pytest
@@ -76,15 +71,14 @@ def test_a_judge_that_cannot_render_says_how_to_fix_it():
     """Where a process imported dm_control without rendering (`load`'s MUJOCO_GL=disable), a pixel
     judge's `load(..., renders=True)` is refused with the fix, not left to fail in OpenGL (in a fresh
     process: another test's import may have picked a renderer)."""
-    environment = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
-    result = subprocess.run([sys.executable, "-c", textwrap.dedent("""
+    result = run_python("""
         from envs.interop.dm_control import load
         load("cartpole", "swingup")
         try:
             load("cartpole", "swingup", renders=True)
         except RuntimeError as error:
             print(error)
-    """)], capture_output=True, text=True, timeout=120, env=environment)
+    """, MUJOCO_GL=None)
     assert "cannot render: set MUJOCO_GL=egl before the process first imports dm_control" in result.stdout, \
         result.stderr
 

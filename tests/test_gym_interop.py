@@ -393,9 +393,11 @@ def test_missing_gymnasium_is_a_clear_import_error(monkeypatch):
 
 
 def run_python(code, **env_vars):
+    """`code` in a fresh Python with `env_vars` over this environment (None: the variable unset)."""
+    environment = {k: v for k, v in {**os.environ, **env_vars}.items() if v is not None}
     return subprocess.run(
         [sys.executable, "-c", textwrap.dedent(code)],
-        check=False, capture_output=True, text=True, timeout=120, env={**os.environ, **env_vars},
+        check=False, capture_output=True, text=True, timeout=120, env=environment,
     )
 
 

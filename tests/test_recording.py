@@ -392,14 +392,14 @@ def test_every_dm_control_domain_draws_its_scene_where_c_mujoco_puts_its_geoms(t
     scene with every geom type drawn, and the file holds each moving geom where C MuJoCo's
     kinematics puts it along a random-action run."""
     pytest.importorskip("dm_control")
-    first_of_each = {}
+    first_of_each = {}  # domain -> its first task's model
     for name, *_ in envs.TASKS:
         if name.startswith("dmc-"):
-            first_of_each.setdefault(envs.make(name).unwrapped.domain, name)
+            task = envs.make(name).unwrapped
+            first_of_each.setdefault(task.domain, task.mj_model)
     assert len(first_of_each) == 16
     rng = np.random.default_rng(0)
-    for domain, name in first_of_each.items():
-        model = envs.make(name).unwrapped.mj_model
+    for domain, model in first_of_each.items():
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # a geom type the scene cannot draw warns
             geoms = recording.scene_from_model(model)

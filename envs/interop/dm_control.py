@@ -39,7 +39,7 @@ import jax
 import mujoco
 import numpy as np
 
-from envs.core import Env
+from envs.core import Env, Wrapper
 from envs.registry import make, options
 
 # The fields mujoco 4.0.0 dropped that dm_control 1.0.50's generated `sizes.array_sizes` (built
@@ -462,9 +462,9 @@ class Camera:
         """The camera of `env`'s `Pixels` wrapper; None for an env observed by its state."""
         from envs.pixels import Pixels
 
-        while env is not None and not isinstance(env, Pixels):
-            env = vars(env).get("env")
-        if env is None:
+        while isinstance(env, Wrapper) and not isinstance(env, Pixels):
+            env = env.env
+        if not isinstance(env, Pixels):
             return None
         if env.depth:
             raise ValueError("returns_on_dm_control: a pixel env with depth=True; dm_control's judge draws RGB "
