@@ -16,9 +16,9 @@ def on_cpu(platform: str | None = None) -> bool:
     return (platform or jax.default_backend()) == "cpu"
 
 
-def default_seed_axis(platform: str | None = None) -> str:
-    """How `train_run` batches seeds (`agents.run.seed_batched`): `lax.map` on the CPU, vmapped elsewhere."""
-    return "map" if on_cpu(platform) else "vmap"
+def default_seed_axis(platform: str | None = None, learner: Any = None) -> str:
+    """Seeds vmapped, but mapped on the CPU and for image networks, whose vmapped convolutions a GPU groups slowly."""
+    return "map" if on_cpu(platform) or getattr(learner, "image_shape", None) is not None else "vmap"
 
 
 def vectorized_replay(platform: str | None = None) -> bool:

@@ -255,8 +255,8 @@ class _Run:
         self.final_evaluation = self.every_seed = None
         with self.rules.tracing() as after_traces:
             inputs, init_program, init_args = self._lower_state(after_traces)
-            train_program, judge_program = self._lower_chunk(record_episode, seed_axis or default_seed_axis(),
-                                                             after_traces)
+            train_program, judge_program = self._lower_chunk(
+                record_episode, seed_axis or default_seed_axis(learner=self.learner), after_traces)
             self.params_shape = self.placement.abstract(self.ts.best_params)
             if self.evaluates and self.rules.on_warp:  # compiled with the others, before any Warp kernel runs
                 self.final_evaluation = _in_background(

@@ -1,8 +1,9 @@
 """Where a pixel PPO training step's time goes, and what batching seeds costs it: PPO's unrolls
 alone (`collect`: render, physics and the policy's CNN) and its whole training step (the unrolls,
 then `num_updates_per_batch` passes of minibatch SGD through both CNNs), for a task's "pixels"
-recipe (`agents/brax_defaults.py`) and its camera defaults, with seeds vmapped (as `mjxsuite train
---seeds N` runs them on a GPU) or one after another (`lax.map`, as on a CPU).
+recipe (`agents/brax_defaults.py`) and its camera defaults, with seeds vmapped or one after another
+(`lax.map`, as `mjxsuite train --seeds N` runs image networks' seeds since this benchmark measured it:
+`agents.device_options.default_seed_axis`).
 
 Vmapping a CNN over the seeds' parameters turns each convolution, and each of its gradients, into a
 grouped one (`feature_group_count` = seeds); each record counts them in the training step's HLO

@@ -17,6 +17,7 @@ import pytest
 import envs
 from agents import brax_defaults
 from agents.commands import UsageError
+from agents.device_options import default_seed_axis
 from agents.commands import agent_config as _agent_config
 from agents.commands import choose_agent as _choose_agent
 from agents.ppo import PPO, PPOConfig, image_shape
@@ -97,6 +98,15 @@ def test_dm_control_tasks_from_pixels_take_the_pixel_recipe_with_drqv2s_goal():
     assert _agent_config("dmc-cartpole-swingup", "ppo", None, {}, None, None).num_envs == 2048
     assert _agent_config("dmc-finger-spin", "ppo", None, {}, None, None, observation="pixels").solve_return is None
     assert set(brax_defaults.DRQV2_SCORES) <= {name for name, *_ in envs.TASKS}
+
+
+def test_a_gpu_maps_the_seeds_of_image_networks_and_vmaps_the_others():
+    """Vmapped over seeds' parameters, every convolution and its gradients become grouped ones, which a GPU
+    runs slower than the seeds one after another (docs/bench-gpu.json, "pixel-ppo-speed")."""
+    pixel_ppo, state_ppo = PPO(TINY, envs.make(TASK, **PIXELS)), PPO(TINY, envs.make(TASK))
+    assert default_seed_axis("gpu", pixel_ppo) == "map"
+    assert default_seed_axis("gpu", state_ppo) == default_seed_axis("gpu") == "vmap"
+    assert default_seed_axis("cpu", state_ppo) == "map"
 
 
 def test_pixels_on_a_discrete_task_get_one_truthful_message_from_every_agent_and_the_api():
