@@ -23,10 +23,12 @@ from __future__ import annotations
 import argparse
 import json
 import re
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
+from agents.checkpoint import atomic_write
 from benchmarks.td3_speed import _parse_set, _timed
 
 
@@ -39,8 +41,9 @@ def grouped_convolutions(hlo: str) -> dict[str, int]:
 
 
 def measure(env_name: str, impl: str, seeds: int, seed_axis: str, env_options: dict, overrides: dict,
-            repeats: int) -> dict:
-    """One record: the unrolls' and the whole training step's seconds and env-steps/s over all seeds."""
+            repeats: int, save=lambda record: None) -> dict:
+    """One record: the unrolls' and the whole training step's seconds and env-steps/s over all seeds;
+    `save` gets it after each part, so a run stopped early keeps what it measured."""
     import envs
     from agents import brax_defaults
     from agents.ppo import PPO, PPOConfig
@@ -61,10 +64,12 @@ def measure(env_name: str, impl: str, seeds: int, seed_axis: str, env_options: d
               "env_options": env_options, "overrides": overrides, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "env_steps_per_training_step": config.env_steps_per_training_step,
               **grouped_convolutions(programs["training_step"].lower(ts).as_text())}
-    for part, program in programs.items():  # each printed as it is done: a run stopped early keeps it
+    save(record)
+    for part, program in programs.items():
         first, seconds = _timed(program, ts, repeats=repeats)
         record.update({f"{part}_compile_and_first_s": first, f"{part}_s": seconds,
                        f"{part}_env_steps_per_s": seeds * config.env_steps_per_training_step / seconds})
+        save(record)
         print(json.dumps({k: record[k] for k in ("env", "seeds", "seed_axis", f"{part}_s", f"{part}_env_steps_per_s")}),
               flush=True)
     return record
@@ -85,12 +90,14 @@ def main(argv=None) -> None:
     args = parser.parse_args(argv)
     env_options, overrides = dict(map(_parse_set, args.env_opts)), dict(map(_parse_set, args.sets))
     records = []
+
+    def save(record):
+        if args.json:
+            atomic_write(Path(args.json), json.dumps(records + [record], indent=1).encode())
+
     for seeds in args.seeds:
         for seed_axis in args.seed_axes if seeds > 1 else ["vmap"]:  # one seed runs unbatched either way
-            records.append(measure(args.env, args.impl, seeds, seed_axis, env_options, overrides, args.repeats))
-            if args.json:
-                with open(args.json, "w") as out:
-                    json.dump(records, out, indent=1)
+            records.append(measure(args.env, args.impl, seeds, seed_axis, env_options, overrides, args.repeats, save))
 
 
 if __name__ == "__main__":
