@@ -54,10 +54,10 @@ def warp_faked(monkeypatch):
     monkeypatch.setattr(mjx_warp, "shared_buffers", lambda data: {})
     in_worlds = []
 
-    def step_worlds_faked(self, physics, data):  # MJX's Warp step takes a leading world axis
+    def step_worlds_faked(self, physics, data):  # the task's physics sees every world at once, as under Warp
         in_worlds.append(True)
         try:
-            return jax.vmap(lambda world: physics(self.mjx_model, world))(data)
+            return physics(self.mjx_model, data)
         finally:
             in_worlds.pop()
 
@@ -65,11 +65,14 @@ def warp_faked(monkeypatch):
     monkeypatch.setattr(mjx_warp.WarpWorlds, "overflow", staticmethod(lambda data: jax.numpy.zeros(())))
     # MJX refuses a Warp model in every function but its step and forward, which run only inside the
     # worlds (`WarpWorlds.run`): here each of them refuses the Warp-shaped model outside the worlds.
+    # Inside them, MJX's Warp step and forward take the worlds' leading axis: here JAX's, vmapped over it.
     for name in [name for name in MJX_PHYSICS if hasattr(mjx, name)]:
         def refusing(model, *args, _real=getattr(mjx, name), _name=name, **kwargs):
-            if isinstance(model.opt._impl, WarpShapedOption) and not in_worlds:
+            if not isinstance(model.opt._impl, WarpShapedOption):
+                return _real(model, *args, **kwargs)
+            if not in_worlds or _name not in ("step", "forward"):
                 raise ValueError(f"{_name} requires JAX backend implementation (the Warp model outside WarpWorlds.run)")
-            return _real(model, *args, **kwargs)
+            return jax.vmap(lambda world: _real(model, world, **kwargs))(*args)
         monkeypatch.setattr(mjx, name, refusing)
 
 
@@ -177,3 +180,22 @@ def test_the_warp_renderer_draws_the_states_positions_and_its_episodes_target(wa
     # dm_control's pictures show its skybox; a task of our own keeps Warp's black background.
     assert contexts and all(options["render_skybox"] for options in contexts)
     assert not envs.make("cartpole-swingup-mjx").unwrapped.render_skybox
+
+
+@pytest.mark.slow
+def test_dm_controls_touch_readings_under_warp_are_the_last_substeps_as_under_jax(warp_faked):
+    """dm_control's legacy step keeps the last substep's acceleration-stage readings (touch, force,
+    accelerometer) while it refreshes the rest (`DmControlEnv.refresh`). Under impl="warp" that code
+    sees every world at once; indexing the worlds' axis in place of the sensors' kept nothing, so the
+    observation read the refreshed state's touch, and policies of finger, hopper, quadruped and
+    manipulator trained under Warp saw other readings than dm_control's."""
+    under_jax, under_warp = envs.make("dmc-finger-spin"), envs.make("dmc-finger-spin", impl="warp")
+    steps = [jax.jit(env.step) for env in (under_jax, under_warp)]
+    states = [jax.jit(env.reset)(jax.random.PRNGKey(0)) for env in (under_jax, under_warp)]
+    actions = np.random.default_rng(0).uniform(-1, 1, (60, under_jax.action_size)).astype(np.float32)
+    touched = 0
+    for action in actions:
+        states = [step(state, action) for step, state in zip(steps, states)]
+        np.testing.assert_allclose(states[1].obs, states[0].obs, rtol=1e-5, atol=1e-5)
+        touched += bool(np.any(np.asarray(states[0].obs[-2:]) > 0))  # the last two: log1p of the touches
+    assert touched  # the readings compared were not all zero

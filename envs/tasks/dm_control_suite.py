@@ -224,10 +224,10 @@ class DmControlEnv(MjxEnv):
     def refresh(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         """What dm_control's `mj_step1` after the substeps recomputes: kinematics, the position and
         velocity stages and their sensors; the acceleration-stage sensors stay the step's."""
-        if self.impl == "warp":
+        if self.impl == "warp":  # inside the worlds (`WarpWorlds.run`): a leading axis of worlds
             fresh = mjx.forward(model, data)
-            return fresh.replace(sensordata=fresh.sensordata.at[self._acc_sensors].set(
-                data.sensordata[self._acc_sensors]))
+            return fresh.replace(sensordata=fresh.sensordata.at[..., self._acc_sensors].set(
+                data.sensordata[..., self._acc_sensors]))
         data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
         return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
 
