@@ -146,20 +146,34 @@ GYMNASIUM_TASKS = ["half-cheetah", "hopper", "walker2d", "ant", "humanoid", "swi
                    "inverted-pendulum", "inverted-double-pendulum"]
 
 
+def rollout(env_name: str, impl: str, steps: int, num_envs: int = 4):
+    """(observations, rewards) of `num_envs` envs over `steps` uniform random actions."""
+    env = VmapWrapper(envs.make(env_name, impl=impl), num_envs)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size), minval=-1, maxval=1)
+
+    def run(key):
+        def step(state, action):
+            state = env.step(state, action)
+            return state, (state.obs, state.reward)
+
+        return jax.lax.scan(step, env.reset(key), actions)[1]
+
+    return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
+
+
 @pytest.mark.parametrize("env_name", GYMNASIUM_TASKS)
 def test_gymnasium_tasks_step_alike_under_both_implementations(env_name):
     """What lets a run trained with impl="warp" act anywhere with impl="jax" (`checkpoint.saved_env`):
     4 envs, 10 random steps, the same observations and rewards to float32 contact rounding."""
-    def rollout(impl):
-        env = VmapWrapper(envs.make(env_name, impl=impl), 4)
-        actions = jax.random.uniform(jax.random.PRNGKey(1), (10, 4, env.action_size), minval=-1, maxval=1)
+    (warp_obs, warp_reward), (jax_obs, jax_reward) = rollout(env_name, "warp", 10), rollout(env_name, "jax", 10)
+    np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
+    np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
 
-        def run(key):
-            return jax.lax.scan(lambda s, a: (env.step(s, a), (env.step(s, a).obs, env.step(s, a).reward)),
-                                env.reset(key), actions)[1]
 
-        return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
-
-    (warp_obs, warp_reward), (jax_obs, jax_reward) = rollout("warp"), rollout("jax")
+def test_dm_controls_touch_readings_under_warp_are_the_last_substeps():
+    """dm_control's legacy step keeps the last substep's touch readings (`DmControlEnv.refresh`), under
+    MuJoCo Warp too: finger spin's observations, touch included, as with impl="jax" over 60 steps."""
+    (warp_obs, warp_reward), (jax_obs, jax_reward) = (rollout("dmc-finger-spin", impl, 60) for impl in ("warp", "jax"))
+    assert np.any(jax_obs[..., -2:] > 0)  # the last two entries, log1p of the touches, were compared touching
     np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
     np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
