@@ -161,13 +161,21 @@ def rollout(env_name: str, impl: str, steps: int, num_envs: int = 4):
     return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
 
 
+def assert_alike_under_both(env_name: str, steps: int, num_envs: int = 4) -> np.ndarray:
+    """`rollout` under impl="warp" and impl="jax": the same observations and rewards to float32 contact
+    rounding; returns impl="jax"'s observations."""
+    (warp_obs, warp_reward), (jax_obs, jax_reward) = (rollout(env_name, impl, steps, num_envs)
+                                                      for impl in ("warp", "jax"))
+    np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
+    np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
+    return jax_obs
+
+
 @pytest.mark.parametrize("env_name", GYMNASIUM_TASKS)
 def test_gymnasium_tasks_step_alike_under_both_implementations(env_name):
     """What lets a run trained with impl="warp" act anywhere with impl="jax" (`checkpoint.saved_env`):
     4 envs, 10 random steps, the same observations and rewards to float32 contact rounding."""
-    (warp_obs, warp_reward), (jax_obs, jax_reward) = rollout(env_name, "warp", 10), rollout(env_name, "jax", 10)
-    np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
-    np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
+    assert_alike_under_both(env_name, 10)
 
 
 # One task of each dm_control domain that steps under Warp, and finger turn's per-episode target.
@@ -182,16 +190,12 @@ DM_CONTROL_TASKS = ["dmc-acrobot-swingup", "dmc-ball-in-cup-catch", "dmc-cartpol
 def test_dm_control_tasks_step_alike_under_both_implementations(env_name):
     """A run trained with impl="warp" sees what impl="jax", the proofs' physics, gives: 2 envs, 30 random
     steps, the same observations and rewards to float32 contact rounding."""
-    (warp_obs, warp_reward), (jax_obs, jax_reward) = rollout(env_name, "warp", 30, 2), rollout(env_name, "jax", 30, 2)
-    np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
-    np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
+    assert_alike_under_both(env_name, 30, num_envs=2)
 
 
 @pytest.mark.slow
 def test_dm_controls_touch_readings_under_warp_are_the_last_substeps():
     """dm_control's legacy step keeps the last substep's touch readings (`DmControlEnv.refresh`), under
     MuJoCo Warp too: finger spin's observations, touch included, as with impl="jax" over 60 steps."""
-    (warp_obs, warp_reward), (jax_obs, jax_reward) = (rollout("dmc-finger-spin", impl, 60) for impl in ("warp", "jax"))
+    jax_obs = assert_alike_under_both("dmc-finger-spin", 60)
     assert np.any(jax_obs[..., -2:] > 0)  # the last two entries, log1p of the touches, were compared touching
-    np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
-    np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
