@@ -23,5 +23,4 @@ def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["DQN", "DQNConfig", "PPO", "PPOConfig", "SAC", "SACConfig", "TD3", "TD3Config", "load_policy", "train",
-           "train_run"]
+__all__ = sorted(_LAZY)

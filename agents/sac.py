@@ -53,8 +53,48 @@ def check_prefill(config) -> None:
                          "lower min_replay_size or raise num_timesteps")
 
 
+class ReplayTiming:
+    """A replay agent's run in env steps, from its config's num_timesteps, num_envs, min_replay_size and
+    num_evals: a first fill, then chunks of iterations that step every env once (SAC's and TD3's)."""
+
+    @property
+    def prefill_steps(self) -> int:
+        """Env steps of the first fill: `min_replay_size` rounded up to whole batches, as Brax's SAC."""
+        return self.prefill_iterations * self.num_envs
+
+    @property
+    def prefill_iterations(self) -> int:
+        return -(-self.min_replay_size // self.num_envs)
+
+    @property
+    def iterations_per_chunk(self) -> int:
+        """Brax's `num_training_steps_per_epoch`: the steps after the first fill over the chunks, rounded up."""
+        return -(-(self.num_timesteps - self.prefill_steps) // (self.num_chunks * self.num_envs))
+
+    @property
+    def eval_every(self) -> int:
+        """Env steps per seed in one chunk (so `total_steps >= num_timesteps`)."""
+        return self.iterations_per_chunk * self.num_envs
+
+    num_chunks = PPOConfig.num_chunks  # one evaluation after each chunk, as PPO's
+    eval_episodes = PPOConfig.eval_episodes
+
+    @property
+    def total_steps(self) -> int:
+        """Env steps per seed of the whole run: the first fill and every chunk."""
+        return self.prefill_steps + self.num_chunks * self.eval_every
+
+    def rounding(self) -> str:
+        """How `num_timesteps` became `total_steps` ("" when it needed no rounding)."""
+        if self.total_steps == self.num_timesteps:
+            return ""
+        return (f"num_timesteps {self.num_timesteps:,} rounded up to {self.total_steps:,} env steps: a first fill of "
+                f"{self.prefill_steps:,} (min_replay_size over {self.num_envs} envs), then {self.num_chunks} chunks of "
+                f"{self.iterations_per_chunk:,} steps of every env")
+
+
 @dataclasses.dataclass(frozen=True)
-class SACConfig:
+class SACConfig(ReplayTiming):
     """Every hyperparameter of a run, named as in `brax.training.agents.sac.train`. After the first fill, each
     iteration steps every env once; the run is `num_evals - 1` chunks, each ended by an evaluation."""
 
@@ -92,41 +132,6 @@ class SACConfig:
             raise ValueError(f"SACConfig.max_replay_size ({self.max_replay_size}) must hold at least batch_size "
                              f"({self.batch_size}), min_replay_size ({self.min_replay_size}) and num_envs "
                              f"({self.num_envs}) transitions; raise it to {need} or more")
-
-    @property
-    def prefill_steps(self) -> int:
-        """Env steps of the first fill: `min_replay_size` rounded up to whole batches, as Brax's SAC."""
-        return self.prefill_iterations * self.num_envs
-
-    @property
-    def prefill_iterations(self) -> int:
-        return -(-self.min_replay_size // self.num_envs)
-
-    @property
-    def iterations_per_chunk(self) -> int:
-        """Brax's `num_training_steps_per_epoch`: the steps after the first fill over the chunks, rounded up."""
-        return -(-(self.num_timesteps - self.prefill_steps) // (self.num_chunks * self.num_envs))
-
-    @property
-    def eval_every(self) -> int:
-        """Env steps per seed in one chunk (so `total_steps >= num_timesteps`)."""
-        return self.iterations_per_chunk * self.num_envs
-
-    num_chunks = PPOConfig.num_chunks  # one evaluation after each chunk, as PPO's
-    eval_episodes = PPOConfig.eval_episodes
-
-    @property
-    def total_steps(self) -> int:
-        """Env steps per seed of the whole run: the first fill and every chunk."""
-        return self.prefill_steps + self.num_chunks * self.eval_every
-
-    def rounding(self) -> str:
-        """How `num_timesteps` became `total_steps` ("" when it needed no rounding)."""
-        if self.total_steps == self.num_timesteps:
-            return ""
-        return (f"num_timesteps {self.num_timesteps:,} rounded up to {self.total_steps:,} env steps: a first fill of "
-                f"{self.prefill_steps:,} (min_replay_size over {self.num_envs} envs), then {self.num_chunks} chunks of "
-                f"{self.iterations_per_chunk:,} steps of every env")
 
 
 # ---- transitions: one packed float row, so the buffer does one gather per sample ----

@@ -24,7 +24,7 @@ from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
 from agents.ppo import scale_by_adam
 from agents.replay import UniformReplay
-from agents.sac import (SAC, SACConfig, Transition, check_layer_widths, check_prefill, continuous_setup, example_row,
+from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup, example_row,
                         pack, polyak, prefill, sample_batches, step_envs, unpack)
 from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
@@ -34,7 +34,7 @@ COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 
 @dataclasses.dataclass(frozen=True)
-class TD3Config:
+class TD3Config(ReplayTiming):
     """Every hyperparameter of a run, timed as `agents.sac.SACConfig`'s. The defaults suit small tasks on a
     CPU; FastTD3's own (for a GPU) are in the comments and in `agents/brax_defaults.py`'s TD3 rows."""
 
@@ -61,6 +61,9 @@ class TD3Config:
     use_cdq: bool = True  # clipped double Q
     num_steps: int = 1  # n-step returns (FastTD3's num_steps; 3 in its CheetahRun, 8 in its IsaacLab humanoids)
     init_scale: float = 0.01  # std of the actor's last layer at initialisation
+    # The actor's loss adds this times its pre-tanh outputs' mean square (rlkit's SAC: 1e-3; FastTD3: 0). At a bound
+    # tanh's gradient vanishes, so the critic's cannot pull a saturated actor back; this term can.
+    pre_tanh_penalty: float = 0.0
     actor_hidden: tuple[int, ...] = (128, 64, 32)  # FastTD3: (512, 256, 128)
     critic_hidden: tuple[int, ...] = (256, 128, 64)  # FastTD3: (1024, 512, 256)
     critic_layer_norm: bool = False  # LayerNorm before each critic ReLU (FastTD3's authors suggest it for DMC)
@@ -78,7 +81,7 @@ class TD3Config:
         "tau": Range(0.0, 1.0, low_open=True), "reward_scaling": POSITIVE, "policy_noise": NON_NEGATIVE,
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
-        "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
+        "pre_tanh_penalty": NON_NEGATIVE, "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
         "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
     }
 
@@ -100,16 +103,6 @@ class TD3Config:
                              f"min_replay_size ({self.min_replay_size}) and num_envs ({self.num_envs}) "
                              f"transitions; raise it to {need} or more")
 
-    # The run's timing is SAC's, field for field.
-    prefill_steps = SACConfig.prefill_steps
-    prefill_iterations = SACConfig.prefill_iterations
-    iterations_per_chunk = SACConfig.iterations_per_chunk
-    eval_every = SACConfig.eval_every
-    num_chunks = SACConfig.num_chunks
-    eval_episodes = SACConfig.eval_episodes
-    total_steps = SACConfig.total_steps
-    rounding = SACConfig.rounding
-
     @property
     def actor_updates_per_chunk(self) -> int:
         return self.iterations_per_chunk * self.num_updates // self.policy_frequency
@@ -129,13 +122,14 @@ class Actor(nn.Module):
     dtype: Any = jnp.float32
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> jax.Array:
+    def __call__(self, obs: jax.Array, with_pre_tanh: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
         x = obs
         for width in self.hidden:
             x = nn.relu(_dense(width, self.dtype)(x))
         # A small last layer: the untrained actor acts near zero, and exploration is the noise's.
         head = _dense(self.action_size, self.dtype, kernel_init=nn.initializers.normal(self.init_scale))
-        return jnp.tanh(head(x).astype(jnp.float32))
+        pre_tanh = head(x).astype(jnp.float32)
+        return (jnp.tanh(pre_tanh), pre_tanh) if with_pre_tanh else jnp.tanh(pre_tanh)
 
 
 class DistributionalQ(nn.Module):
@@ -247,8 +241,7 @@ class TD3:
         from brax.training.acme import running_statistics
         cfg = self.config
         noise_key, scale_key = jax.random.split(key)
-        normalizer, actor_params = ts.params
-        obs = ts.env_state.obs
+        (normalizer, actor_params), obs = ts.params, ts.env_state.obs
         noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
         action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
         env_state, rows, valid, stats = step_envs(self.train_env, ts.env_state, action)
@@ -288,12 +281,13 @@ class TD3:
         return loss, self.twin_values(target[0]).mean()
 
     def actor_loss(self, actor_params, ts: TrainState, batch: Transition):
-        """Minus the mean value of the actor's actions: the lower twin's with clipped double Q, else the mean."""
+        """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty."""
         normalizer, _ = ts.params
         obs = self.normalize(normalizer, batch.obs)
-        values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, self.actor.apply(actor_params, obs))))
+        action, pre_tanh = self.actor.apply(actor_params, obs, with_pre_tanh=True)
+        values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
-        return -value.mean()
+        return -value.mean() + self.config.pre_tanh_penalty * jnp.square(pre_tanh).mean()
 
     # ---- learning -----------------------------------------------------------
     def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:

@@ -176,7 +176,7 @@ LONGEST_FUNCTION = 80  # lines, in agents/ and envs/
 LONGEST_TRAIN_RUN = 60  # agents.run.train_run: the run's steps, each a method of agents.run._Run
 LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, its commands run in agents.commands
 # agents/, all its modules: a bound that only moves down (issue 64: no more than the 6.4k of its day, TD3 since added)
-LARGEST_AGENTS = 6_415
+LARGEST_AGENTS = 6_413
 
 
 def _functions(path: Path):

@@ -203,6 +203,33 @@ def test_the_layer_norm_critic_normalizes_each_hidden_layer_before_its_relu():
     assert sorted(plain) == ["Dense_0", "Dense_1", "Dense_2"]
 
 
+@pytest.mark.parametrize("penalty", [0.0, 1e-3])
+def test_the_pre_tanh_penalty_alone_pulls_a_saturated_actor_off_its_bound(penalty):
+    """With a flat critic (its last layer zeroed: every action the same value) and an actor held at
+    +1 (its head's bias 5), only the penalty moves the actor (no weight decay), towards 0."""
+    td3 = TD3(dataclasses.replace(SMALL, pre_tanh_penalty=penalty, weight_decay=0.0), drift())
+    ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+    last = f"Dense_{len(SMALL.critic_hidden)}"
+    flat = jax.tree.map(jnp.zeros_like, ts.critic_params["params"][last])
+    critic = {"params": {**ts.critic_params["params"], last: flat}}
+    normalizer, actor = ts.params
+    head = f"Dense_{len(SMALL.actor_hidden)}"
+    saturated = {"params": {**actor["params"], head: {**actor["params"][head], "bias": jnp.full(td3.action_size, 5.0)}}}
+    ts = ts.replace(params=(normalizer, saturated), critic_params=critic)
+    batch = td3_batch(td3, ts)
+    obs = td3.normalize(normalizer, batch.obs)
+    _, pre_tanh = td3.actor.apply(saturated, obs, with_pre_tanh=True)
+    loss = td3.actor_loss(saturated, ts, batch)
+    np.testing.assert_allclose(loss, -td3.twin_values(jnp.full(SMALL.num_atoms, 1 / SMALL.num_atoms))
+                               + penalty * np.mean(np.square(pre_tanh)), rtol=1e-5)
+    moved, _ = td3.step_actor(ts, batch)
+    bias = moved.params[1]["params"][head]["bias"]
+    if penalty:
+        assert np.all(np.asarray(bias) < 5.0)
+    else:
+        np.testing.assert_array_equal(bias, 5.0)
+
+
 def td3_batch(td3, ts):
     return unpack(ts.buffer.data[:8], td3.obs_size, td3.action_size)
 
