@@ -35,7 +35,7 @@ COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayTiming):
-    """Every hyperparameter of a run, timed as `agents.sac.SACConfig`'s. The defaults suit small tasks on a
+    """Every hyperparameter of a run, timed as SAC's (`agents.sac.ReplayTiming`). The defaults suit small tasks on a
     CPU; FastTD3's own (for a GPU) are in the comments and in `agents/brax_defaults.py`'s TD3 rows."""
 
     num_timesteps: int = 100_000  # env steps per seed, summed over its envs, the first fill included
@@ -282,12 +282,12 @@ class TD3:
 
     def actor_loss(self, actor_params, ts: TrainState, batch: Transition):
         """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty."""
-        normalizer, _ = ts.params
-        obs = self.normalize(normalizer, batch.obs)
+        obs = self.normalize(ts.params[0], batch.obs)
         action, pre_tanh = self.actor.apply(actor_params, obs, with_pre_tanh=True)
         values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
-        return -value.mean() + self.config.pre_tanh_penalty * jnp.square(pre_tanh).mean()
+        penalty = self.config.pre_tanh_penalty  # 0 (the default) leaves the term out of the program
+        return (penalty * jnp.square(pre_tanh).mean() if penalty else 0.0) - value.mean()
 
     # ---- learning -----------------------------------------------------------
     def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:
