@@ -288,14 +288,15 @@ def without_replay(train_state: Any) -> Any:
 def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, finished: bool = False,
                clock: dict | None = None) -> None:
     """The whole train state (a `finished` run's `without_replay`), with its own chunk count, and the best
-    parameters. `clock`: the run's seconds so far (`saved_clock`)."""
+    parameters. `clock`: the run's seconds so far (`saved_clock`), in progress.json too (read without the state)."""
     best_return = [float(r) for r in np.asarray(train_state.best_return)]
     _write_arrays(out_dir / POLICY_FILE, "best_params", train_state.best_params, {"env": env, "best_return": best_return})
     if finished:
         train_state = without_replay(train_state)
     _write_arrays(out_dir / STATE_FILE, "train_state", train_state,
                   {"env": env, "chunks_done": chunks_done, "replay_left_out": finished, "clock": clock or {}})
-    atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return}).encode())
+    atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return,
+                                                       "clock": clock or {}}).encode())
 
 
 class BackgroundSaves:

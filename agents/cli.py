@@ -254,6 +254,7 @@ def main(argv: list[str] | None = None, more: Mapping[str, Command] | None = Non
 
     from agents import signals
 
+    signals.dump_stacks_on_signal()
     if args.command not in ("train", "sweep"):
         signals.release_early()  # only a training run stops at a signal of its own accord
     try:

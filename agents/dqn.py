@@ -66,8 +66,7 @@ class DQNConfig:
         "polyak_tau": Range(0.0, 1.0, low_open=True), "target_period": COUNT, "epsilon_start": PROBABILITY,
         "epsilon_end": PROBABILITY, "exploration_steps": COUNT, "buffer_size": COUNT, "batch_size": COUNT,
         "priority_alpha": NON_NEGATIVE, "priority_beta_start": PROBABILITY, "eval_every": COUNT,
-        "eval_episodes": COUNT, "solve_return": FINITE,
-    }
+        "eval_episodes": COUNT, "solve_return": FINITE}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)

@@ -67,11 +67,9 @@ def step_stats(info: dict) -> tuple[jax.Array, dict]:
     """MuJoCo Warp's overflow code of the steps in `info` (`envs.mjx_env`) and their episode statistics."""
     overflow = info.get("overflow", jnp.zeros_like(info["nan"]))
     return overflow, {
-        "episodes": info["episode_done"].sum(),
-        "return_sum": (info["last_return"] * info["episode_done"]).sum(),
+        "episodes": info["episode_done"].sum(), "return_sum": (info["last_return"] * info["episode_done"]).sum(),
         "nan_episodes": info["nan"].sum(),
-        "overflow_contacts": (overflow % 2 == 1).sum(),
-        "overflow_constraints": (overflow >= 2).sum(),
+        "overflow_contacts": (overflow % 2 == 1).sum(), "overflow_constraints": (overflow >= 2).sum(),
     }
 
 

@@ -61,8 +61,7 @@ class PPOConfig:
         "num_minibatches": COUNT, "num_updates_per_batch": COUNT, "learning_rate": POSITIVE,
         "entropy_cost": NON_NEGATIVE, "discounting": PROBABILITY, "gae_lambda": PROBABILITY,
         "clipping_epsilon": POSITIVE, "reward_scaling": POSITIVE, "num_evals": Range(2, integer=True),
-        "num_eval_envs": COUNT,
-    }
+        "num_eval_envs": COUNT}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)

@@ -118,8 +118,7 @@ class SACConfig(ReplayTiming):
         "num_timesteps": COUNT, "num_envs": COUNT, "batch_size": COUNT, "grad_updates_per_step": COUNT,
         "learning_rate": POSITIVE, "discounting": PROBABILITY, "tau": Range(0.0, 1.0, low_open=True),
         "reward_scaling": POSITIVE, "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
-        "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
-    }
+        "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)

@@ -7,11 +7,13 @@ KeyboardInterrupt as usual.
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import signal
 import threading
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+STACKS_SIGNAL = signal.SIGUSR1  # `kill -USR1 PID`: every thread's stack to stderr (`dump_stacks_on_signal`)
 # The pid of the `agents.processes` parent of this process (`die_with_parent`).
 PARENT_PID_ENV = "MJXSUITE_PARENT_PID"
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -39,6 +41,13 @@ def _watch_parent(parent: int) -> None:
     while os.getppid() == parent:
         threading.Event().wait(1.0)
     os.kill(os.getpid(), signal.SIGTERM)
+
+
+def dump_stacks_on_signal() -> None:
+    """On STACKS_SIGNAL, every thread's stack to stderr (fd 2), by faulthandler's C handler: it answers where a
+    run stuck inside an XLA or Warp call never reaches `StopSignals`' Python handlers (docs/reliability.md)."""
+    if threading.current_thread() is threading.main_thread():
+        faulthandler.register(STACKS_SIGNAL, file=2, all_threads=True, chain=False)
 
 
 def exit_status(signum: int) -> int:

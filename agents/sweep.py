@@ -29,11 +29,8 @@ def summarize(env: str, config: Any, grid: dict[str, list[float]], seeds: int, r
         steps = [s for s in solves if s is not None]
         records.append({
             **{name: getattr(member, name) for name in grid},
-            "mean_return": returns,
-            "best_return": list(np.atleast_1d(best)[agents].tolist()),
-            "solve_step": solves,
-            "solve_rate": len(steps) / seeds,
-            "median_return": float(np.median(returns)),
+            "mean_return": returns, "best_return": list(np.atleast_1d(best)[agents].tolist()),
+            "solve_step": solves, "solve_rate": len(steps) / seeds, "median_return": float(np.median(returns)),
             "return_quartiles": [float(q) for q in np.percentile(returns, [25, 75])],
             # Unsolved seeds count as never: no median while half or more of them never solved.
             "median_solve_step": float(np.median(steps + [math.inf] * (seeds - len(steps))))

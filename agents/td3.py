@@ -82,8 +82,7 @@ class TD3Config(ReplayTiming):
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
         "pre_tanh_penalty": NON_NEGATIVE, "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
-        "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT,
-    }
+        "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)

@@ -103,11 +103,8 @@ def episode_rollout(episode: EvalEpisode) -> recording.Rollout:
     done = np.zeros(length, np.float32)
     done[-1] = float(episode.length > 0)
     return recording.Rollout(
-        obs=np.asarray(episode.obs[:length])[:, None],
-        action=np.asarray(episode.action[:length])[:, None],
-        reward=reward[:, None],
-        done=done[:, None],
-        episode_return=(done * reward.sum())[:, None],
-        episode_length=(done * length)[:, None],
+        obs=np.asarray(episode.obs[:length])[:, None], action=np.asarray(episode.action[:length])[:, None],
+        reward=reward[:, None], done=done[:, None],
+        episode_return=(done * reward.sum())[:, None], episode_length=(done * length)[:, None],
         scene_qpos=None if episode.scene_qpos is None else np.asarray(episode.scene_qpos[:length])[:, None],
     )

@@ -41,11 +41,15 @@ from pathlib import Path
 
 import numpy as np
 
+from agents import signals
 from benchmarks import reliability
 
 # The environment the trainings start with: main() lets this process's own JAX (the judge's small
 # policies) take GPU memory only as it needs it, and the trainings keep JAX's defaults.
 _GIVEN_ENVIRONMENT = dict(os.environ)
+# After its Ctrl-C a training saves its checkpoint and exits; one still running SAVE_WAIT_S later (or
+# EXIT_WAIT_S after a second interrupt) is stuck, and is killed STACKS_WAIT_S after its stacks are asked for.
+SAVE_WAIT_S, EXIT_WAIT_S, STACKS_WAIT_S = 120.0, 30.0, 5.0
 
 
 def reference_of(env_name: str) -> str | None:
@@ -136,18 +140,29 @@ def stop(started: list[tuple[dict, subprocess.Popen]], timeout: float | None) ->
             training.send_signal(signal.SIGINT)
     for record, training in started:
         try:
-            training.wait(timeout=120)
+            try:
+                training.wait(timeout=SAVE_WAIT_S)
+            except KeyboardInterrupt:  # a second Ctrl-C, or an outer time bound's: the trainings got it too
+                record["interrupted"] = (f"{record.get('interrupted', 'running')}, then a second interrupt while it "
+                                         "saved: its last saved chunk stands")
+                training.wait(timeout=EXIT_WAIT_S)
         except subprocess.TimeoutExpired:
-            training.kill()
-            training.wait()
-        except KeyboardInterrupt:  # a second Ctrl-C, or an outer time bound's: the trainings got it too
-            record["interrupted"] = (f"{record.get('interrupted', 'running')}, then a second interrupt while it "
-                                     "saved: its last saved chunk stands")
-            training.wait()
+            kill_unresponsive(training, record)
         record["wall_s"] = time.perf_counter() - record.pop("started")
         if training.returncode != 0 and "interrupted" not in record:
             record["skipped"] = f"exit status {training.returncode}"
     return [record for record, _ in started]
+
+
+def kill_unresponsive(training: subprocess.Popen, record: dict) -> None:
+    """End a training that did not stop when asked: its threads' stacks first, into its log
+    (`agents.signals.dump_stacks_on_signal`), then SIGKILL; its last saved chunk stands."""
+    training.send_signal(signals.STACKS_SIGNAL)
+    time.sleep(STACKS_WAIT_S)
+    training.kill()
+    training.wait()
+    record["interrupted"] = (f"{record.get('interrupted', 'running')}; it did not stop when asked, so it was "
+                             "killed after printing its threads' stacks: its last saved chunk stands")
 
 
 def describe(record: dict) -> dict:
@@ -173,12 +188,25 @@ def describe(record: dict) -> dict:
     if (out_dir / "eval.json").exists():
         summary = json.loads((out_dir / "eval.json").read_text())
         record.update(return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),
-                      compile_s=summary.get("compile_s"))
+                      compile_s=summary.get("compile_s"), wall_parts_s=summary.get("wall_parts_s"))
     else:  # interrupted: the best evaluation during training stands in for the final one
         record["return_here"] = max((float(np.max(r["eval_return"])) for r in evaluations), default=None)
+        record["wall_parts_s"] = saved_time_split(out_dir)
     if not (out_dir / checkpoint.POLICY_FILE).exists():  # stopped before its first checkpoint
         return {**record, "skipped": "stopped before any trained parameters were evaluated and saved"}
     return record
+
+
+def saved_time_split(out_dir: Path) -> dict | None:
+    """The run's seconds by part (setup, compile, train, judge, save, ...) at its last checkpoint; None where
+    its progress.json predates the clock it now carries."""
+    from agents import checkpoint
+
+    try:
+        progress = json.loads((out_dir / checkpoint.PROGRESS_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return (progress.get("clock") or {}).get("wall_parts_s")
 
 
 def judge(record: dict, episodes: int) -> dict:

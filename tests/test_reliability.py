@@ -69,3 +69,27 @@ def test_gym_training_keeps_the_records_when_a_second_interrupt_arrives_while_th
     assert [r["out"] for r in records] == ["run0", "run1"] and all(r["wall_s"] > 0 for r in records)
     assert "second interrupt" in records[0]["interrupted"] and records[1]["interrupted"] == "stopped after 0 s"
     assert not any("skipped" in r for r in records)
+
+
+def test_gym_training_kills_a_training_that_does_not_stop_and_keeps_its_stacks(monkeypatch):
+    """A training stuck where its Python handlers never run (here: one that ignores SIGINT) would hold
+    the benchmark, and the GPU, for good: after SAVE_WAIT_S it prints its threads' stacks through
+    `agents.signals.dump_stacks_on_signal` (faulthandler's C handler) and is killed, its record saying so."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    child = ("import signal, time\nfrom agents import signals\nsignals.dump_stacks_on_signal()\n"
+             "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+             "def stuck_in_a_device_call():\n    while True: time.sleep(0.05)\n"
+             "print('ready', flush=True)\nstuck_in_a_device_call()\n")
+    training = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert training.stdout.readline() == "ready\n"
+    monkeypatch.setattr(gym_training, "SAVE_WAIT_S", 0.5)
+    monkeypatch.setattr(gym_training, "STACKS_WAIT_S", 1.0)
+    start = time.perf_counter()
+    [record] = gym_training.stop([({"out": "run0", "started": start}, training)], timeout=0.0)
+    assert training.returncode == -signal.SIGKILL and time.perf_counter() - start < 30
+    assert "did not stop when asked" in record["interrupted"] and "skipped" not in record
+    assert "stuck_in_a_device_call" in training.stderr.read()

@@ -94,6 +94,21 @@ def test_a_resumed_run_keeps_its_runs_cadence_and_ends_as_the_uninterrupted_one(
         train_run("cartpole", SMALL, out_dir=tmp_path / "part", progress=False, resume=True, judge_every=1)
 
 
+def test_an_interrupted_runs_time_split_is_read_from_progress_json_without_its_train_state(tmp_path):
+    """A run stopped before its end has no eval.json, and its train state may be too large to keep;
+    progress.json carries the clock of its last checkpoint, which `gym_training.describe` reports."""
+    from benchmarks import gym_training
+
+    train_run("cartpole", SMALL, out_dir=tmp_path / "part", progress=False, stop_after_chunks=2, judge_every=1)
+    (tmp_path / "part" / checkpoint.STATE_FILE).unlink()  # as the GPU benchmarks bring runs back
+    progress = json.loads((tmp_path / "part" / checkpoint.PROGRESS_FILE).read_text())
+    parts = progress["clock"]["wall_parts_s"]
+    assert set(parts) == set(WALL_PARTS) and parts["train"] > 0
+    assert progress["clock"]["wall_s"] >= sum(parts.values()) - 1e-6
+    record = gym_training.describe({"out": str(tmp_path / "part")})
+    assert record["wall_parts_s"] == parts and "eval.json" not in os.listdir(tmp_path / "part")
+
+
 def test_wall_s_and_solve_wall_s_span_every_session_of_a_resumed_run(tmp_path):
     """Cases 28 and 56: after a --resume, eval.json's wall_s, its parts and solve_wall_s count the
     sessions before it too (the clock each checkpoint saves), not the resumed session alone."""
