@@ -69,8 +69,7 @@ def step_stats(info: dict) -> tuple[jax.Array, dict]:
     return overflow, {
         "episodes": info["episode_done"].sum(), "return_sum": (info["last_return"] * info["episode_done"]).sum(),
         "nan_episodes": info["nan"].sum(),
-        "overflow_contacts": (overflow % 2 == 1).sum(), "overflow_constraints": (overflow >= 2).sum(),
-    }
+        "overflow_contacts": (overflow % 2 == 1).sum(), "overflow_constraints": (overflow >= 2).sum()}
 
 
 def episode_metrics(totals: dict) -> dict:

@@ -31,6 +31,7 @@ from envs.registry import is_mjx_task
 
 # The parts of a run's wall time, as eval.json's `wall_parts_s` and the command's last line name them.
 WALL_PARTS = ("start-up", "compile", "train", "judge", "saves", "evaluation", "other")
+CLOCK_KEYS = ("steps_per_s", "judge_s")  # a chunk's record's seconds: the same run's differ from session to session
 
 
 @dataclass
@@ -439,7 +440,8 @@ class _Run:
         ahead = self._dispatched(self.ts) if look and not judging else None  # the device trains on meanwhile
         record = {k: np.asarray(v).tolist() for k, v in placement.to_host(metrics).items()}
         if judging:
-            self.judge_clock.judged(time.perf_counter() - trained_at)
+            record["judge_s"] = time.perf_counter() - trained_at
+            self.judge_clock.judged(record["judge_s"])
             if look:  # after the judge's results reached the host, whose seconds are the judge's
                 ahead = self._dispatched(self.ts)
         self.result.train_s += trained_at - tick

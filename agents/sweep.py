@@ -34,8 +34,7 @@ def summarize(env: str, config: Any, grid: dict[str, list[float]], seeds: int, r
             "return_quartiles": [float(q) for q in np.percentile(returns, [25, 75])],
             # Unsolved seeds count as never: no median while half or more of them never solved.
             "median_solve_step": float(np.median(steps + [math.inf] * (seeds - len(steps))))
-            if 2 * len(steps) > seeds else None,
-        })
+            if 2 * len(steps) > seeds else None})
     return {"env": env, "seeds": seeds, "swept": list(grid), "configs": records, "wall_s": result.wall_s,
             "compile_s": result.compile_s, "devices": result.devices,
             "solve_return": config.solve_return, "total_steps": config.total_steps}

@@ -181,10 +181,11 @@ def describe(record: dict) -> dict:
                   jax=jax.__version__)
     metrics = out_dir / "metrics.jsonl"
     evaluations = [json.loads(text) for text in metrics.read_text().splitlines()] if metrics.exists() else []
-    curve_keys = ("env_steps", "eval_return", "steps_per_s", "overflow_contacts", "overflow_constraints")
+    overflow_keys = ("overflow_contacts", "overflow_constraints")
+    curve_keys = ("env_steps", "eval_return", "steps_per_s", "judge_s", *overflow_keys)
     record["evaluations"] = [{key: r.get(key) for key in curve_keys} for r in evaluations]
     # Training env-steps (of the most-overflowing seed, summed over chunks) that MuJoCo Warp's buffers could not hold.
-    record["overflowed_steps"] = int(sum(np.max(r.get(key, 0)) for r in evaluations for key in curve_keys[3:]))
+    record["overflowed_steps"] = int(sum(np.max(r.get(key, 0)) for r in evaluations for key in overflow_keys))
     if (out_dir / "eval.json").exists():
         summary = json.loads((out_dir / "eval.json").read_text())
         record.update(return_here=float(np.mean(summary["mean_return"])), train_wall_s=summary.get("wall_s"),

@@ -22,7 +22,7 @@ from flax import serialization
 import envs
 from agents import DQN, DQNConfig, checkpoint, processes, train_run
 from agents.cli import main as cli_main
-from agents.run import seed_keys
+from agents.run import CLOCK_KEYS, seed_keys
 
 # Slow run: subprocess runs stopped by signals and kill -9 (the fast run is `make test`'s five minutes; docs/claims.md).
 pytestmark = pytest.mark.slow
@@ -50,7 +50,7 @@ def final_state(out):
 
 def metrics_without_timings(out):
     records = [json.loads(line) for line in (out / checkpoint.METRICS_FILE).read_text().splitlines()]
-    return [{k: v for k, v in r.items() if k != "steps_per_s"} for r in records]
+    return [{k: v for k, v in r.items() if k not in CLOCK_KEYS} for r in records]
 
 
 def assert_same_run(out, reference):

@@ -48,6 +48,7 @@ def test_a_cadence_judges_the_same_chunks_and_always_the_last():
 def _judged_chunks(out):
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     assert all("env_steps" in r for r in records)  # every chunk says where the run stands
+    assert all(("judge_s" in r) == ("eval_return" in r) and r.get("judge_s", 1) > 0 for r in records)  # its seconds
     return [r["chunk"] for r in records if "eval_return" in r]
 
 

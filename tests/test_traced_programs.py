@@ -14,7 +14,7 @@ import pytest
 import envs
 from agents import jax_compile_cache, traced_programs
 from agents.dqn import DQN, DQNConfig
-from agents.run import key_parts as agent_key_parts, seed_keys, train_run
+from agents.run import CLOCK_KEYS, key_parts as agent_key_parts, seed_keys, train_run
 
 # Slow run: processes that load each other's traced programs (the fast run is `make test`'s five minutes; docs/claims.md).
 pytestmark = pytest.mark.slow
@@ -49,8 +49,8 @@ def leaves(tree) -> list[np.ndarray]:
 
 
 def assert_same_run(a, b):
-    drop_speed = [{k: v for k, v in r.items() if k != "steps_per_s"} for r in a.history]
-    assert drop_speed == [{k: v for k, v in r.items() if k != "steps_per_s"} for r in b.history]
+    drop_speed = [{k: v for k, v in r.items() if k not in CLOCK_KEYS} for r in a.history]
+    assert drop_speed == [{k: v for k, v in r.items() if k not in CLOCK_KEYS} for r in b.history]
     assert a.mean_return == b.mean_return
     for x, y in zip(leaves(a.train_state), leaves(b.train_state), strict=True):
         np.testing.assert_array_equal(x, y)
