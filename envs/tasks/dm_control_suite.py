@@ -225,9 +225,14 @@ class DmControlEnv(MjxEnv):
         """What dm_control's `mj_step1` after the substeps recomputes: kinematics, the position and
         velocity stages and their sensors; the acceleration-stage sensors stay the step's."""
         if self.impl == "warp":  # inside the worlds (`WarpWorlds.run`): a leading axis of worlds
-            fresh = mjx.forward(model, data)
+            # MJX offers Warp's forward pass, not its stages: with the constraint stage disabled it
+            # skips collision and the solve, which mj_step1's stages never reach; the acceleration
+            # stage (qacc, its warm start, constraint forces, sensors) stays the step's.
+            flags = model.opt.disableflags | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+            fresh = mjx.forward(model.tree_replace({"opt.disableflags": flags}), data)
             return fresh.replace(sensordata=fresh.sensordata.at[..., self._acc_sensors].set(
-                data.sensordata[..., self._acc_sensors]))
+                data.sensordata[..., self._acc_sensors]), qacc=data.qacc, qacc_warmstart=data.qacc_warmstart,
+                qfrc_constraint=data.qfrc_constraint)
         data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
         return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
 
