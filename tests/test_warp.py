@@ -199,3 +199,22 @@ def test_dm_controls_touch_readings_under_warp_are_the_last_substeps():
     MuJoCo Warp too: finger spin's observations, touch included, as with impl="jax" over 60 steps."""
     jax_obs = assert_alike_under_both("dmc-finger-spin", 60)
     assert np.any(jax_obs[..., -2:] > 0)  # the last two entries, log1p of the touches, were compared touching
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_name", ["dmc-cheetah-run", "dmc-finger-spin"])
+def test_the_refresh_without_the_constraint_stage_gives_a_whole_forward_passes_observations(env_name, monkeypatch):
+    """Under Warp, `DmControlEnv.refresh` skips collision and the solve (mj_step1 never reaches them):
+    the observations and rewards, finger's touch included, are those of a whole forward pass, bit for bit."""
+    from envs.tasks.dm_control_suite import DmControlEnv
+
+    def whole_forward(self, model, data):
+        fresh = mjx_env.mjx.forward(model, data)
+        return fresh.replace(sensordata=fresh.sensordata.at[..., self._acc_sensors].set(
+            data.sensordata[..., self._acc_sensors]))
+
+    skipped = rollout(env_name, "warp", 40, num_envs=2)
+    monkeypatch.setattr(DmControlEnv, "refresh", whole_forward)
+    whole = rollout(env_name, "warp", 40, num_envs=2)
+    np.testing.assert_array_equal(skipped[0], whole[0])
+    np.testing.assert_array_equal(skipped[1], whole[1])
