@@ -44,11 +44,11 @@ _FASTTD3 = dict(num_envs=1024, batch_size=32768, num_updates=2, policy_frequency
                 noise_clip=0.5, std_min=0.001, std_max=0.4, num_atoms=101, init_scale=0.01,
                 actor_hidden=(512, 256, 128), critic_hidden=(1024, 512, 256), compute_dtype="bfloat16",
                 min_replay_size=10 * 1024, max_replay_size=1 << 20, num_evals=11)
-# The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env,
-# beat PPO's by far, finger turn_easy's as the finger's spin (docs/agents.md, "Per-task recipes"; docs/tasks.md).
+# The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env, beat
+# PPO's by far, or met the goal where PPO's did not (docs/agents.md, "Which off-policy learner"; docs/tasks.md).
 DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", **dict.fromkeys((
-    "dmc-walker-stand", "dmc-walker-walk", "dmc-finger-spin", "dmc-finger-turn-easy", "dmc-cheetah-run",
-    "dmc-pendulum-swingup"), "td3")}
+    "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-finger-turn-easy", "dmc-cheetah-run",
+    "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run"), "td3")}
 
 SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     # Gymnasium's Pendulum-v1 (solved at -200). Measured here.
@@ -155,11 +155,11 @@ _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # and the LayerNorm critic its authors suggest for DMC: without it, seeds' actors saturate and stand still (docs/tasks.md).
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
                 num_timesteps=10_240_000, critic_layer_norm=True)
-# Per task over _DMC_TD3: lqr's rewards fall below 0; the pendulum's swing-up outlasts discount 0.97's horizon (on a
-# CPU, 0.99 learned it where 0.97 did not); finger spin's seeds without rlkit's pre-tanh penalty mostly held their
-# actuators at the bounds, never touching the spinner (docs/tasks.md).
+# Per task over _DMC_TD3 (docs/tasks.md): lqr's rewards fall below 0; the swing-ups outlast discount 0.97's horizon (0.99
+# learned both); finger spin's seeds without rlkit's pre-tanh penalty mostly held their actuators at the bounds.
 _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(v_min=-35.0),
-                  "dmc-pendulum-swingup": dict(discounting=0.99, v_max=100.0), "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
+                  **dict.fromkeys(("dmc-pendulum-swingup", "dmc-cartpole-swingup"), dict(discounting=0.99, v_max=100.0)),
+                  "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
@@ -240,9 +240,9 @@ def cpu_total_steps(task: str, agent: str) -> int:
     return registry.config_class(agent)(**cpu_settings(task, agent)).total_steps
 
 
-def default_agent(task: str) -> str:
-    """The agent a continuous task trains with when --agent is not given."""
-    return DEFAULT_AGENT.get(task, "ppo")
+def default_agent(task: str, pixels: bool = False) -> str:
+    """The agent a continuous task trains with when --agent is not given (PPO from camera images)."""
+    return "ppo" if pixels else DEFAULT_AGENT.get(task, "ppo")
 
 
 def pixel_env_options(task: str, options: dict[str, Any]) -> dict[str, Any]:

@@ -82,7 +82,7 @@ def choose_agent(env_name: str, agent: str | None, env_opts: dict) -> str:
     from agents import brax_defaults, registry
 
     env = envs.spec(env_name, **env_opts)  # not envs.make: an MJX task would load MJX and take a device
-    agent = agent or ("dqn" if env.num_actions is not None else brax_defaults.default_agent(env_name))
+    agent = agent or ("dqn" if env.num_actions is not None else brax_defaults.default_agent(env_name, env.pixels))
     why = registry.misfit(agent, env_name, env.num_actions, env.action_size, env.pixels)
     if why:
         raise UsageError(why)
