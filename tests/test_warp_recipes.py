@@ -72,7 +72,10 @@ def warp_faked(monkeypatch):
                 return _real(model, *args, **kwargs)
             if not in_worlds or _name not in ("step", "forward"):
                 raise ValueError(f"{_name} requires JAX backend implementation (the Warp model outside WarpWorlds.run)")
-            return jax.vmap(lambda world: _real(model, world, **kwargs))(*args)
+            out = jax.vmap(lambda world: _real(model, world, **kwargs))(*args)
+            # Warp's contact and constraint buffers keep their sizes whatever the model's flags (a refresh
+            # without the constraint stage); JAX's follow the flags, so a leaf that changed size keeps its old.
+            return jax.tree.map(lambda new, old: new if new.shape == old.shape else old, out, args[0])
         monkeypatch.setattr(mjx, name, refusing)
 
 
