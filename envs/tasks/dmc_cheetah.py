@@ -11,7 +11,8 @@ installed package.
   at zero control to let it settle, the clock back at 0 (dm_control's `initialize_episode`). As in
   dm_control, the first of those steps integrates the accelerations of `mj_resetData`'s state
   (qpos0 at rest, whose `mj_forward` ran before the joints were drawn) from the drawn joints.
-  The settling steps' line search stops after 8 iterations (`SETTLE_LS_ITERATIONS`; MuJoCo's 50).
+  The settling steps' line search stops after 8 iterations (`SETTLE_LS_ITERATIONS`; MuJoCo's 50);
+  under impl="warp", the settling steps after the first are MuJoCo Warp's, with MuJoCo's settings.
 - Episode: 1,000 steps (10 s simulated), never terminated.
 """
 
@@ -46,8 +47,21 @@ class DmcCheetahRun(DmControlEnv):
         model = self.settle_model  # MJX's JAX implementation under either impl (mjx.euler is JAX's alone)
         rest = mjx.forward(model, self.reset_data)
         first = mjx.euler(model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
-        settled = jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(model, d), first)
+        settled = self._settle(first)
         return settled.qpos, settled.qvel
+
+    def _settle(self, first):
+        """The settling steps after the first, by the implementation that steps the env. Under
+        impl="warp" they run on MuJoCo Warp's worlds, whose solver and line search stop where each
+        world converged; MJX-JAX's batched line search runs every iteration (`SETTLE_LS_ITERATIONS`)."""
+        def settle(model, data):
+            return jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(model, d), data)
+
+        if self._warp is None:
+            return settle(self.settle_model, first)
+        worlds = self._warp.without_shared(self._initial_data)
+        start = worlds.replace(qpos=first.qpos, qvel=first.qvel, qacc_warmstart=first.qacc_warmstart)
+        return self._warp.run(settle, self.mjx_model, start)
 
     @property
     def settle_model(self):
