@@ -44,11 +44,17 @@ from benchmarks import env_throughput, gym_mujoco
 from benchmarks.peers import PeerMissing, version
 
 # Playground 0.2.0's look-alike of each task (its own XML, timestep and solver settings).
-PLAYGROUND_NAMES = {"cheetah-run": "CheetahRun", "walker-walk": "WalkerWalk", "walker-run": "WalkerRun",
-                    "humanoid-walk": "HumanoidWalk", "hopper-hop": "HopperHop", "cartpole-swingup": "CartpoleSwingup",
-                    "finger-spin": "FingerSpin", "reacher-easy": "ReacherEasy", "ball-in-cup-catch": "BallInCup",
-                    "acrobot-swingup": "AcrobotSwingup", "pendulum-swingup": "PendulumSwingup",
-                    "fish-swim": "FishSwim", "swimmer-swimmer6": "SwimmerSwimmer6"}
+# Every task of ours that Playground 0.2.0 registers a look-alike of (its dm_control_suite `_envs`).
+PLAYGROUND_NAMES = {"acrobot-swingup": "AcrobotSwingup", "acrobot-swingup-sparse": "AcrobotSwingupSparse",
+                    "ball-in-cup-catch": "BallInCup", "cartpole-balance": "CartpoleBalance",
+                    "cartpole-balance-sparse": "CartpoleBalanceSparse", "cartpole-swingup": "CartpoleSwingup",
+                    "cartpole-swingup-sparse": "CartpoleSwingupSparse", "cheetah-run": "CheetahRun",
+                    "finger-spin": "FingerSpin", "finger-turn-easy": "FingerTurnEasy", "finger-turn-hard": "FingerTurnHard",
+                    "fish-swim": "FishSwim", "hopper-hop": "HopperHop", "hopper-stand": "HopperStand",
+                    "humanoid-stand": "HumanoidStand", "humanoid-walk": "HumanoidWalk", "humanoid-run": "HumanoidRun",
+                    "pendulum-swingup": "PendulumSwingup", "point-mass-easy": "PointMass", "reacher-easy": "ReacherEasy",
+                    "reacher-hard": "ReacherHard", "swimmer-swimmer6": "SwimmerSwimmer6", "walker-stand": "WalkerStand",
+                    "walker-walk": "WalkerWalk", "walker-run": "WalkerRun"}
 # MuJoCo Warp's overflow bits that mean dropped contacts or constraint rows (`envs.mjx_warp`).
 _DROPPED = envs.mjx_warp.CONTACT_OVERFLOW | envs.mjx_warp.CONSTRAINT_OVERFLOW
 
