@@ -18,11 +18,13 @@ installed package.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.mjx_env import mjx
+from envs.mjx_env import mjx, physics_steps
 from envs.tasks.dm_control_suite import DmControlEnv, tolerance
 
 RUN_SPEED = 10.0  # dm_control's _RUN_SPEED (m/s)
@@ -54,9 +56,7 @@ class DmcCheetahRun(DmControlEnv):
         """The settling steps after the first, by the implementation that steps the env. Under
         impl="warp" they run on MuJoCo Warp's worlds, whose solver and line search stop where each
         world converged; MJX-JAX's batched line search runs every iteration (`SETTLE_LS_ITERATIONS`)."""
-        def settle(model, data):
-            return jax.lax.fori_loop(0, SETTLE_STEPS - 1, lambda _, d: mjx.step(model, d), data)
-
+        settle = functools.partial(physics_steps, substeps=SETTLE_STEPS - 1)
         if self._warp is None:
             return settle(self.settle_model, first)
         worlds = self._warp.without_shared(self._initial_data)
