@@ -17,7 +17,10 @@ Playground's alternate at each size and the figure is the median after a warm-up
 
     python -m benchmarks.dmc_speed [--tasks cheetah-run walker-walk humanoid-walk]
         [--sizes 4096 32768] [--impls warp jax] [--no-dm-control] [--repeats 3] [--json FILE]
+        [--opt FIELD=VALUE ...] [--profile DIR]
 
+`--opt` sets a solver option of ours (what dm_control's settings cost); `--profile` traces one
+stepping run of each side under `jax.profiler` and adds kernel launches and kernel time per step.
 On a CPU it is a smoke test (`--sizes 4 --steps 3 --impls jax`).
 """
 
@@ -40,7 +43,7 @@ import numpy as np
 
 import envs
 from agents.env_options import parse_opt_field
-from benchmarks import env_throughput, gym_mujoco
+from benchmarks import env_throughput, gpu_profile, gym_mujoco
 from benchmarks.peers import PeerMissing, version
 
 # Playground 0.2.0's look-alike of each task (its own XML, timestep and solver settings).
@@ -128,7 +131,7 @@ def _timed(function, *args) -> tuple[float, object]:
 
 
 def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repeats: int,
-            opt: dict | None = None) -> list[dict]:
+            opt: dict | None = None, profile: str | None = None) -> list[dict]:
     """Ours and Playground's at one batch size and each impl, their timed runs alternating. Each
     record gives the reset's seconds, the steps/s of stepping alone, and `episode_steps_per_s`:
     one episode of every env, its reset included, which is what an agent waits for."""
@@ -165,7 +168,24 @@ def measure(task: str, num_envs: int, impls, playground: bool, steps: int, repea
         record["steps_per_s"] = num_envs * steps / statistics.median(record["run_s"])
         episode = num_envs * record["episode_steps"]
         record["episode_steps_per_s"] = episode / (statistics.median(record["reset_s"]) + episode / record["steps_per_s"])
+    if profile:
+        _profiled(runs, profile, steps)
     return records
+
+
+def _profiled(runs, directory: str, steps: int) -> None:
+    """One more stepping run of each under `jax.profiler`: its kernels, summed (`gpu_profile.summary`),
+    as `record["profile"]`, with kernel launches and kernel microseconds per control step."""
+    key = jax.random.PRNGKey(0)
+    for reset, run, record in runs:
+        where = os.path.join(directory, f"{record['lib']}-{record['env']}-{record['impl']}-{record['num_envs']}")
+        state = jax.block_until_ready(reset(key))
+        with gpu_profile.traced(where):
+            _timed(run, state, key)
+        found = gpu_profile.summary(where)
+        if "launches" in found:
+            found |= {"launches_per_step": found["launches"] / steps, "kernel_us_per_step": found["kernel_s"] / steps * 1e6}
+        record["profile"] = found
 
 
 def _dm_control_worker(args) -> float:
@@ -257,6 +277,8 @@ def main(argv=None) -> None:
     parser.add_argument("--no-dm-control", action="store_true")
     parser.add_argument("--opt", action="append", default=[], metavar="FIELD=VALUE",
                         help="a solver option of ours (e.g. iterations=4), to measure what dm_control's settings cost")
+    parser.add_argument("--profile", metavar="DIR", help="also trace one stepping run of each under jax.profiler into DIR "
+                        "and add its kernels (launches and kernel time per step, the top kernels) to the records")
     parser.add_argument("--json", help="also write the records to this file")
     args = parser.parse_args(argv)
     fields = [o.partition("=")[::2] for o in args.opt]
@@ -269,7 +291,7 @@ def main(argv=None) -> None:
     _print(found, [])
     for num_envs in args.sizes:
         measured = measure(task, num_envs, args.impls, not args.no_playground,
-                           args.steps or gym_mujoco.steps_for(num_envs), args.repeats, opt)
+                           args.steps or gym_mujoco.steps_for(num_envs), args.repeats, opt, args.profile)
         found += measured
         _print(measured, [r for r in ratios(found) if r["num_envs"] == num_envs])
         if args.json:  # after every size: a run stopped part-way keeps what it measured
@@ -282,6 +304,10 @@ def _print(records: list[dict], found_ratios: list[dict]) -> None:
                   if r["steps_per_s"] else f"  skipped: {r.get('skipped')}")
         print(f"{r['lib']:<11}{r['env']:<20}{r.get('impl', 'C'):<6}{r['num_envs']:>7}{figure}"
               f"{env_throughput.overflow_note(r)}", flush=True)
+        if "launches_per_step" in r.get("profile", {}):
+            p = r["profile"]
+            print(f"{'':<11}profile: {p['launches_per_step']:.0f} kernel launches and {p['kernel_us_per_step']:.0f} us of "
+                  f"kernels per step, GPU busy {p['busy']:.0%} of the span", flush=True)
     for r in found_ratios:
         print(f"{r['env']} impl={r['impl']} {r['num_envs']} envs / {r['peer']}: {r['ratio']:.2f}x over episodes,"
               f" {r['step_ratio']:.2f}x stepping", flush=True)

@@ -109,6 +109,15 @@ def test_bad_options_are_refused_before_anything_compiles(overrides, message, mo
         envs.make("cartpole-mjx", **overrides)
 
 
+def test_checked_opt_checks_again_to_itself():
+    """An enum given by name becomes its integer, which a second check (the env's, after the CLI's) keeps."""
+    checked = envs.mjx_options.check_opt({"integrator": "euler", "cone": "elliptic", "iterations": 4})
+    assert checked == {"integrator": 0, "cone": 1, "iterations": 4}
+    assert envs.mjx_options.check_opt(checked) == checked
+    with pytest.raises(ValueError, match="opt.integrator must be one of"):
+        envs.mjx_options.check_opt({"integrator": 7})
+
+
 def test_njmax_needs_warp():
     with pytest.raises(ValueError, match=r"\['njmax'\] size MuJoCo Warp's buffers; they need impl='warp'"):
         envs.make("cartpole-mjx", njmax=64)
