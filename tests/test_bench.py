@@ -202,10 +202,32 @@ def test_dmc_speed_runs_on_the_cpu_with_tiny_sizes(tmp_path):
 
     out = tmp_path / "dmc.json"
     dmc_speed.main(["--tasks", "cheetah-run", "--sizes", "2", "--steps", "3", "--impls", "jax", "--repeats", "1",
-                    "--no-playground", "--json", str(out)])
+                    "--no-playground", "--json", str(out), "--profile", str(tmp_path / "trace")])
     speeds = {r["lib"]: r for r in json.loads(out.read_text()) if r["kind"] == "dmc-speed"}
     assert set(speeds) == {"mjxsuite", "dm_control"} and all(r["steps_per_s"] > 0 for r in speeds.values())
     assert speeds["mjxsuite"]["control_timestep"] == 0.01 and speeds["mjxsuite"]["overflow_steps"] == 0
+    assert speeds["mjxsuite"]["profile"] == {"error": "no device events in the trace", "processes": 0}  # a CPU has none
+    assert list((tmp_path / "trace").rglob("*.trace.json.gz"))
+
+
+def test_gpu_profile_sums_the_devices_kernels_by_name(tmp_path):
+    """`gpu_profile.summary` reads a Perfetto trace: the GPU process's kernel events, summed by name,
+    and how busy the span between the first kernel's start and the last one's end was."""
+    import gzip
+
+    from benchmarks import gpu_profile
+
+    events = [{"ph": "M", "name": "process_name", "pid": 1, "args": {"name": "/device:GPU:0"}},
+              {"ph": "M", "name": "process_name", "pid": 2, "args": {"name": "/host:CPU"}},
+              {"ph": "X", "pid": 1, "name": "kinematics", "ts": 0, "dur": 1000},  # microseconds
+              {"ph": "X", "pid": 1, "name": "kinematics", "ts": 2000, "dur": 1000},
+              {"ph": "X", "pid": 1, "name": "memcpy32_post", "ts": 3500, "dur": 500},
+              {"ph": "X", "pid": 2, "name": "host work", "ts": 0, "dur": 1000}]
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "x.trace.json.gz").write_bytes(gzip.compress(json.dumps({"traceEvents": events}).encode()))
+    found = gpu_profile.summary(tmp_path)
+    assert found["launches"] == 3 and found["kernel_s"] == 0.0025 and found["span_s"] == 0.004 and found["busy"] == 0.625
+    assert [(k["name"], k["count"]) for k in found["top"]] == [("kinematics", 2), ("memcpy32_post", 1)]
 
 
 def test_pixel_ppo_speed_counts_the_grouped_convolutions_that_vmapped_seeds_make():
