@@ -55,6 +55,31 @@ def test_auto_reset_batch_follows_jax(env_name):
         np.testing.assert_allclose(final_obs("warp", reset_by_index), final_obs("jax", reset_by_index), atol=1e-4)
 
 
+def test_on_a_gpu_a_warp_batch_resets_by_index_to_the_selects_states(monkeypatch):
+    """A Warp env's reset is Warp's forward pass, so on a GPU too its batch resets only the envs
+    that ended and, under a vmap over seeds, decides once for all of them; the states are those of
+    the select that builds a fresh episode for every env on every step."""
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    env = envs.make("cartpole-mjx", impl="warp")
+    across = BatchedAutoReset(env, 16, under_vmap=True)
+    selected = BatchedAutoReset(env, 16, reset_by_index=False, under_vmap=True)
+    assert across.reset_by_index and across.reset_across_vmap and not selected.reset_by_index
+    actions = jax.random.randint(jax.random.PRNGKey(1), (100, 16), 0, env.num_actions)
+
+    def run(wrapped, key):
+        def body(state, action):
+            state = wrapped.step(state, action)
+            return state, (state.obs, state.done)
+
+        return jax.lax.scan(body, wrapped.reset(key), actions)[1]
+
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    obs, done = jax.jit(jax.vmap(lambda key: run(selected, key)))(keys)
+    assert 20 < int(done.sum()) < 2 * 16 * 100 / 2  # many episodes end, on some steps only
+    for a, b in zip(jax.jit(jax.vmap(lambda key: run(across, key)))(keys), (obs, done)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 @pytest.mark.parametrize("seeds, seed_axis", [(1, None), (2, "vmap"), (2, "map")])
 def test_dqn_trains_with_warp_as_with_jax(seeds, seed_axis):
     """One seed runs unbatched, vmapped seeds batch the evaluation's while loop (whose batched
