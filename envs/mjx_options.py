@@ -89,7 +89,8 @@ def _check_value(field: str, value: Any, task: str) -> Any:
         names = enum_names(field)
         if isinstance(value, str) and value.lower() in names:
             return int(getattr(enum, prefix + value.upper()))
-        if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and int(value) in [int(e) for e in enum.__members__.values()]:
+        members = [int(e) for e in enum.__members__.values()]  # a pybind enum type is not iterable
+        if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and int(value) in members:
             return int(value)
         raise ValueError(f"{where} must be one of {names} (case-insensitive) or its integer value, got {value!r}")
     if isinstance(default, np.ndarray):

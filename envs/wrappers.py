@@ -144,8 +144,8 @@ class BatchedAutoReset(Wrapper):
 
     An env whose reset is costly (`costly_reset = True`: `envs.pixels.Pixels` renders a frame,
     dm_control's cheetah settles for 200 physics steps; and every env under MuJoCo Warp, whose
-    reset runs Warp's forward pass, as many kernels as most of a step) resets by index on every backend, so a
-    step resets the envs that ended rather than every env. `under_vmap` (the agents vmap their
+    reset runs Warp's forward pass, as many kernels as most of a step) resets by index on every
+    backend, so a step resets the envs that ended rather than every env. `under_vmap` (the agents vmap their
     seeds), where a switch would run all three branches, the switch decides once for every env
     of every seed (`envs.batching.folds_vmap`): a step on which no episode ended anywhere does no
     reset work, and the states are the same.
