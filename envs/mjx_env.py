@@ -228,6 +228,13 @@ class MjxEnv(Env):
         return type(self).__name__
 
     @property
+    def costly_reset(self) -> bool:
+        """Under MuJoCo Warp a reset runs Warp's forward pass, as many kernels as most of a step, so an
+        auto-reset batch resets only where an episode ended (`envs.BatchedAutoReset`). A task whose reset
+        runs physics or a rejection loop sets it True under either impl."""
+        return self.impl == "warp"
+
+    @property
     def action_low(self) -> np.ndarray:
         """Gymnasium's action space: each actuator's ctrlrange (-1 where it has none)."""
         limited = self.mj_model.actuator_ctrllimited.astype(bool)

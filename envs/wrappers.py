@@ -16,7 +16,6 @@ import jax.numpy as jnp
 from envs.batching import folds_vmap
 from envs.core import Env, State, Wrapper
 from envs.episode_keys import episode_keys, next_episode_key
-from envs.mjx_warp import runs_warp
 
 # Info entries that describe the transition just taken; an auto-reset keeps
 # them instead of taking the fresh episode's values.
@@ -143,10 +142,10 @@ class BatchedAutoReset(Wrapper):
     the same section), nor for envs whose `batch_of_one_as_scalars` is False (MJX's).
 
     An env whose reset is costly (`costly_reset = True`: `envs.pixels.Pixels` renders a frame,
-    dm_control's cheetah settles for 200 physics steps; and every env under MuJoCo Warp, whose
-    reset runs Warp's forward pass, as many kernels as most of a step) resets by index on every
-    backend, so a step resets the envs that ended rather than every env. `under_vmap` (the agents vmap their
-    seeds), where a switch would run all three branches, the switch decides once for every env
+    dm_control's cheetah settles for 200 physics steps; every MJX env under MuJoCo Warp, whose
+    reset runs Warp's forward pass) resets by index on every backend, so a step resets the envs
+    that ended rather than every env. `under_vmap` (the agents vmap their seeds), where a switch
+    would run all three branches, the switch decides once for every env
     of every seed (`envs.batching.folds_vmap`): a step on which no episode ended anywhere does no
     reset work, and the states are the same.
     """
@@ -160,7 +159,7 @@ class BatchedAutoReset(Wrapper):
         self.max_resets = max(1, num_envs // 16) if max_resets is None else max_resets
         if not 1 <= self.max_resets <= num_envs:
             raise ValueError(f"max_resets must be in [1, num_envs={num_envs}], got {max_resets}")
-        costly_reset = getattr(env, "costly_reset", False) or runs_warp(env)
+        costly_reset = getattr(env, "costly_reset", False)
         if reset_by_index is None:
             reset_by_index = jax.default_backend() == "cpu" or costly_reset
         self.reset_by_index = reset_by_index

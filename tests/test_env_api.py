@@ -206,8 +206,9 @@ def test_a_costly_reset_under_a_vmap_over_seeds_decides_for_every_seed_at_once(m
     across = envs.BatchedAutoReset(env, num_envs, max_resets=1, under_vmap=True)
     selected = envs.BatchedAutoReset(env, num_envs, reset_by_index=False, under_vmap=True)
     assert across.reset_across_vmap and not envs.BatchedAutoReset(envs.make("cartpole"), 8, under_vmap=True).reset_by_index
-    on_warp = envs.make("cartpole")  # under MuJoCo Warp a reset is Warp's forward pass: costly
-    monkeypatch.setattr(type(on_warp.unwrapped), "impl", "warp", raising=False)
+    on_warp = envs.make("cartpole-mjx")  # under MuJoCo Warp a reset is Warp's forward pass: costly
+    assert not envs.BatchedAutoReset(on_warp, 8, under_vmap=True).reset_by_index
+    monkeypatch.setattr(on_warp.unwrapped, "impl", "warp")
     assert envs.BatchedAutoReset(on_warp, 8, under_vmap=True).reset_across_vmap
 
     def run(wrapped, key):

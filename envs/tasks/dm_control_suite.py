@@ -167,10 +167,10 @@ class DmControlEnv(MjxEnv):
     control_timestep: ClassVar[float | None] = None  # the domain's _CONTROL_TIMESTEP (None: one step)
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
-    # A reset that runs physics (cheetah's settling steps) or a rejection loop (collision tests until
-    # nothing touches): an auto-reset batch then resets only where an episode ended
-    # (`envs.BatchedAutoReset`); dm_control's episodes all end at 1,000 steps together.
-    costly_reset: ClassVar[bool] = False
+    # A task whose reset runs physics (cheetah's settling steps) or a rejection loop (collision tests
+    # until nothing touches) sets `costly_reset = True` (`MjxEnv.costly_reset`: under impl="warp" every
+    # task's is): an auto-reset batch then resets only where an episode ended (`envs.BatchedAutoReset`);
+    # dm_control's episodes all end at 1,000 steps together.
     # `state.info` entries holding per-episode model edits (reacher's target), which
     # `envs.interop.dm_control` hands to `put_episode` to make the same edits in dm_control's physics.
     episode_info: ClassVar[tuple[str, ...]] = ()
