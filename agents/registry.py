@@ -37,8 +37,9 @@ def name_of(config: Any) -> str:
     raise TypeError(f"{type(config).__name__} is not the config of an agent ({', '.join(AGENTS)})")
 
 
-# The agents with a network for camera images (Brax's vision networks): no agent trains a discrete task from pixels.
-PIXEL_AGENTS = ("ppo",)
+# The agents with a network for camera images (PPO: Brax's vision networks; TD3: DrQ-v2's encoder): no agent
+# trains a discrete task from pixels.
+PIXEL_AGENTS = ("ppo", "td3")
 
 
 def misfit(agent: str, env_name: str, num_actions: int | None, action_size: int | None, pixels: bool) -> str | None:
@@ -47,9 +48,9 @@ def misfit(agent: str, env_name: str, num_actions: int | None, action_size: int 
     discrete = num_actions is not None
     if pixels and discrete:
         return (f"{env_name} with observation=pixels: no agent trains camera images with discrete actions "
-                f"(DQN has no network for camera images, and PPO, the one agent with one, acts on continuous "
+                f"(DQN has no network for camera images, and PPO and TD3, which have one, act on continuous "
                 f"actions only); train {env_name} from its state with --agent dqn (drop observation=pixels), or "
-                "camera images of a continuous task with --agent ppo (e.g. --env cartpole-balance-mjx)")
+                "camera images of a continuous task with --agent ppo or td3 (e.g. --env cartpole-balance-mjx)")
     fits = ("dqn",) if discrete else ("ppo", "sac", "td3")
     if agent not in fits:
         kind = f"discrete ({num_actions} actions)" if discrete else f"continuous ({action_size} action values)"
@@ -57,7 +58,7 @@ def misfit(agent: str, env_name: str, num_actions: int | None, action_size: int 
                 + ("" if discrete else " (or a discrete variant of the task with dqn)"))
     if pixels and agent not in PIXEL_AGENTS:
         return (f"--agent {agent} has no network for camera images (--env-opt observation=pixels); train them "
-                "with --agent ppo, or drop observation=pixels")
+                "with --agent ppo or td3, or drop observation=pixels")
     return None
 
 

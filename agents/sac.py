@@ -164,28 +164,30 @@ def continuous_setup(agent, config, env: Env) -> None:
     agent.obs_size, agent.action_size = env.observation_size, env.action_size
 
 
-def example_row(env_state, action_size: int) -> jax.Array:
-    """One packed row shaped as the envs' transitions: what the buffer is allocated from."""
+def example_transition(env_state, action_size: int) -> Transition:
+    """One transition shaped as the envs' (the first env's): what the buffer is allocated from."""
     obs, reward = env_state.obs[0], env_state.reward[0]
-    return pack(Transition(obs, jnp.zeros((action_size,), jnp.float32), reward, reward, obs))
+    return Transition(obs, jnp.zeros((action_size,), jnp.float32), reward, reward, obs)
 
 
 def step_envs(train_env, env_state, action):
-    """One step of every env: its new state, the packed transitions, which may be stored, and the episode stats."""
+    """One step of every env: its new state, the transitions, which may be stored, and the episode stats."""
     obs = env_state.obs
     env_state = train_env.step(env_state, action)
     info = env_state.info
     terminated = env_state.done * (1.0 - info["truncation"])
-    rows = pack(Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"]))
+    steps = Transition(obs, action, env_state.reward, 1.0 - terminated, info["final_obs"])
     overflow, stats = evaluation.step_stats(info)
-    return env_state, rows, (info["nan"] == 0) & (overflow == 0), stats
+    return env_state, steps, (info["nan"] == 0) & (overflow == 0), stats
 
 
 def sample_batches(agent, ts, key: jax.Array, count: int) -> Transition:
-    """`count` uniform batches of the config's `batch_size` from `agent`'s buffer, leading axis: batch."""
+    """`count` uniform batches of the config's `batch_size` from `agent`'s buffer (packed rows, or transitions
+    as stored), leading axis: batch."""
     batch_size = agent.config.batch_size
     rows, _ = agent.buffer.sample_from_bits(ts.buffer, jax.random.bits(key, (count * batch_size,), jnp.uint32))
-    return unpack(rows.reshape(count, batch_size, -1), agent.obs_size, agent.action_size)
+    rows = jax.tree.map(lambda x: x.reshape(count, batch_size, *x.shape[1:]), rows)
+    return rows if isinstance(rows, Transition) else unpack(rows, agent.obs_size, agent.action_size)
 
 
 def polyak(target, online, tau: float):
@@ -265,8 +267,8 @@ class SAC:
         normalizer, policy_params = ts.params
         obs = ts.env_state.obs
         action, _ = self.make_policy(ts.params)(obs, key)
-        env_state, rows, valid, stats = step_envs(self.train_env, ts.env_state, action)
-        buffer = self.buffer.add(ts.buffer, rows, mask=valid)
+        env_state, steps, valid, stats = step_envs(self.train_env, ts.env_state, action)
+        buffer = self.buffer.add(ts.buffer, pack(steps), mask=valid)
         normalizer = running_statistics.update(normalizer, obs)
         ts = ts.replace(params=(normalizer, policy_params), buffer=buffer, env_state=env_state,
                         env_steps=ts.env_steps + self.config.num_envs)
@@ -333,7 +335,7 @@ class SAC:
             params=(normalizer, policy_params), q_params=q_params, target_q_params=q_params, log_alpha=log_alpha,
             policy_opt_state=self.policy_optimizer.init(policy_params), q_opt_state=self.q_optimizer.init(q_params),
             alpha_opt_state=self.alpha_optimizer.init(log_alpha),
-            buffer=self.buffer.init(example_row(env_state, self.action_size)),
+            buffer=self.buffer.init(pack(example_transition(env_state, self.action_size))),
             **first_state((normalizer, policy_params), env_state, loop_key))
         return prefill(self.collect, ts, fill_key, self.config.prefill_iterations)
 

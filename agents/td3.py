@@ -5,7 +5,9 @@ and collecting -> the critic's and the actor's losses -> one update -> one train
 Built like `agents.sac` (pure, jittable, vmapped over seeds, resumed exactly) from its shared parts.
 The recipe (many envs, twin C51 critics with clipped double Q, delayed actor updates without a target
 actor, per-env exploration noise, AdamW, optional bf16 matmuls) and where it differs from FastTD3's
-code: docs/agents.md, "TD3: FastTD3's recipe".
+code: docs/agents.md, "TD3: FastTD3's recipe". From camera images it adds DrQ-v2's parts (Yarats et al.
+2021, github.com/facebookresearch/drqv2): a convolutional encoder trained by the critics' loss alone,
+each network's trunk over its features, and random shifts of the sampled images ("TD3 from pixels").
 """
 
 from __future__ import annotations
@@ -22,10 +24,10 @@ from flax import struct
 from agents import device_options
 from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
-from agents.ppo import scale_by_adam
+from agents.ppo import image_shape, scale_by_adam
 from agents.replay import UniformReplay
-from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup, example_row,
-                        pack, polyak, prefill, sample_batches, step_envs, unpack)
+from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup,
+                        example_transition, pack, polyak, prefill, sample_batches, step_envs)
 from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
                          check_fields)
@@ -67,6 +69,10 @@ class TD3Config(ReplayTiming):
     actor_hidden: tuple[int, ...] = (128, 64, 32)  # FastTD3: (512, 256, 128)
     critic_hidden: tuple[int, ...] = (256, 128, 64)  # FastTD3: (1024, 512, 256)
     critic_layer_norm: bool = False  # LayerNorm before each critic ReLU (FastTD3's authors suggest it for DMC)
+    # From camera images (`--env-opt observation=pixels`), DrQ-v2's: each sampled image shifted by up to this many
+    # pixels, its edges repeated (0: not shifted), and each network's trunk, the encoder's features to this many.
+    augment_pad: int = 4
+    feature_size: int = 50
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
     max_replay_size: int = 100_000  # transitions per seed
@@ -81,8 +87,9 @@ class TD3Config(ReplayTiming):
         "tau": Range(0.0, 1.0, low_open=True), "reward_scaling": POSITIVE, "policy_noise": NON_NEGATIVE,
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
-        "pre_tanh_penalty": NON_NEGATIVE, "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT,
-        "max_replay_size": COUNT, "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
+        "pre_tanh_penalty": NON_NEGATIVE, "augment_pad": NON_NEGATIVE_COUNT, "feature_size": COUNT,
+        "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
+        "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)
@@ -107,11 +114,42 @@ class TD3Config(ReplayTiming):
         return self.iterations_per_chunk * self.num_updates // self.policy_frequency
 
 
-# ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits ----------
+# ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits; DrQ-v2's encoder ----
 def _dense(features: int, dtype, **kwargs) -> nn.Dense:
     # PyTorch's default layer init (FastTD3's): U(+-1/sqrt(fan_in)) kernels.
     kwargs.setdefault("kernel_init", nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform"))
     return nn.Dense(features, dtype=dtype, param_dtype=jnp.float32, **kwargs)
+
+
+def _trunk(features: jax.Array, size: int, dtype) -> jax.Array:
+    """DrQ-v2's trunk over the encoder's features (size 0: none, state observations): Dense, LayerNorm, tanh."""
+    return jnp.tanh(nn.LayerNorm(dtype=dtype)(_dense(size, dtype)(features))) if size else features
+
+
+ENCODER_STRIDES = (2, 1, 1, 1)  # DrQ-v2's four 3x3 convolutions of 32 channels, unpadded
+SMALLEST_IMAGE = 15  # pixels a side that leave its last convolution a 1x1 map
+
+
+class Encoder(nn.Module):
+    """DrQ-v2's encoder: uint8 frames to [-0.5, 0.5], `ENCODER_STRIDES`' convolutions with ReLU, flattened."""
+
+    @nn.compact
+    def __call__(self, frames: jax.Array) -> jax.Array:
+        x = frames.astype(jnp.float32) / 255.0 - 0.5
+        for stride in ENCODER_STRIDES:
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID",
+                                kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
+        return x.reshape(*x.shape[:-3], -1)
+
+
+def random_shift(key: jax.Array, frames: jax.Array, pad: int) -> jax.Array:
+    """DrQ-v2's augmentation of a batch of images (batch, H, W, C): each padded by `pad` pixels, its edges
+    repeated, and cut back to H x W at its own offset, drawn uniformly in [0, 2 pad] on each axis."""
+    height, width, channels = frames.shape[-3:]
+    padded = jnp.pad(frames, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+    offsets = jax.random.randint(key, (frames.shape[0], 2), 0, 2 * pad + 1)
+    crop = lambda image, at: jax.lax.dynamic_slice(image, (at[0], at[1], 0), (height, width, channels))
+    return jax.vmap(crop)(padded, offsets)
 
 
 class Actor(nn.Module):
@@ -119,10 +157,11 @@ class Actor(nn.Module):
     hidden: tuple[int, ...]
     init_scale: float
     dtype: Any = jnp.float32
+    trunk: int = 0  # `_trunk`'s size
 
     @nn.compact
     def __call__(self, obs: jax.Array, with_pre_tanh: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
-        x = obs
+        x = _trunk(obs, self.trunk, self.dtype)
         for width in self.hidden:
             x = nn.relu(_dense(width, self.dtype)(x))
         # A small last layer: the untrained actor acts near zero, and exploration is the noise's.
@@ -136,10 +175,11 @@ class DistributionalQ(nn.Module):
     hidden: tuple[int, ...]
     dtype: Any = jnp.float32
     layer_norm: bool = False
+    trunk: int = 0  # `_trunk`'s size
 
     @nn.compact
     def __call__(self, obs: jax.Array, action: jax.Array) -> jax.Array:
-        x = jnp.concatenate([obs, action], axis=-1)
+        x = jnp.concatenate([_trunk(obs, self.trunk, self.dtype), action], axis=-1)
         for width in self.hidden:
             x = _dense(width, self.dtype)(x)
             x = nn.relu(nn.LayerNorm(dtype=self.dtype)(x) if self.layer_norm else x)
@@ -162,25 +202,24 @@ def project(probs: jax.Array, reward: jax.Array, discount: jax.Array, support: j
     return jax.vmap(one)(probs, lower, upper, upper_share)
 
 
-def n_step_rows(window: jax.Array, obs_size: int, action_size: int, discounting: float):
-    """Each env's n-step transition from its window (n, envs, width) of one-step rows (oldest first; packed,
-    then `ended` and `valid`): rewards discounted up to the first step that ended its episode, that step's
-    next observation and `discounting**k * (1 - terminated)`. Returns the rows and whether each may be stored."""
-    steps = unpack(window[..., :-2], obs_size, action_size)
-    ended, valid = window[..., -2], window[..., -1]
+def n_step_rows(steps: Transition, ended: jax.Array, valid: jax.Array, discounting: float):
+    """Each env's n-step transition from its window of one-step transitions (leading axes: n steps, oldest first,
+    then envs) and their `ended` and `valid` flags (n, envs): rewards discounted up to the first step that ended
+    its episode, that step's next observation and `discounting**k * (1 - terminated)`. Returns the transitions
+    and whether each may be stored."""
     alive = jnp.cumprod(jnp.concatenate([jnp.ones_like(ended[:1]), 1.0 - ended[:-1]]), axis=0)  # before an end
-    powers = jnp.broadcast_to(discounting ** jnp.arange(window.shape[0], dtype=window.dtype)[:, None], ended.shape)
+    powers = jnp.broadcast_to(discounting ** jnp.arange(ended.shape[0], dtype=ended.dtype)[:, None], ended.shape)
     last = (alive.sum(0) - 1).astype(jnp.int32)  # the step the transition ends with
     pick = jax.vmap(lambda column, k: column[k], in_axes=(1, 0))  # each env's step `last`
     row = Transition(obs=steps.obs[0], action=steps.action[0], reward=(powers * alive * steps.reward).sum(0),
                      discount=pick(powers, last) * pick(steps.discount, last), next_obs=pick(steps.next_obs, last))
-    return pack(row), (alive * (1.0 - valid)).sum(0) == 0
+    return row, (alive * (1.0 - valid)).sum(0) == 0
 
 
 @struct.dataclass
 class TrainState:
-    params: Any  # (normalizer state, actor params): what `policy` and checkpoints take
-    critic_params: Any  # the twin critics, stacked on a leading axis of 2
+    params: Any  # (normalizer state, actor params): what `policy` and checkpoints take (`TD3.actor_and_encoder`)
+    critic_params: Any  # the twin critics, stacked on a leading axis of 2 (`TD3.twins_and_encoder`)
     target_critic_params: Any
     actor_opt_state: Any
     critic_opt_state: Any
@@ -192,7 +231,7 @@ class TrainState:
     best_params: Any  # `params` with the best evaluation so far
     best_return: jax.Array
     solve_step: jax.Array  # int32, first env step whose evaluation reached solve_return; -1 before
-    window: Any = None  # with num_steps > 1: each env's last num_steps one-step rows (`n_step_rows`)
+    window: Any = None  # with num_steps > 1: each env's last num_steps transitions and flags (`n_step_rows`)
     hyperparams: Any = None  # a sweep's per-agent values, as `DQN`'s; TD3 has none yet
 
 
@@ -210,17 +249,44 @@ class TD3:
         """`platform` and `agents`: as `agents.sac.SAC`'s."""
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
-        self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype)
-        self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype, config.critic_layer_norm)
+        self.image_shape = image_shape(env)  # camera images: DrQ-v2's encoder, trunks and shifts
+        self.encoder = None if self.image_shape is None else Encoder()
+        if self.image_shape is not None and min(self.image_shape[:2]) < SMALLEST_IMAGE:
+            raise ValueError(f"TD3 from camera images needs at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE} pixels for "
+                             f"DrQ-v2's encoder; {env!r} renders {self.image_shape[0]}x{self.image_shape[1]}: raise "
+                             "--env-opt width= and height= (DrQ-v2's: 84)")
+        trunk = 0 if self.encoder is None else config.feature_size
+        self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype, trunk)
+        self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype, config.critic_layer_norm,
+                                      trunk)
         self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
         self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
         self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
 
-    # ---- the networks, on normalized observations ---------------------------------------
+    # ---- the networks, on normalized observations or the encoder's features of camera images -------------
     def normalize(self, normalizer, obs):
         from brax.training.acme import running_statistics
         return running_statistics.normalize(obs, normalizer) if self.config.normalize_observations else obs
+
+    def features(self, normalizer, encoder, obs):
+        """What the actor and critics read: state observations normalized, or camera images encoded."""
+        return self.normalize(normalizer, obs) if self.encoder is None else self.encoder.apply(encoder, obs)
+
+    def actor_and_encoder(self, actor_params):
+        """The actor's network and, from camera images, its copy of the critics' encoder (else None)."""
+        return (actor_params, None) if self.encoder is None else (actor_params["actor"], actor_params["encoder"])
+
+    def twins_and_encoder(self, critic_params):
+        """The twin critics and, from camera images, the encoder that their loss trains (else None)."""
+        return (critic_params, None) if self.encoder is None else (critic_params["twins"], critic_params["encoder"])
+
+    def joined(self, network, encoder, name: str):
+        return network if self.encoder is None else {name: network, "encoder": encoder}
+
+    def row(self, steps: Transition):
+        """What the replay stores: packed float rows of state transitions; transitions of uint8 frames as they are."""
+        return pack(steps) if self.encoder is None else steps
 
     def twin_logits(self, critic_params, obs, action):
         """Both critics' atom logits, (2, batch, atoms)."""
@@ -233,7 +299,8 @@ class TD3:
     def policy(self, params, obs):
         """The actor's action in [-1, 1]; `params` = (normalizer state, actor params)."""
         normalizer, actor_params = params
-        return self.actor.apply(actor_params, self.normalize(normalizer, obs))
+        actor, encoder = self.actor_and_encoder(actor_params)
+        return self.actor.apply(actor, self.features(normalizer, encoder, obs))
 
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         """One step of every env with the actor and each env's noise (redrawn as its episode ends), as `SAC.collect`."""
@@ -243,15 +310,16 @@ class TD3:
         (normalizer, actor_params), obs = ts.params, ts.env_state.obs
         noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
         action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
-        env_state, rows, valid, stats = step_envs(self.train_env, ts.env_state, action)
+        env_state, steps, valid, stats = step_envs(self.train_env, ts.env_state, action)
         window = ts.window
         if cfg.num_steps > 1:
-            flags = jnp.stack([env_state.done, valid], axis=-1).astype(rows.dtype)
-            window = jnp.concatenate([window[1:], jnp.concatenate([rows, flags], axis=-1)[None]])
-            rows, valid = n_step_rows(window, self.obs_size, self.action_size, cfg.discounting)
+            newest = (steps, env_state.done.astype(jnp.float32), valid.astype(jnp.float32))
+            window = jax.tree.map(lambda old, new: jnp.concatenate([old[1:], new[None]]), window, newest)
+            steps, valid = n_step_rows(*window, cfg.discounting)
             valid &= ts.env_steps >= (cfg.num_steps - 1) * cfg.num_envs  # the window holds num_steps steps
-        buffer = self.buffer.add(ts.buffer, rows, mask=valid)
-        normalizer = running_statistics.update(normalizer, obs)
+        buffer = self.buffer.add(ts.buffer, self.row(steps), mask=valid)
+        if self.encoder is None:  # images have no normalizer
+            normalizer = running_statistics.update(normalizer, obs)
         fresh = jax.random.uniform(scale_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max)
         ts = ts.replace(params=(normalizer, actor_params), buffer=buffer, env_state=env_state, window=window,
                         noise_scale=jnp.where(env_state.done > 0, fresh, ts.noise_scale),
@@ -264,10 +332,13 @@ class TD3:
         Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection."""
         cfg = self.config
         normalizer, actor_params = ts.params
-        obs, next_obs = self.normalize(normalizer, batch.obs), self.normalize(normalizer, batch.next_obs)
+        twins, encoder = self.twins_and_encoder(critic_params)
+        obs = self.features(normalizer, encoder, batch.obs)
+        next_obs = jax.lax.stop_gradient(self.features(normalizer, encoder, batch.next_obs))  # DrQ-v2's
         smoothing = jnp.clip(jax.random.normal(key, batch.action.shape) * cfg.policy_noise, -cfg.noise_clip, cfg.noise_clip)
-        next_action = jnp.clip(self.actor.apply(actor_params, next_obs) + smoothing, -1.0, 1.0)
-        next_probs = jax.nn.softmax(self.twin_logits(ts.target_critic_params, next_obs, next_action))
+        next_action = jnp.clip(self.actor.apply(self.actor_and_encoder(actor_params)[0], next_obs) + smoothing, -1, 1)
+        target_twins = self.twins_and_encoder(ts.target_critic_params)[0]
+        next_probs = jax.nn.softmax(self.twin_logits(target_twins, next_obs, next_action))
         reward, discount = batch.reward * cfg.reward_scaling, batch.discount * cfg.discounting
         target = jax.vmap(lambda p: project(p, reward, discount, self.support))(next_probs)
         if cfg.use_cdq:
@@ -275,15 +346,17 @@ class TD3:
             lower = jnp.where((values[0] < values[1])[:, None], target[0], target[1])
             target = jnp.stack([lower, lower])
         target = jax.lax.stop_gradient(target)
-        log_probs = jax.nn.log_softmax(self.twin_logits(critic_params, obs, batch.action))
+        log_probs = jax.nn.log_softmax(self.twin_logits(twins, obs, batch.action))
         loss = -(target * log_probs).sum(-1).mean(-1).sum()  # the two critics' losses, summed
         return loss, self.twin_values(target[0]).mean()
 
-    def actor_loss(self, actor_params, ts: TrainState, batch: Transition):
-        """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty."""
-        obs = self.normalize(ts.params[0], batch.obs)
-        action, pre_tanh = self.actor.apply(actor_params, obs, with_pre_tanh=True)
-        values = self.twin_values(jax.nn.softmax(self.twin_logits(ts.critic_params, obs, action)))
+    def actor_loss(self, actor, ts: TrainState, batch: Transition):
+        """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty;
+        the encoder's features are the critics' to train (DrQ-v2's)."""
+        twins, encoder = self.twins_and_encoder(ts.critic_params)
+        obs = jax.lax.stop_gradient(self.features(ts.params[0], encoder, batch.obs))
+        action, pre_tanh = self.actor.apply(actor, obs, with_pre_tanh=True)
+        values = self.twin_values(jax.nn.softmax(self.twin_logits(twins, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
         penalty = self.config.pre_tanh_penalty  # 0 (the default) leaves the term out of the program
         return (penalty * jnp.square(pre_tanh).mean() if penalty else 0.0) - value.mean()
@@ -291,17 +364,33 @@ class TD3:
     # ---- learning -----------------------------------------------------------
     def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:
         normalizer, actor_params = ts.params
-        loss, grads = jax.value_and_grad(self.actor_loss)(actor_params, ts, batch)
-        updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor_params)
-        return ts.replace(params=(normalizer, optax.apply_updates(actor_params, updates)),
-                          actor_opt_state=opt_state), loss
+        actor, encoder = self.actor_and_encoder(actor_params)
+        loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, batch)
+        updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor)
+        actor_params = self.joined(optax.apply_updates(actor, updates), encoder, "actor")
+        return ts.replace(params=(normalizer, actor_params), actor_opt_state=opt_state), loss
+
+    def shifted(self, batch: Transition, key: jax.Array) -> Transition:
+        """DrQ-v2's augmentation of a batch of camera images: each image shifted on its own (`random_shift`),
+        observations apart from next observations."""
+        obs_key, next_key = jax.random.split(key)
+        pad = self.config.augment_pad
+        return batch._replace(obs=random_shift(obs_key, batch.obs, pad),
+                              next_obs=random_shift(next_key, batch.next_obs, pad))
 
     def learn(self, ts: TrainState, batch: Transition, key: jax.Array, actor_turn: jax.Array):
-        """One update on `batch`: the critics, the actor on `actor_turn` (the same for every seed), the targets."""
+        """One update on `batch`: the critics (and the encoder), the actor on `actor_turn` (the same for every
+        seed), the targets. Camera images are shifted first (`shifted`)."""
+        if self.encoder is not None:
+            key, shift_key = jax.random.split(key)
+            batch = self.shifted(batch, shift_key)
         (critic_loss, target_q), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
             ts.critic_params, ts, batch, key)
         updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
-        ts = ts.replace(critic_params=optax.apply_updates(ts.critic_params, updates), critic_opt_state=opt_state)
+        critic_params = optax.apply_updates(ts.critic_params, updates)
+        actor = self.actor_and_encoder(ts.params[1])[0]  # acting on the encoder the critics trained
+        params = (ts.params[0], self.joined(actor, self.twins_and_encoder(critic_params)[1], "actor"))
+        ts = ts.replace(params=params, critic_params=critic_params, critic_opt_state=opt_state)
         ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
         target = polyak(ts.target_critic_params, ts.critic_params, self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
@@ -333,19 +422,26 @@ class TD3:
                              "run one `mjxsuite train --agent td3` per value instead")
         cfg = self.config
         actor_key, critic_key, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
-        obs0, act0 = jnp.zeros((1, self.obs_size)), jnp.zeros((1, self.action_size))
-        actor_params = self.actor.init(actor_key, obs0)
-        critic_params = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
-        normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
+        obs0, act0, encoder, normalizer = jnp.zeros((1, self.obs_size)), jnp.zeros((1, self.action_size)), None, None
+        if self.encoder is None:
+            normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
+        else:
+            critic_key, encoder_key = jax.random.split(critic_key)
+            frames = jnp.zeros((1, *self.image_shape), jnp.uint8)
+            encoder = self.encoder.init(encoder_key, frames)
+            obs0 = self.encoder.apply(encoder, frames)
+        actor = self.actor.init(actor_key, obs0)
+        twins = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
+        actor_params, critic_params = self.joined(actor, encoder, "actor"), self.joined(twins, encoder, "twins")
         env_state = self.train_env.reset(env_key)
-        example = example_row(env_state, self.action_size)
+        example, flag = example_transition(env_state, self.action_size), jnp.float32(0)
+        window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`
+            lambda x: jnp.zeros((cfg.num_steps, cfg.num_envs, *x.shape), x.dtype), (example, flag, flag))
         ts = TrainState(
             params=(normalizer, actor_params), critic_params=critic_params, target_critic_params=critic_params,
-            actor_opt_state=self.actor_optimizer.init(actor_params),
-            critic_opt_state=self.critic_optimizer.init(critic_params),
+            actor_opt_state=self.actor_optimizer.init(actor), critic_opt_state=self.critic_optimizer.init(critic_params),
             noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
-            buffer=self.buffer.init(example),
-            window=None if cfg.num_steps == 1 else jnp.zeros((cfg.num_steps, cfg.num_envs, example.shape[-1] + 2)),
+            buffer=self.buffer.init(self.row(example)), window=window,
             **first_state((normalizer, actor_params), env_state, loop_key))
         return prefill(self.collect, ts, fill_key, cfg.prefill_iterations)
 

@@ -1,0 +1,80 @@
+"""TD3 from camera images (`agents.td3` with DrQ-v2's parts): the random shift, DrQ-v2's encoder and the
+images too small for it, frames stored as uint8 in the n-step replay, the encoder trained by the critics'
+loss and shared with the actor, exact resume, and the recipe the command line takes.
+
+Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
+step with the ray-cast camera, so the default run compiles no env and the slow test compiles one run."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_sac import assert_trees_equal, run_chunks
+
+import envs
+from agents.commands import agent_config
+from agents.sac import sample_batches
+from agents.td3 import SMALLEST_IMAGE, TD3, Encoder, TD3Config, random_shift
+
+TASK = "cartpole-balance-mjx"
+PIXELS = dict(observation="pixels", width=16, height=16)
+TINY = TD3Config(num_timesteps=112, num_envs=4, batch_size=8, num_updates=2, min_replay_size=16, max_replay_size=64,
+                 num_evals=3, num_eval_envs=2, actor_hidden=(8,), critic_hidden=(8,), num_atoms=11, v_min=0.0,
+                 v_max=10.0, num_steps=2, feature_size=8)
+
+
+def test_random_shift_crops_each_edge_padded_image_at_its_own_offset():
+    """DrQ-v2's `RandomShiftsAug` (integer shifts of up to 4 pixels, edges repeated), checked against
+    numpy's edge padding: every image is one crop of its padded self, at an offset in [0, 8] per axis."""
+    frames = jax.random.randint(jax.random.PRNGKey(0), (64, 12, 10, 3), 0, 256).astype(jnp.uint8)
+    shifted = np.asarray(random_shift(jax.random.PRNGKey(1), frames, 4))
+    padded = np.pad(np.asarray(frames), ((0, 0), (4, 4), (4, 4), (0, 0)), mode="edge")
+    offsets = set()
+    for image, source in zip(shifted, padded, strict=True):
+        [offset] = [(y, x) for y in range(9) for x in range(9) if np.array_equal(image, source[y:y + 12, x:x + 10])]
+        offsets.add(offset)
+    assert len(offsets) > 30  # of 81: drawn per image
+    np.testing.assert_array_equal(random_shift(jax.random.PRNGKey(1), frames, 0), frames)
+
+
+def test_the_encoder_is_drqv2s_and_smaller_images_are_refused():
+    frames = jnp.zeros((2, 84, 84, 9), jnp.uint8)  # DrQ-v2's: three stacked 84x84 RGB frames
+    features, params = jax.eval_shape(lambda: Encoder().init_with_output(jax.random.PRNGKey(0), frames))
+    assert features.shape == (2, 32 * 35 * 35)  # DrQ-v2's `repr_dim`
+    assert len(params["params"]) == 4
+    small = SMALLEST_IMAGE - 1
+    with pytest.raises(ValueError, match=f"at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE}.*{small}x{small}.*--env-opt width="):
+        TD3(TINY, envs.make(TASK, observation="pixels", width=small, height=small))
+
+
+def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
+    config = agent_config("dmc-cheetah-run", "td3", None, {}, None, None, observation="pixels")
+    assert (config.num_envs, config.batch_size, config.solve_return, config.num_timesteps) == (64, 1024, 714.0, 500_000)
+    assert config.augment_pad == 4 and config.feature_size == 50  # DrQ-v2's
+    assert agent_config("dmc-cheetah-run", "td3", None, {}, None, None).num_envs == 1024  # its state recipe
+
+
+@pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
+def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
+    env = envs.make(TASK, **PIXELS)
+    td3 = TD3(TINY, env)
+    ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+    data, stored, width = ts.buffer.data, int(ts.buffer.size), TINY.num_envs
+    assert data.obs.dtype == jnp.uint8 and data.obs.shape == (TINY.max_replay_size, 16, 16, 3)
+    assert stored == TINY.min_replay_size - width  # 2-step rows: the first step's complete a step later
+    # No episode ends this early: a row's next frames, two steps on, are the row two steps later's frames.
+    np.testing.assert_array_equal(data.next_obs[:stored - 2 * width], data.obs[2 * width:stored])
+    assert np.ptp(np.asarray(data.obs[:stored])) > 0
+
+    batch = jax.tree.map(lambda x: x[0], sample_batches(td3, ts, jax.random.PRNGKey(1), 1))
+    learned, _ = jax.jit(td3.learn)(ts, batch, jax.random.PRNGKey(2), jnp.bool_(True))
+    encoder = lambda t: td3.twins_and_encoder(t.critic_params)[1]
+    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(encoder(ts)), jax.tree.leaves(encoder(learned))))
+    assert_trees_equal(td3.actor_and_encoder(learned.params[1])[1], encoder(learned))  # the actor acts on it
+
+    whole, history = run_chunks(td3, ts, TINY.num_chunks)
+    part, _ = run_chunks(td3, ts, 1)
+    resumed, resumed_history = run_chunks(td3, jax.tree.map(jnp.asarray, jax.tree.map(np.asarray, part)),
+                                          TINY.num_chunks - 1)
+    assert_trees_equal(resumed, whole)
+    assert np.isfinite(history[-1]["critic_loss"]) and history[-1]["eval_return"] == resumed_history[-1]["eval_return"]
