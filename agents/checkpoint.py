@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import struct
+import sys
 import threading
 import time
 import zlib
@@ -127,8 +128,6 @@ def load_config(out_dir: str | os.PathLike) -> SavedRun:
 def saved_env(out_dir: str | os.PathLike, given: dict | None = None) -> tuple[str, Any, dict]:
     """`(env_name, env, env_options)` of a run directory, the options `given` on top of the saved ones;
     impl="warp" falls back to impl="jax" where Warp cannot run (docs/reliability.md, "Run directories are portable")."""
-    import sys
-
     import envs
     from envs.mjx_warp import BUFFER_OPTIONS, WarpUnavailable
 

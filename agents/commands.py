@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import json
 import os
+import signal
 import sys
 import typing
 from collections.abc import Callable
@@ -137,7 +139,7 @@ def before_any_jax(args) -> None:
         if getattr(args, "impl", None) == "warp":
             print("note: --deterministic makes XLA's ops deterministic; MuJoCo Warp's physics is not "
                   "(docs/reliability.md): runs with --impl warp still differ from run to run", file=sys.stderr)
-    if sharding.distributed_requested(args.distributed):
+    if args.distributed or os.environ.get(sharding.DISTRIBUTED_ENV, "").lower() in ("1", "true", "yes"):
         sharding.initialize_distributed()
 
 
@@ -151,9 +153,6 @@ def require_registered(env_name: str) -> None:
 
 def import_tasks(modules: list[str]) -> None:
     """Import the user's task modules (`--import`), so their `envs.register` calls run."""
-    import importlib
-    import importlib.util
-
     for module in modules:
         try:
             if module.endswith(".py"):
@@ -327,8 +326,6 @@ def _report(args, config, result) -> int:
 
 def _report_stop(args, result, command: str = "train") -> int:
     """What a run stopped by a signal says (what was saved), and its exit status (130 or 143)."""
-    import signal
-
     from agents import sharding
     from agents.signals import exit_status
 
@@ -336,7 +333,7 @@ def _report_stop(args, result, command: str = "train") -> int:
     if sharding.is_writer():
         print(f"stopped by {name}" + (
             "; nothing saved (no --out)" if not args.out else
-            f"; checkpoint saved in {args.out} ({result.saved_chunks} of {result.total_chunks} {result.chunk_unit} "
+            f"; checkpoint saved in {args.out} ({result.saved_chunks} of {result.total_chunks} chunks "
             f"done); continue with {resume}" if result.saved_chunks else
             f" before the first checkpoint: nothing trained is saved in {args.out}; {resume} starts the run from "
             "the beginning" if result.started else  # else stopped while the command started: nothing written
@@ -471,13 +468,11 @@ def cmd_eval(args, extra: list[str]) -> int:
     keys = jax.random.split(jax.random.PRNGKey(args.seed), seeds)
     episodes = args.episodes or saved.config.eval_episodes  # the run's own judge's, by default
     evaluate = lower_evaluation_cached(agent, params, keys, env_name, options, episodes).compile()
-    returns = evaluate(params, keys)
-    means = np.asarray(returns.mean(axis=-1))
+    means = np.asarray(evaluate(params, keys).mean(axis=-1))
     for i, mean in enumerate(means):
         print(f"{agent_label(i, saved.seeds, saved.sweep)}: {POLICY_NAMES[saved.agent]} policy's mean return "
               f"{mean:.1f} over {episodes} episodes")
-    print(json.dumps({"env": env_name, "env_options": options, "episodes": episodes,
-                      "mean_return": means.tolist()}))
+    print(json.dumps({"env": env_name, "env_options": options, "episodes": episodes, "mean_return": means.tolist()}))
     return 0
 
 
@@ -486,22 +481,24 @@ def cmd_rollout(args, extra: list[str]) -> int:
     import numpy as np
 
     import envs
-    from agents.saved_policies import collect_rollout_cached
-    from envs import recording
+    from agents import traced_programs
+    from envs import recording, rollouts
 
     recording.check_output_path(args.rerun, args.overwrite)  # before anything compiles
     if args.env is not None:
         require_registered(args.env)
     if args.checkpoint:
         from agents import checkpoint
-        from agents.saved_policies import load_greedy
+        from agents.run import load_agent, pick_seed
 
         saved = checkpoint.load_config(args.checkpoint)
         other_env = args.env is not None and args.env != saved.env
         # The saved env, with the options given (e.g. --randomize ranges, --impl jax) on top.
         env_name, env, options = checkpoint.saved_env(args.checkpoint,
                                                       None if other_env else env_options.from_args(saved.env, args))
-        _, env, policy, params = load_greedy(args.checkpoint, env=env)
+        _, _, agent, params = load_agent(args.checkpoint, env)
+        # Its deterministic policy, the best seed's parameters; the config names it in the export cache's key.
+        policy, params = lambda params, obs, key: agent.policy(params, obs), pick_seed(args.checkpoint, params)
         policy_name = {POLICY_NAMES[saved.agent]: saved.config}
         if other_env:
             options = env_options.from_args(args.env, args)
@@ -519,8 +516,12 @@ def cmd_rollout(args, extra: list[str]) -> int:
         policy, params, policy_name = recording.random_policy(env), None, "random"
     episodes = args.episodes or (None if args.steps else 1)
     steps = args.steps or episodes * getattr(env, "episode_length", 1000)
-    rollout = collect_rollout_cached(env, env_name, options, policy, policy_name, jax.random.PRNGKey(args.seed),
-                                     num_envs=args.num_envs, steps=steps, params=params, scene_envs=args.scene_envs)
+    key = jax.random.PRNGKey(args.seed)
+    program = rollouts.rollout_program(env, policy, args.num_envs, steps, args.scene_envs)  # through the export cache
+    rollout = traced_programs.lower_env_program(
+        "rollout", program, (key, params), env, env_name, options,
+        extra={"policy": policy_name, "num_envs": args.num_envs, "steps": steps, "scene_envs": args.scene_envs},
+    ).compile()(key, params)
     if episodes:
         rollout = recording.trim_to_episodes(rollout, episodes)
     rec = recording.open_recording(args.rerun, args.overwrite, blueprint=recording.rollout_blueprint())

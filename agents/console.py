@@ -18,10 +18,7 @@ def more_commands() -> dict:
     """The subcommands installed packages add (none where mjxsuite runs from a checkout uninstalled)."""
     from importlib.metadata import entry_points
 
-    commands = {}
-    for point in entry_points(group=COMMANDS_GROUP):
-        commands.update(point.load())
-    return commands
+    return {name: command for point in entry_points(group=COMMANDS_GROUP) for name, command in point.load().items()}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,6 +5,7 @@ the others round differently (`tests/test_dqn.py`). Measurements: docs/results.m
 from __future__ import annotations
 
 import functools
+import os
 from typing import Any
 
 import jax
@@ -92,9 +93,7 @@ def init_compiler_options(platform: str | None = None) -> dict:
     platform = platform or jax.default_backend()
     if platform == "cpu":
         return known_cpu_options({"xla_backend_optimization_level": 1})
-    if platform != "gpu":
-        return {}
-    return {"xla_gpu_autotune_level": 0}
+    return {"xla_gpu_autotune_level": 0} if platform == "gpu" else {}
 
 
 def training_compiler_options(platform: str | None = None, env: Any = None) -> dict:
@@ -117,8 +116,6 @@ DETERMINISTIC_XLA_FLAG = "--xla_gpu_deterministic_ops=true"
 def make_deterministic() -> None:
     """XLA's deterministic GPU ops (`--deterministic`), before JAX starts its backends; impl="warp" stays
     non-deterministic (docs/reliability.md, "Determinism")."""
-    import os
-
     from jax._src import xla_bridge
 
     if xla_bridge.backends_are_initialized():

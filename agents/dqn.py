@@ -299,9 +299,8 @@ class DQN:
     def batch_q_values(self, params, obs):
         """Q-values of many rows per agent (a replayed batch, the judge's episodes): `fused_mlp`'s kernels
         where `fused_network`. Acting, one row per env, keeps Flax (docs/results.md, "Concurrent kernels")."""
-        if self.fused_network:
-            return fused_mlp.q_values(params, obs, interpret=device_options.on_cpu())
-        return self.q_values(params, obs)
+        return (fused_mlp.q_values(params, obs, interpret=device_options.on_cpu()) if self.fused_network
+                else self.q_values(params, obs))
 
     def act(self, params, obs, epsilon, bits):
         """Epsilon-greedy actions; `bits` (uint32, `(2, batch)`): whether to explore, and the random action."""
@@ -449,9 +448,7 @@ class DQN:
     def evaluate_and_keep_best(self, ts: TrainState, eval_key: jax.Array,
                                record: bool = True) -> tuple[TrainState, dict]:
         """A chunk's greedy evaluation: keeps the best parameters and the step that solved the task."""
-        if ts.hyperparams is not None and ts.hyperparams is not self.hyper:
-            return self.with_hyperparams(ts.hyperparams).evaluate_and_keep_best(ts, eval_key, record)
-        return evaluation.evaluate_and_keep_best(self, ts, eval_key, record)
+        return evaluation.evaluate_and_keep_best(self.with_hyperparams(ts.hyperparams), ts, eval_key, record)
 
 
 def add_up(agent, iteration, ts, xs, last: tuple[str, ...] = ()):

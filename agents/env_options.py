@@ -125,10 +125,7 @@ def parse_opt_field(field: str, text: str, task: str = "task") -> Any:
 
 def overflow_report(env, contact_steps: int, constraint_steps: int, steps: int, unit: str = "env-steps") -> str:
     """One log line: which of MuJoCo Warp's buffers ran out how often, and the `--env-opt` that fixes it."""
-    task = env
-    while getattr(task, "warp_buffers", None) is None and hasattr(task, "env"):  # through the wrappers
-        task = task.env
-    buffers = getattr(task, "warp_buffers", None) or WarpBuffers(nconmax=0, njmax=0)
+    buffers = getattr(env, "warp_buffers", None) or WarpBuffers(nconmax=0, njmax=0)  # wrappers pass it on
     parts = []
     if contact_steps:
         now = f"naconmax={buffers.naconmax} for the batch" if buffers.naconmax else f"nconmax={buffers.nconmax} per env"

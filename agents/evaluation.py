@@ -42,8 +42,7 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
                 action=episode.action.at[t].set(actions[0], mode="drop"),
                 reward=episode.reward.at[t].set(next_state.reward[0], mode="drop"),
                 scene_qpos=None if scene_qpos is None else episode.scene_qpos.at[t].set(scene_qpos(first), mode="drop"),
-                length=t + (~finished[0]).astype(jnp.int32),
-            )
+                length=t + (~finished[0]).astype(jnp.int32))
         returns = returns + next_state.reward * ~finished
         return next_state, returns, finished | (next_state.done > 0), episode
 
@@ -57,8 +56,7 @@ def evaluate(env: Env, act: Callable[[jax.Array], jax.Array], key: jax.Array, nu
             action=jnp.zeros((horizon, *action.shape), action.dtype),
             reward=jnp.zeros((horizon,), state.reward.dtype),
             scene_qpos=None if scene_qpos is None else jnp.zeros((horizon,) + scene_qpos(first).shape),
-            length=jnp.zeros((), jnp.int32),
-        )
+            length=jnp.zeros((), jnp.int32))
     _, returns, _, episode = jax.lax.while_loop(lambda carry: ~carry[2].all(), step, (state, zeros, zeros > 0, episode))
     return (returns, episode) if record else returns
 
@@ -127,8 +125,7 @@ def part_carry(loop_of: Callable[[Any], ChunkLoop], ts: Any) -> tuple:
     """The zero carry of a chunk's first part (`chunk_part`) for the train state `ts` (arrays or shapes)."""
     loop = loop_of(ts)
     pending = jax.eval_shape(lambda t: loop.start(t)[1], ts)
-    return (jnp.zeros((), jnp.int32), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), pending),
-            _zero_totals(loop))
+    return (jnp.zeros((), jnp.int32), jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), pending), _zero_totals(loop))
 
 
 def keep_best(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None,
@@ -140,8 +137,7 @@ def keep_best(ts: Any, eval_returns: jax.Array, eval_episode: EvalEpisode | None
     ts = ts.replace(
         best_params=jax.tree.map(lambda new, old: jnp.where(better, new, old), ts.params, ts.best_params),
         best_return=jnp.maximum(eval_return, ts.best_return),
-        solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step),
-    )
+        solve_step=jnp.where(solved_now, ts.env_steps, ts.solve_step))
     return ts, {"env_steps": ts.env_steps, "eval_return": eval_return, "best_return": ts.best_return,
                 "eval_episode": eval_episode}
 

@@ -64,8 +64,7 @@ def _forward_kernel(num_layers, x_ref, *refs):
 
 
 def _backward_kernel(num_layers, block, x_ref, *refs):
-    weights = refs[: 2 * num_layers]
-    dq_ref = refs[2 * num_layers]
+    weights, dq_ref = refs[: 2 * num_layers], refs[2 * num_layers]
     grad_refs, dx_ref = refs[2 * num_layers + 1 : 4 * num_layers + 1], refs[4 * num_layers + 1]
 
     def body(i, grads):
@@ -99,10 +98,6 @@ def _compiler_params(kernels):
 
 @partial(jax.custom_vjp, nondiff_argnums=(2,))
 def _mlp(layers, x, interpret):
-    return _forward(layers, x, interpret)
-
-
-def _forward(layers, x, interpret):
     xp, flat, block, width = _padded(layers, x)
     q = pl.pallas_call(  # one program per block of rows
         partial(_forward_kernel, len(layers)),
@@ -117,7 +112,7 @@ def _forward(layers, x, interpret):
 
 
 def _mlp_fwd(layers, x, interpret):
-    return _forward(layers, x, interpret), (layers, x)
+    return _mlp(layers, x, interpret), (layers, x)
 
 
 def _mlp_bwd(interpret, saved, dq):

@@ -21,8 +21,7 @@ def _matmul_bwd(saved, grad):
     """The usual gradients, the kernel's from an explicitly transposed input: folded into the dot, the
     transpose makes XLA:CPU contract over the batch axis on its slow generic path; the barrier stops that."""
     x, kernel = saved
-    x_rows = x.reshape(-1, x.shape[-1])
-    x_rows_t = jax.lax.optimization_barrier(x_rows.T)
+    x_rows_t = jax.lax.optimization_barrier(x.reshape(-1, x.shape[-1]).T)
     return grad @ kernel.T, x_rows_t @ grad.reshape(-1, grad.shape[-1])
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any, ClassVar, NamedTuple
 
 import jax
@@ -18,7 +19,7 @@ import optax
 from flax import struct
 
 from agents import evaluation
-from agents.dqn import DQN, EPISODE_TOTALS, stack_hyperparams
+from agents.dqn import DQN, EPISODE_TOTALS, first_state, stack_hyperparams
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
@@ -155,8 +156,6 @@ def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: 
     """Brax's vision PPO networks for uint8 images of `shape`: each network's own convolutions, flattened
     rather than pooled (where things are matters), initialised as MuJoCo Playground's CartpoleBalance
     vision recipe; frames go to [0, 1] inside the networks, so rollouts store uint8 (docs/agents.md)."""
-    import math
-
     from brax.training import networks as brax_networks
     from brax.training.agents.ppo import networks_vision
     check_image_fits(config, shape)
@@ -293,8 +292,7 @@ class PPO:
         (env_state, _), data = jax.lax.scan(unroll, (ts.env_state, key), None, length=cfg.unrolls_per_training_step)
         # (unrolls, time, envs) -> (unrolls * envs, time): one row per unroll of one env, as in Brax.
         data = jax.tree.map(lambda x: jnp.swapaxes(x, 1, 2), data)
-        data = jax.tree.map(lambda x: jnp.reshape(x, (-1,) + x.shape[2:]), data)
-        return env_state, data
+        return env_state, jax.tree.map(lambda x: jnp.reshape(x, (-1,) + x.shape[2:]), data)
 
     def without_faults(self, data):
         """The transitions for the learner and their episode statistics. A step whose physics failed is
@@ -303,8 +301,7 @@ class PPO:
         overflow, stats = evaluation.step_stats(extras)
         fault = (extras["nan"] > 0) | (overflow > 0)
         truncation = jnp.where(fault, 1.0, extras["truncation"]).astype(extras["truncation"].dtype)
-        data = data._replace(extras={**data.extras, "state_extras": {"truncation": truncation}})
-        return data, stats
+        return data._replace(extras={**data.extras, "state_extras": {"truncation": truncation}}), stats
 
     # ---- learning -----------------------------------------------------------
     def loss_and_grad(self, nets, normalizer, minibatch, key):
@@ -368,8 +365,7 @@ class PPO:
     # ---- a training run ---------------------------------------------------------
     def init_params(self, policy_key: jax.Array, value_key: jax.Array):
         """Fresh (normalizer, policy, value) params, as Brax's; on images the normalizer stays empty."""
-        from brax.training.acme import running_statistics
-        from brax.training.acme import specs
+        from brax.training.acme import running_statistics, specs
         normalized = 0 if self.image_shape is not None else self.env.observation_size
         obs_spec = specs.Array((normalized,), jnp.dtype("float32"))
         return (running_statistics.init_state(obs_spec), self.networks.policy_network.init(policy_key),
@@ -382,9 +378,7 @@ class PPO:
         params = self.init_params(*jax.random.split(param_key))
         return TrainState(
             params=params, opt_state=self.optimizer.init(ppo_losses.PPONetworkParams(policy=params[1], value=params[2])),
-            env_state=self.train_env.reset(env_key), key=loop_key, env_steps=jnp.zeros((), jnp.int32),
-            best_params=params, best_return=jnp.full((), -jnp.inf, jnp.float32), solve_step=jnp.full((), -1, jnp.int32),
-            hyperparams=hyperparams)
+            hyperparams=hyperparams, **first_state(params, self.train_env.reset(env_key), loop_key))
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 

@@ -119,11 +119,6 @@ def start(out: Path, run: checkpoint.SavedRun, processes: int, overwrite: bool) 
     checkpoint.atomic_write(out / checkpoint.PROCESSES_FILE, json.dumps({"processes": entries}, indent=2).encode())
 
 
-def child_command(child: Child, options: list[str]) -> list[str]:
-    """The child's `mjxsuite train`: --resume of its own directory, on one device."""
-    return [*CHILD_MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
-
-
 def child_environment(child: Child) -> dict[str, str]:
     env = dict(os.environ)
     if child.gpu is not None:
@@ -160,8 +155,9 @@ def run_children(children: list[Child], options: list[str], total_chunks: int) -
             return statuses, forwarding.name
         for child in pending:
             log = open(child.directory / LOG_FILE, "a")
+            command = [*CHILD_MJXSUITE, "train", "--out", str(child.directory), "--resume", "--devices", "1", *options]
             # A session of its own: a terminal's Ctrl-C reaches each child once, passed on by this process.
-            running[child.index] = subprocess.Popen(child_command(child, options), stdout=log, stderr=subprocess.STDOUT,
+            running[child.index] = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
                                                     env=child_environment(child), start_new_session=True)
             log.close()
             forwarding.catch_up(running[child.index])
@@ -174,9 +170,8 @@ def run_children(children: list[Child], options: list[str], total_chunks: int) -
             for index, process in list(running.items()):
                 if process.poll() is not None:
                     statuses[index] = running.pop(index).returncode
-                    child = children[index]
-                    print(f"{child.describe()}: " + ("done" if process.returncode == 0 else
-                                                     f"exited with status {process.returncode}"), flush=True)
+                    print(f"{children[index].describe()}: " + ("done" if process.returncode == 0 else
+                                                               f"exited with status {process.returncode}"), flush=True)
             if running and time.monotonic() - last_said >= PROGRESS_SECONDS:
                 line = "chunks done: " + ", ".join(f"process {child.index} {chunks_done(child)}/{total_chunks}"
                                                     for child in children)

@@ -78,9 +78,7 @@ def _write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, rows=Non
 
     if count is not None:
         return jax.lax.fori_loop(0, count, put_row, data)
-    if b == 1:
-        return put_row(0, data)
-    return jax.lax.fori_loop(0, b, put_row, data)
+    return put_row(0, data) if b == 1 else jax.lax.fori_loop(0, b, put_row, data)
 
 
 def _scatter_write(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask=None) -> Any:
@@ -118,9 +116,7 @@ def _store(data: Any, batch: Any, capacity: int, insert_pos: jax.Array, mask, ve
 def _kept_rows(mask: jax.Array) -> jax.Array:
     """Indices of the rows where `mask` is True, in order, then the others."""
     mask = jnp.asarray(mask, bool).reshape(-1)
-    if mask.shape[0] == 1:
-        return jnp.zeros((1,), jnp.int32)
-    return jnp.argsort(~mask, stable=True).astype(jnp.int32)
+    return jnp.zeros((1,), jnp.int32) if mask.shape[0] == 1 else jnp.argsort(~mask, stable=True).astype(jnp.int32)
 
 
 def _read(data: Any, indices: jax.Array, vectorized: bool = False) -> Any:

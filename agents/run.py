@@ -57,7 +57,6 @@ class RunResult:
     chunks_done: int = 0  # chunks the train state has done at the end of this call
     saved_chunks: int | None = None  # chunks the run directory's checkpoint holds (0: none; None: no directory)
     total_chunks: int = 0  # chunks of the whole run
-    chunk_unit: str = "chunks"
     started: bool = True  # False: stopped by a signal before the run touched its directory
     devices: int = 1  # devices the agents were spread over (`agents.sharding`)
     processes: int = 1  # processes that trained them, one device each (`agents.processes`)
@@ -113,8 +112,7 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
         return jax.vmap(fn) if seed_axis == "vmap" else lambda *args: jax.lax.map(lambda a: fn(*a), args)
 
     def single(*args):
-        out = fn(*jax.tree.map(lambda x: x[0], args))
-        return jax.tree.map(lambda x: x[None], out)
+        return jax.tree.map(lambda x: x[None], fn(*jax.tree.map(lambda x: x[0], args)))
 
     return single
 
@@ -476,8 +474,7 @@ class _Run:
     def _checkpoint(self, state: Any, done: int, final: bool = False) -> None:
         save_start = time.perf_counter()
         save(self.saves, self.out, self.env_name, self.placement, state, done, final=final,
-             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside,
-             clock=self.clock_now())
+             finished=done == self.config.num_chunks, copy_beside=self.rules.host_copy_beside, clock=self.clock_now())
         self.clock.saved(done, save_start, self.saves.written_s)
         self.result.save_s += time.perf_counter() - save_start
 
@@ -678,15 +675,6 @@ def checked_seed_index(seed_index: Any) -> int:
     return int(seed_index)
 
 
-def action_bounds(env: envs.Env) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32)
-
-
-def to_action_space(action: jax.Array, low: np.ndarray, high: np.ndarray) -> jax.Array:
-    """An action in [-1, 1] as the control the task applies (`MjxEnv.action_to_ctrl`'s arithmetic)."""
-    return 0.5 * (high + low) + jnp.clip(action, -1.0, 1.0) * 0.5 * (high - low)
-
-
 def checked_observations(obs, env_name: str, size: int) -> np.ndarray:
     """`obs` as float32 numpy, refused unless of `size` and finite (so that broken physics is noticed)."""
     obs = np.asarray(obs, np.float32)
@@ -720,18 +708,16 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     env_name, env, agent, params = load_agent(out_dir)
     params = pick_seed(out_dir, params, seed_index)
     if env.num_actions is not None:
-        act = jax.jit(lambda obs: agent.policy(params, obs))
-        to_numpy = lambda action: np.asarray(action).astype(np.int64)  # noqa: E731
-    else:
-        low, high = action_bounds(env)
-        act = jax.jit(lambda obs: to_action_space(agent.policy(params, obs), low, high))
-        to_numpy = lambda action: np.asarray(action, np.float32)  # noqa: E731
-
+        act, dtype = jax.jit(lambda obs: agent.policy(params, obs)), np.int64
+    else:  # an action in [-1, 1] as the control the task applies (`MjxEnv.action_to_ctrl`'s arithmetic)
+        centre, half_range = 0.5 * (env.action_high + env.action_low), 0.5 * (env.action_high - env.action_low)
+        dtype = np.float32
+        act = jax.jit(lambda obs: centre + jnp.clip(agent.policy(params, obs), -1.0, 1.0) * half_range)
     image = getattr(env, "observation_shape", None)
 
     def policy(obs):
-        if image is not None:
-            return to_numpy(act(checked_frames(obs, env_name, image)))
-        return to_numpy(act(checked_observations(obs, env_name, env.observation_size)))
+        obs = (checked_frames(obs, env_name, image) if image is not None
+               else checked_observations(obs, env_name, env.observation_size))
+        return np.asarray(act(obs), dtype)
 
     return policy

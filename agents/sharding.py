@@ -18,10 +18,6 @@ AXIS = "agents"
 DISTRIBUTED_ENV = "MJXSUITE_DISTRIBUTED"
 
 
-def distributed_requested(flag: bool = False) -> bool:
-    return flag or os.environ.get(DISTRIBUTED_ENV, "").lower() in ("1", "true", "yes")
-
-
 def initialize_distributed() -> None:
     """Join a multi-host run (before any JAX computation); beside what JAX reads or detects itself,
     JAX_NUM_PROCESSES and JAX_PROCESS_ID give the count and index."""
@@ -98,6 +94,7 @@ class Placement:
     def __init__(self, devices: list):
         self.devices = list(devices)
         self.mesh = Mesh(np.asarray(self.devices), (AXIS,)) if len(self.devices) > 1 else None
+        self.sharding = None if self.mesh is None else NamedSharding(self.mesh, PartitionSpec(AXIS))  # agent axis split
 
     @property
     def count(self) -> int:
@@ -114,18 +111,16 @@ class Placement:
     def abstract(self, tree: Any) -> Any:
         """`tree`'s shapes and dtypes (weak types kept), split as `put` splits arrays: what a program
         is compiled for before its arrays exist."""
-        sharding = None if self.mesh is None else NamedSharding(self.mesh, PartitionSpec(AXIS))
         return jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, weak_type=jax.typeof(x).weak_type,
-                                                           sharding=sharding), tree)
+                                                           sharding=self.sharding), tree)
 
     def put(self, tree: Any) -> Any:
         """Host arrays with a leading agent axis, split over the mesh (each process places its own slices)."""
         if self.mesh is None:
             return tree
-        sharding = NamedSharding(self.mesh, PartitionSpec(AXIS))
         leaves, treedef = jax.tree.flatten(tree)
         leaves = [np.asarray(x) for x in leaves]
-        slices = [sharding.addressable_devices_indices_map(x.shape) for x in leaves]
+        slices = [self.sharding.addressable_devices_indices_map(x.shape) for x in leaves]
         local = list(slices[0]) if leaves else []
 
         def place_on(device):  # every leaf's slice for one device
@@ -136,7 +131,7 @@ class Placement:
         with ThreadPoolExecutor(max_workers=max(1, len(local)), thread_name_prefix="mjxsuite-put") as pool:
             on_device = list(pool.map(place_on, local))
         return jax.tree.unflatten(treedef, [
-            jax.make_array_from_single_device_arrays(x.shape, sharding, [placed[i] for placed in on_device])
+            jax.make_array_from_single_device_arrays(x.shape, self.sharding, [placed[i] for placed in on_device])
             for i, x in enumerate(leaves)])
 
     def to_host(self, tree: Any) -> Any:

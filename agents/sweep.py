@@ -97,10 +97,6 @@ def plot(summary: dict, path: str | Path) -> Path | None:
 
 def agent_paths(config: Any, grid: dict[str, list[float]], seeds: int) -> tuple[list[str], list[str]]:
     """Rerun entity paths and series labels of every agent of a sweep: `config_<c>/seed_<s>`."""
-    paths, labels = [], []
-    for c, member in enumerate(sweep_configs(config, grid)):
-        values = ", ".join(f"{name}={getattr(member, name):g}" for name in grid)
-        for s in range(seeds):
-            paths.append(f"config_{c}/seed_{s}")
-            labels.append(f"{values}, seed {s}")
-    return paths, labels
+    values = [", ".join(f"{name}={getattr(member, name):g}" for name in grid) for member in sweep_configs(config, grid)]
+    return ([f"config_{c}/seed_{s}" for c in range(len(values)) for s in range(seeds)],
+            [f"{config_values}, seed {s}" for config_values in values for s in range(seeds)])

@@ -109,14 +109,7 @@ def cached_lower(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.
     out_tree = found["out_tree"]
     _write(path, {"format": _FORMAT, "exported": blob, "in_tree": in_tree, "out_tree": out_tree})
     # Compile what a later hit will compile, so that its XLA compile is a persistent-cache hit.
-    exported = jax.export.deserialize(bytearray(blob))
-    return _lower(exported.call, leaves, donated, compiler_options, out_tree, hit=False)
-
-
-def compile_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
-                        extra: dict | None = None, donate: bool = False,
-                        compiler_options: dict | None = None) -> Callable:
-    return lower_env_program(program, fn, args, env, env_name, env_options, extra, donate, compiler_options).compile()
+    return _lower(jax.export.deserialize(bytearray(blob)).call, leaves, donated, compiler_options, out_tree, hit=False)
 
 
 def lower_env_program(program: str, fn: Callable, args: tuple, env, env_name: str, env_options: dict | None,
@@ -134,13 +127,9 @@ def program_key_parts(program: str, env, env_name: str, env_options: dict | None
                       extra: dict | None = None) -> dict | None:
     """`lower_env_program`'s key, less what `cache_file` adds; None when the env cannot be
     fingerprinted, or runs MuJoCo Warp, whose FFI calls `jax.export` refuses (after a whole trace)."""
-    if runs_warp(env):
-        return None
-    fingerprint = env_fingerprint(env)
-    if fingerprint is None:
-        return None
-    return {"program": program, "env_name": env_name, "env_options": env_options or {}, "env": fingerprint,
-            **(extra or {})}
+    fingerprint = None if runs_warp(env) else env_fingerprint(env)
+    return None if fingerprint is None else {"program": program, "env_name": env_name, "env_options": env_options or {},
+                                             "env": fingerprint, **(extra or {})}
 
 
 def cache_file(cache_dir: str | os.PathLike, key_parts: Any, args: tuple) -> Path:
@@ -207,8 +196,7 @@ def _without_addresses(text: str) -> str:
 
 
 def _hash(parts: Any) -> str:
-    text = json.dumps(parts, sort_keys=True, default=repr)
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=repr).encode()).hexdigest()[:32]
 
 
 # ---- what else could change a traced program ----------------------------------
@@ -235,9 +223,7 @@ def env_fingerprint(env) -> dict | None:
     None when a class has no source file (e.g. defined at a prompt): its program must not be cached."""
     task = env.unwrapped
     sources = set()
-    for cls in type(task).__mro__:
-        if cls is object:
-            continue
+    for cls in type(task).__mro__[:-1]:  # `object` last
         try:
             source = inspect.getsourcefile(cls)
         except (TypeError, OSError):  # a built-in class, or one without a file

@@ -39,7 +39,6 @@ class TrainingLogger:
         if rollout_every < 0:
             raise ValueError(f"rollout_every must be >= 0 (0: no evaluation rollouts), got {rollout_every}")
         self.rec = recording.open_recording(path, overwrite)
-        self.path = path
         self.seeds = seeds
         self.paths, self.labels = agent_paths or ([f"seed_{s}" for s in range(seeds)], [f"seed {s}" for s in range(seeds)])
         self.rollout_every = rollout_every
@@ -56,14 +55,13 @@ class TrainingLogger:
     def __call__(self, index: int, train_state: Any, record: dict) -> None:
         train_step = int(np.atleast_1d(record["env_steps"])[0])
         self._log_curves(train_step, record)
-        if self.rollout_every and index % self.rollout_every == 0:
-            if record.get("eval_episode") is not None:  # recorded inside the training chunk, per seed
-                episode = jax.device_get(record["eval_episode"])
-                self._log_episodes(train_step, [episode_rollout(jax.tree.map(lambda x: x[s], episode))
-                                                for s in range(self.seeds)])
+        if self.rollout_every and index % self.rollout_every == 0 and record.get("eval_episode") is not None:
+            episode = jax.device_get(record["eval_episode"])
+            self._log_episodes(train_step, [episode_rollout(jax.tree.map(lambda x: x[s], episode))
+                                            for s in range(self.seeds)])
 
-    def _send(self, path: str, train_step: int, value: float) -> None:
-        self.rec.send_columns(path, indexes=[rr.TimeColumn("train_step", sequence=[train_step])],
+    def _send(self, path: str, step: int, value: float, timeline: str = "train_step") -> None:
+        self.rec.send_columns(path, indexes=[rr.TimeColumn(timeline, sequence=[step])],
                               columns=rr.Scalars.columns(scalars=[float(value)]))
 
     def _log_curves(self, train_step: int, record: dict) -> None:
@@ -78,15 +76,12 @@ class TrainingLogger:
 
     def _log_episodes(self, train_step: int, rollouts: list[recording.Rollout]) -> None:
         """One greedy episode of each seed (one-env host rollouts)."""
-        longest = 0
         for s, rollout in enumerate(rollouts):
             root = f"eval/{self.paths[s]}"
             recording.log_rollout(self.rec, self.env, rollout, root=root, step_offset=self.steps_logged,
                                   static=self.rollouts_logged == 0, scene=self.scene)
-            self.rec.send_columns(f"{root}/train_step", indexes=[rr.TimeColumn("step", sequence=[self.steps_logged])],
-                                  columns=rr.Scalars.columns(scalars=[float(train_step)]))
-            longest = max(longest, rollout.reward.shape[0])
-        self.steps_logged += longest
+            self._send(f"{root}/train_step", self.steps_logged, train_step, timeline="step")
+        self.steps_logged += max((rollout.reward.shape[0] for rollout in rollouts), default=0)
         self.rollouts_logged += 1
 
     def close(self) -> None:
