@@ -710,8 +710,8 @@ def load_policy(out_dir: str | Path, seed_index: int | None = None) -> Callable[
     if env.num_actions is not None:
         act, dtype = jax.jit(lambda obs: agent.policy(params, obs)), np.int64
     else:  # an action in [-1, 1] as the control the task applies (`MjxEnv.action_to_ctrl`'s arithmetic)
-        centre, half_range = 0.5 * (env.action_high + env.action_low), 0.5 * (env.action_high - env.action_low)
-        dtype = np.float32
+        low, high, dtype = np.asarray(env.action_low, np.float32), np.asarray(env.action_high, np.float32), np.float32
+        centre, half_range = 0.5 * (high + low), 0.5 * (high - low)
         act = jax.jit(lambda obs: centre + jnp.clip(agent.policy(params, obs), -1.0, 1.0) * half_range)
     image = getattr(env, "observation_shape", None)
 

@@ -220,7 +220,7 @@ def n_step_rows(steps: Transition, ended: jax.Array, valid: jax.Array, discounti
 class TrainState:
     params: Any  # (normalizer state, actor params): what `policy` and checkpoints take (`TD3.actor_and_encoder`)
     critic_params: Any  # the twin critics, stacked on a leading axis of 2 (`TD3.twins_and_encoder`)
-    target_critic_params: Any
+    target_critic_params: Any  # the twins' Polyak averages (the encoder has none: DrQ-v2's)
     actor_opt_state: Any
     critic_opt_state: Any
     noise_scale: jax.Array  # (num_envs,): each env's exploration noise std
@@ -337,8 +337,7 @@ class TD3:
         next_obs = jax.lax.stop_gradient(self.features(normalizer, encoder, batch.next_obs))  # DrQ-v2's
         smoothing = jnp.clip(jax.random.normal(key, batch.action.shape) * cfg.policy_noise, -cfg.noise_clip, cfg.noise_clip)
         next_action = jnp.clip(self.actor.apply(self.actor_and_encoder(actor_params)[0], next_obs) + smoothing, -1, 1)
-        target_twins = self.twins_and_encoder(ts.target_critic_params)[0]
-        next_probs = jax.nn.softmax(self.twin_logits(target_twins, next_obs, next_action))
+        next_probs = jax.nn.softmax(self.twin_logits(ts.target_critic_params, next_obs, next_action))
         reward, discount = batch.reward * cfg.reward_scaling, batch.discount * cfg.discounting
         target = jax.vmap(lambda p: project(p, reward, discount, self.support))(next_probs)
         if cfg.use_cdq:
@@ -392,7 +391,7 @@ class TD3:
         params = (ts.params[0], self.joined(actor, self.twins_and_encoder(critic_params)[1], "actor"))
         ts = ts.replace(params=params, critic_params=critic_params, critic_opt_state=opt_state)
         ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
-        target = polyak(ts.target_critic_params, ts.critic_params, self.config.tau)
+        target = polyak(ts.target_critic_params, self.twins_and_encoder(ts.critic_params)[0], self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
                                                          "target_q": target_q}
 
@@ -438,7 +437,7 @@ class TD3:
         window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`
             lambda x: jnp.zeros((cfg.num_steps, cfg.num_envs, *x.shape), x.dtype), (example, flag, flag))
         ts = TrainState(
-            params=(normalizer, actor_params), critic_params=critic_params, target_critic_params=critic_params,
+            params=(normalizer, actor_params), critic_params=critic_params, target_critic_params=twins,
             actor_opt_state=self.actor_optimizer.init(actor), critic_opt_state=self.critic_optimizer.init(critic_params),
             noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
             buffer=self.buffer.init(self.row(example)), window=window,
