@@ -117,6 +117,12 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
+def seeds_init(learner: Any, seeds: int) -> Callable:
+    """`learner.init` over a leading seed axis, one seed after another on the CPU: there jaxlib 0.10's batched QR
+    (image networks' orthogonal init) waits on XLA's thread pool from inside it, and so may wait forever."""
+    return seed_batched(learner.init, seeds, default_seed_axis())
+
+
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:
     """`work()` on another thread (XLA compiles without Python's lock), once `after` is set if given: on
     MuJoCo Warp, once every program is traced (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
@@ -282,7 +288,8 @@ class _Run:
         """The inputs, made on another thread, and the train state: the checkpoint's, or the init program's."""
         placement = self.placement
         inputs = _in_background(lambda: placement.put(self._run_inputs()), "inputs", after=after_traces)
-        init = jax.jit(placement.spread(jax.vmap(self.learner.init)), compiler_options=init_compiler_options())
+        init = jax.jit(placement.spread(seeds_init(self.learner, self.agents // placement.count)),
+                       compiler_options=init_compiler_options())
         init_args, self.eval_keys = placement.abstract(jax.eval_shape(self._run_inputs))
         self.chunks_done, init_program = 0, None
         self.compile_start = time.perf_counter()

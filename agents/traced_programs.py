@@ -61,11 +61,6 @@ class CachedProgram:
         return jax.tree.unflatten(self.out_tree, self.compiled(jax.tree.leaves(args)))
 
 
-def cached_compile(fn: Callable, args: tuple, key_parts: Any, cache_dir: str | os.PathLike,
-                   donate: bool = False, compiler_options: dict | None = None) -> CachedProgram:
-    return cached_lower(fn, args, key_parts, cache_dir, donate, compiler_options).compile()
-
-
 @dataclass(frozen=True)
 class LoweredProgram:
     """A program traced and lowered, to compile (without Python's lock) on another thread while the

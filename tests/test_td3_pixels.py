@@ -5,6 +5,8 @@ loss and shared with the actor, exact resume, and the recipe the command line ta
 Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
 step with the ray-cast camera, so the default run compiles no env and the slow test compiles one run."""
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,7 +14,9 @@ import pytest
 from test_sac import assert_trees_equal, run_chunks
 
 import envs
+from agents import registry
 from agents.commands import agent_config
+from agents.run import seeds_init
 from agents.sac import sample_batches
 from agents.td3 import SMALLEST_IMAGE, TD3, Encoder, TD3Config, random_shift
 
@@ -45,6 +49,26 @@ def test_the_encoder_is_drqv2s_and_smaller_images_are_refused():
     small = SMALLEST_IMAGE - 1
     with pytest.raises(ValueError, match=f"at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE}.*{small}x{small}.*--env-opt width="):
         TD3(TINY, envs.make(TASK, observation="pixels", width=small, height=small))
+
+
+def qr_batch_dims(fn, *args) -> list[int]:
+    """The batch dimensions of every QR kernel (jaxlib's LAPACK custom calls on the CPU) in `fn`'s program."""
+    text = jax.jit(fn).lower(*args).as_text()
+    return [int(dims) for dims in re.findall(r'@lapack_\w*(?:geqrf|orgqr)_ffi\(.*num_batch_dims = "(\d+)"', text)]
+
+
+@pytest.mark.parametrize("agent", ["td3", "ppo"])
+def test_on_the_cpu_seeds_start_one_after_another_so_no_qr_is_batched(agent):
+    """Image networks' orthogonal initializer runs LAPACK's QR. Batched over seeds, jaxlib 0.10's kernel waits on
+    XLA's CPU thread pool from inside it: two seeds' TD3 encoders on a 2-core CPU never finished initializing.
+    The init program `train_run` compiles factors each matrix alone; the seeds vmapped would batch them."""
+    small = {"num_envs": "4", "cnn_output_channels": "8", "cnn_kernel_size": "3", "cnn_stride": "1"}
+    config = TINY if agent == "td3" else agent_config(TASK, agent, None, small, None, None, "pixels")
+    learner = registry.make(config, envs.make(TASK, **PIXELS))
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    dims = qr_batch_dims(seeds_init(learner, 2), keys)
+    assert dims and not any(dims)
+    assert all(qr_batch_dims(jax.vmap(learner.init), keys))  # the check sees a batched kernel
 
 
 def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():

@@ -126,16 +126,16 @@ def example_args():
 @pytest.mark.parametrize("damage", ["garbage", "truncated"])
 def test_a_corrupt_file_is_traced_again_and_overwritten(cache_dir, damage):
     expected = jax.jit(step)(*example_args())
-    first = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
+    first = traced_programs.cached_lower(step, example_args(), "step", cache_dir).compile()
     (path,) = cache_dir.iterdir()
     good = path.read_bytes()
     damaged = b"not a cached program" if damage == "garbage" else good[: len(good) // 2]
     path.write_bytes(damaged)
     with pytest.warns(UserWarning, match="unreadable cached program"):
-        again = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
+        again = traced_programs.cached_lower(step, example_args(), "step", cache_dir).compile()
     assert not first.hit and not again.hit
     assert path.read_bytes() != damaged and list(cache_dir.iterdir()) == [path]  # rewritten in place
-    loaded = traced_programs.cached_compile(step, example_args(), "step", cache_dir)
+    loaded = traced_programs.cached_lower(step, example_args(), "step", cache_dir).compile()
     assert loaded.hit
     for program in (first, again, loaded):
         for x, y in zip(leaves(program(*example_args())), leaves(expected), strict=True):
@@ -152,7 +152,8 @@ def test_donation_is_kept_for_the_first_argument_only(cache_dir):
         args = (*example_args()[:1], jax.random.PRNGKey(0))
         with warnings.catch_warnings():
             warnings.simplefilter("error")
-            program = traced_programs.cached_compile(step_with_key, args, "step-with-key", cache_dir, donate=True)
+            lowered = traced_programs.cached_lower(step_with_key, args, "step-with-key", cache_dir, donate=True)
+            program = lowered.compile()
         program(*args)
         assert args[0].obs.is_deleted() and not args[1].is_deleted()
     assert program.hit
