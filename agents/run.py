@@ -120,7 +120,7 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
 def seeds_init(learner: Any, seeds: int) -> Callable:
     """`learner.init` over a leading seed axis, one seed after another on the CPU: there jaxlib 0.10's batched QR
     (image networks' orthogonal init) waits on XLA's thread pool from inside it, and so may wait forever."""
-    return seed_batched(learner.init, seeds, default_seed_axis())
+    return seed_batched(learner.init, seeds, default_seed_axis()) if seeds > 1 else jax.vmap(learner.init)
 
 
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:
