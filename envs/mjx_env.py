@@ -27,8 +27,8 @@ import numpy as np
 from envs.assets import asset_path, load_model
 from envs.core import Env, State
 from envs.mjx_options import apply_opt, check_opt
-from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer_sizes, import_mjx,
-                           put_model_and_data, require_warp)
+from envs.mjx_warp import (BUFFER_OPTIONS, WarpBuffers, WarpWorlds, check_buffer_sizes, either_overflow,
+                           import_mjx, put_model_and_data, require_warp)
 
 
 class _MjxOnFirstUse:
@@ -92,7 +92,9 @@ class MjxEnv(Env):
     one, so no NaN reaches a learner. Under impl="warp", `info["overflow"]` is nonzero
     on a step where MuJoCo Warp ran out of its contact pool (1.0: `nconmax`/`naconmax`),
     its constraint rows (2.0: `njmax`) or both (3.0): Warp dropped contacts or constraints,
-    so that step is not physics and ends the episode the same way.
+    so that step is not physics and ends the episode the same way. A reset reports the code of
+    its own Warp work (its forward pass, a task's settling steps); an auto-reset adds it to the
+    code of the step whose end started that episode (`envs.wrappers`), so it is counted.
     """
 
     xml: str | os.PathLike  # a file in the suite's assets/ or a path
@@ -320,7 +322,9 @@ class MjxEnv(Env):
     def draw_start(self, key: jax.Array) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
         """An episode's start, (qpos, qvel, its `episode_info` values): the episode's values
         (`draw_episode`), then the state (`initial_qpos_qvel`) from the key left. A task that draws
-        both in one loop (dm_control's manipulator) overrides this."""
+        both in one loop (dm_control's manipulator) overrides this, and so does one whose draw runs
+        Warp's physics (dm_control's cheetah settles): its values then add "overflow", that work's
+        `info["overflow"]` code."""
         key, episode = self.draw_episode(key)
         return (*self.initial_qpos_qvel(key), episode)
 
@@ -349,6 +353,8 @@ class MjxEnv(Env):
     def reset_with_model(self, key: jax.Array, model: mjx.Model) -> State:
         """`reset`, running `mjx.forward` (where the task asks for it) with `model`."""
         qpos, qvel, episode = self.draw_start(key)
+        episode = dict(episode)
+        drawn_overflow = episode.pop("overflow", jnp.zeros((), jnp.float32))  # the draw's own Warp work
         model = self.episode_model(model, episode)
         qpos = jnp.asarray(qpos, self._initial_data.qpos.dtype).reshape(self.mj_model.nq)
         qvel = jnp.asarray(qvel, self._initial_data.qvel.dtype).reshape(self.mj_model.nv)
@@ -374,7 +380,8 @@ class MjxEnv(Env):
         no_action = jnp.zeros((self.action_size,), obs.dtype) if self.action_size else jnp.zeros((), jnp.int32)
         _, terms = jax.eval_shape(lambda: self._reward_and_terms(data, no_action, data))
         metrics = {name: jnp.zeros(term.shape, obs.dtype) for name, term in terms.items()}
-        info = {"truncation": zero, "nan": zero, "overflow": zero, **episode}
+        overflow = either_overflow(drawn_overflow, self._overflow(data)).astype(obs.dtype)
+        info = {"truncation": zero, "nan": zero, "overflow": overflow, **episode}
         return State(data, obs, zero, zero, metrics=metrics, info=info)
 
     def step_with_model(self, state: State, action: jax.Array, model: mjx.Model) -> State:

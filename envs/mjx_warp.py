@@ -41,6 +41,11 @@ CONSTRAINT_OVERFLOW = 1 | 2  # NEFC, NJMAX_NNZ: the constraint rows of one world
 OVERFLOW_CONTACTS, OVERFLOW_CONSTRAINTS = 1.0, 2.0
 
 
+def either_overflow(first: jax.Array, second: jax.Array) -> jax.Array:
+    """The code of two pieces of Warp work taken together: each buffer that ran out in either."""
+    return jnp.maximum(first % 2, second % 2) + 2 * jnp.maximum(first // 2, second // 2)
+
+
 def import_mjx():
     """`mujoco.mjx`, without the "Failed to import warp" line MJX prints when the optional
     warp-lang is absent (impl="jax" needs no Warp, so the line would only alarm the user)."""

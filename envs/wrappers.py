@@ -16,9 +16,10 @@ import jax.numpy as jnp
 from envs.batching import folds_vmap
 from envs.core import Env, State, Wrapper
 from envs.episode_keys import episode_keys, next_episode_key
+from envs.mjx_warp import either_overflow
 
 # Info entries that describe the transition just taken; an auto-reset keeps
-# them instead of taking the fresh episode's values.
+# them instead of taking the fresh episode's values (but for the reset's own overflow, added to the step's).
 TRANSITION_INFO = ("truncation", "nan", "overflow")
 
 
@@ -106,6 +107,9 @@ def _merge_fresh(stepped: State, fresh: State, next_rng: tuple[jax.Array, jax.Ar
     # CPU the scatter ran faster than the seed passed around the `lax.switch` (MJX, 4,096 envs).
     info = {**stepped.info, **{k: jax.tree.map(merge, fresh.info[k], stepped.info[k]) for k in carried},
             "rng": jax.tree.map(merge, next_rng, stepped.info["rng"])}
+    if "overflow" in fresh.info:  # a reset whose Warp work ran out is counted on the step that ended the episode
+        step = stepped.info["overflow"]
+        info["overflow"] = either_overflow(step, merge(fresh.info["overflow"], jnp.zeros_like(step)))
     return stepped.replace(
         pipeline_state=jax.tree.map(merge, fresh.pipeline_state, stepped.pipeline_state),
         obs=merge(fresh.obs, stepped.obs),

@@ -296,3 +296,28 @@ def test_a_loop_that_reads_no_observation_carries_none():
     # action key and the reward total; no f32[64,4] observation, nothing two-dimensional.
     assert sorted(s for s in shapes if s[0] == "f32") == sorted([("f32", "")] + [("f32", "64")] * 4), carry
     assert {s for s in shapes if s[0] != "f32"} == {("s32", ""), ("s32", "64"), ("u32", "64"), ("u32", "2")}, carry
+
+
+class _ResetOverflows(envs.CartPoleMjx):
+    """Reports a constraint overflow for a state at time 0 (a reset's), as MuJoCo Warp's forward pass at reset
+    reports one when its rows run out (tests/test_warp.py runs Warp itself)."""
+
+    def _overflow(self, data):
+        return jnp.where(data.time == 0, envs.mjx_warp.OVERFLOW_CONSTRAINTS, 0.0).astype(jnp.float32)
+
+
+@pytest.mark.parametrize("reset_by_index", [False, True])
+def test_a_reset_that_overflowed_is_counted_on_the_step_whose_end_started_it(reset_by_index):
+    """`reset` reports its own Warp work's overflow; an auto-reset adds it to the step that ended the episode, so
+    the agents keep that transition from the learner and count it (the fresh episode's own steps are physics)."""
+    env = envs.TimeLimit(_ResetOverflows(), 3)
+    assert float(env.reset(jax.random.PRNGKey(0)).info["overflow"]) == envs.mjx_warp.OVERFLOW_CONSTRAINTS
+    batch = envs.BatchedAutoReset(env, 4, max_resets=1 if reset_by_index else None, reset_by_index=reset_by_index)
+
+    def run(key):
+        return jax.lax.scan(lambda s, _: (batch.step(s, jnp.zeros(4, jnp.int32)),) * 2, batch.reset(key), length=7)[1]
+
+    states = jax.jit(run)(jax.random.PRNGKey(0))
+    ended = np.asarray(states.done) > 0  # every env, at its third and sixth step
+    np.testing.assert_array_equal(np.asarray(states.info["overflow"]), np.where(ended, 2.0, 0.0))
+    assert ended[[2, 5]].all() and ended.sum() == 8

@@ -233,6 +233,17 @@ def test_cheetahs_settling_steps_under_warp_end_where_jaxs_do():
     assert np.abs(warp_qvel).max() > 1e-3  # still moving after 2 s: a settle from the drawn joints, not a copy
 
 
+def test_a_reset_reports_the_overflow_of_its_warp_work():
+    """A contact pool of one for four worlds: cheetah's settling steps (`draw_start`) run out of it, and its
+    reset says so (`info["overflow"]`, which an auto-reset adds to the step that ended the episode)."""
+    env = envs.make("dmc-cheetah-run", impl="warp", naconmax=1)
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    assert np.asarray(jax.jit(jax.vmap(env.draw_start))(keys)[2]["overflow"]).tolist() == [1.0] * 4
+    assert np.asarray(jax.jit(jax.vmap(env.reset))(keys).info["overflow"]).tolist() == [1.0] * 4
+    roomy = envs.make("dmc-cheetah-run", impl="warp")
+    assert not np.asarray(jax.jit(jax.vmap(roomy.reset))(keys).info["overflow"]).any()
+
+
 @pytest.mark.slow
 def test_dm_controls_touch_readings_under_warp_are_the_last_substeps():
     """dm_control's legacy step keeps the last substep's touch readings (`DmControlEnv.refresh`), under

@@ -41,6 +41,16 @@ class DmcCheetahRun(DmControlEnv):
     observation_shapes = (("position", 8), ("velocity", 9))
 
     def initial_qpos_qvel(self, key):
+        settled = self._settled(key)
+        return settled.qpos, settled.qvel
+
+    def draw_start(self, key):
+        key, episode = self.draw_episode(key)
+        settled = self._settled(key)
+        return settled.qpos, settled.qvel, {**episode, "overflow": self._overflow(settled)}
+
+    def _settled(self, key):
+        """The settled state of drawn joints: dm_control's `initialize_episode`."""
         model, limited = self.mj_model, np.flatnonzero(self.mj_model.jnt_limited)
         low, high = model.jnt_range[limited].T
         drawn = jnp.asarray(model.qpos0).at[limited].set(jax.random.uniform(key, (len(limited),), minval=low,
@@ -49,8 +59,7 @@ class DmcCheetahRun(DmControlEnv):
         model = self.settle_model  # MJX's JAX implementation under either impl (mjx.euler is JAX's alone)
         rest = mjx.forward(model, self.reset_data)
         first = mjx.euler(model, rest.replace(qpos=drawn.astype(rest.qpos.dtype)))
-        settled = self._settle(first)
-        return settled.qpos, settled.qvel
+        return self._settle(first)
 
     def _settle(self, first):
         """The settling steps after the first, by the implementation that steps the env. Under
