@@ -93,6 +93,7 @@ _LAZY_API = {
     "to_brax": "envs.interop.brax",
     "returns_on_dm_control": "envs.interop.dm_control",  # a policy judged on dm_control's own env
     "load_dm_control": "envs.interop.dm_control",  # dm_control's own env, on the installed mujoco
+    "to_dm_env": "envs.interop.dm_control",  # a dmc-* task behind dm_control's dm_env interface
 }
 
 # Every task's names are imported on first use (PEP 562 `__getattr__` below), so `envs.make("cartpole")`

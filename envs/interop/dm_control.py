@@ -20,21 +20,25 @@ equal in distribution (the twin of `envs.interop.gymnasium_equality`).
 - `Comparison`: both sides, with the error of each step's observation, reward and discount.
 - `reset_samples` / `dm_control_reset_samples`: many resets of each, for a comparison of their
   distributions (their random numbers differ: numpy's RandomState there, JAX's here).
+- `to_dm_env(env)` (also `envs.to_dm_env`): a task behind dm_control's own `dm_env.Environment`
+  interface, so code written for `suite.load(domain, task)` steps it unchanged.
 - `returns_on_dm_control(policy, env)` (also `envs.returns_on_dm_control`): a policy's returns on
   dm_control's own env, the judge of a trained run (`python -m benchmarks.gym_training`); from
   dm_control's own pictures for a pixel env (`Camera`).
 
-dm_control is optional (`pip install 'mjxsuite[dmc]'`); it is imported here only when used
+dm_control is optional (`pip install 'mjxsuite[dmc]'`, with its dm_env); it is imported here only when used
 (`load`, with MUJOCO_GL=disable, or egl to render, unless the variable is set).
 """
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import os
 import sys
 from typing import Any, Callable, Mapping
 
+import dm_env
 import jax
 import mujoco
 import numpy as np
@@ -481,3 +485,56 @@ class Camera:
     def observe(self, physics) -> np.ndarray:
         self.frames = [*self.frames[1:], self.picture(physics)]
         return np.concatenate(self.frames, -1)
+
+
+class DmEnv(dm_env.Environment):
+    """dm_control's TimeSteps from an MJX task: observations as its ordered dicts (keys, shapes, float64),
+    actions within its action spec, its time limit a LAST step with discount 1, a termination (lqr at its
+    goal) one with discount 0; a step after a LAST one starts the next episode, as dm_control's does.
+    Episode i starts from the key `fold_in(PRNGKey(seed), i)`."""
+
+    def __init__(self, env: Env, seed: int = 0):
+        task = env.unwrapped
+        if not hasattr(task, "domain"):
+            raise ValueError(f"to_dm_env: {type(task).__name__} is not a DeepMind Control Suite task; give a dmc-* "
+                             "name (envs.names()), or use envs.to_gymnasium for the others")
+        self.env, self._key, self._episodes, self._state = env, jax.random.PRNGKey(seed), 0, None
+        theirs = load(task.domain, task.task)  # its specs
+        self._observation_spec, self._action_spec = theirs.observation_spec(), theirs.action_spec()
+        self._reset, self._step = jax.jit(env.reset), jax.jit(env.step)
+
+    def reset(self) -> dm_env.TimeStep:
+        self._state = self._reset(jax.random.fold_in(self._key, self._episodes))
+        self._episodes += 1
+        return dm_env.restart(self._observation())
+
+    def step(self, action) -> dm_env.TimeStep:
+        if self._state is None or bool(self._state.done):
+            return self.reset()
+        unit_action = self.env.from_env_action(np.asarray(action, np.float64))  # in dm_control's bounds, as given
+        self._state = self._step(self._state, np.asarray(unit_action, np.float32))
+        reward, observation = float(self._state.reward), self._observation()
+        if not bool(self._state.done):
+            return dm_env.transition(reward, observation)
+        if float(self._state.info["truncation"]) > 0:
+            return dm_env.truncation(reward, observation)
+        return dm_env.termination(reward, observation)
+
+    def _observation(self) -> collections.OrderedDict:
+        flat, observation, start = np.asarray(self._state.obs, np.float64), collections.OrderedDict(), 0
+        for key, spec in self._observation_spec.items():
+            size = int(np.prod(spec.shape))
+            observation[key] = flat[start:start + size].reshape(spec.shape).astype(spec.dtype)
+            start += size
+        return observation
+
+    def observation_spec(self):
+        return self._observation_spec
+
+    def action_spec(self):
+        return self._action_spec
+
+
+def to_dm_env(env: Env | str, seed: int = 0, **options) -> DmEnv:
+    """A `dmc-*` task (a name, with `envs.make`'s `options`, or an env) as a `dm_env.Environment`."""
+    return DmEnv(make(env, **options) if isinstance(env, str) else env, seed)
