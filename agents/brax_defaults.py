@@ -208,18 +208,20 @@ del _task, _ppo, _sac, _goal, _solve
 # The Gymnasium tasks' "cpu" preset (`cpu_settings`): the default row resized by CPU_SIZES (its own fields stay).
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
                    "walker2d", "reacher", "pusher", "swimmer")
+# 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
 CPU_SIZES: dict[str, dict[str, Any]] = {
-    "ppo": dict(num_timesteps=2_000_000, num_evals=21, num_envs=64, batch_size=64, num_minibatches=16,
-                unroll_length=16, num_updates_per_batch=4),
-    "sac": dict(num_timesteps=300_000, num_evals=11, num_envs=16, batch_size=256, grad_updates_per_step=8,
-                min_replay_size=2_000, max_replay_size=300_000),
-    "td3": dict(num_timesteps=300_000, num_evals=11, num_envs=16, batch_size=256, num_updates=4,
+    "ppo": dict(num_timesteps=2_000_000, num_evals=21, num_eval_envs=16, num_envs=64, batch_size=64,
+                num_minibatches=16, unroll_length=16, num_updates_per_batch=4),
+    "sac": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256,
+                grad_updates_per_step=8, min_replay_size=2_000, max_replay_size=300_000),
+    "td3": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256, num_updates=4,
                 min_replay_size=1_024, max_replay_size=300_000),
 }
 # Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
-# A run of more env steps than this (all seeds together) is a GPU's work: on a CPU it takes hours.
-GPU_SIZED_STEPS = 10_000_000
+# A run of more env steps than these (all seeds together; from camera images, which the CPU's ray caster renders) is
+# a GPU's work: on a CPU it takes hours.
+GPU_SIZED_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 100_000
 
 
 def cpu_settings(task: str, agent: str) -> dict[str, Any]:
@@ -231,23 +233,31 @@ def cpu_settings(task: str, agent: str) -> dict[str, Any]:
     return {**kept, **CPU_SIZES[agent]}
 
 
-def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int) -> str | None:
-    """The note for a run without a GPU whose recipe is sized for one (more than GPU_SIZED_STEPS env
-    steps over its seeds), naming what fits a CPU; None for a CPU-sized run."""
-    if total_steps * seeds <= GPU_SIZED_STEPS:
-        return None
-    per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
-    smaller = (f"--preset cpu trains a smaller one ({cpu_total_steps(task, agent):,} env steps)"
-               if "cpu" in presets(task, agent) else "--steps N trains fewer (e.g. --steps 200000 to see it learn)")
-    return (f"{task}'s {agent.upper()} recipe trains {total_steps / 1e6:,.1f}M env steps{per_seed}, sized for a GPU: "
-            f"on this CPU that takes hours; {smaller}. Ctrl-C stops it after the part of a chunk under way, saved")
+for _task in _DMC_TASKS:  # dm_control's "cpu" rows: SAC's and TD3's; PPO's at CPU_SIZES did not learn (training.md)
+    SETTINGS[_task]["sac"]["cpu"], SETTINGS[_task]["td3"]["cpu"] = cpu_settings(_task, "sac"), cpu_settings(_task, "td3")
+del _task
 
 
-def cpu_total_steps(task: str, agent: str) -> int:
-    """The env steps per seed the "cpu" preset trains (its config's `total_steps`)."""
+def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: bool = False) -> str | None:
+    """The note for a run without a GPU whose recipe is sized for one (more env steps over its seeds than
+    GPU_SIZED_STEPS, or GPU_SIZED_PIXEL_STEPS from camera images), naming what fits a CPU; None for a CPU-sized run."""
     from agents import registry
 
-    return registry.config_class(agent)(**cpu_settings(task, agent)).total_steps
+    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else GPU_SIZED_STEPS):
+        return None
+    per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
+    cpu_agent = next((a for a in (agent, "td3") if "cpu" in presets(task, a)), None)  # PPO on dm_control: TD3's
+    if pixels:
+        smaller = ("camera images come from MJX's ray caster here, for tests and small images: --steps N trains "
+                   "fewer, --env-opt width=16 --env-opt height=16 renders smaller (docs/agents.md)")
+    elif cpu_agent:
+        smaller = (f"{'' if cpu_agent == agent else '--agent td3 '}--preset cpu trains a smaller one "
+                   f"({registry.config_class(cpu_agent)(**cpu_settings(task, cpu_agent)).total_steps:,} env steps)")
+    else:
+        smaller = "--steps N trains fewer"
+    recipe = f"{task}'s {agent.upper()} recipe" + (" from camera images" if pixels else "")
+    return (f"{recipe} trains {total_steps / 1e6:,.1f}M env steps{per_seed}, sized for a GPU: on this CPU that takes "
+            f"hours; {smaller}. Ctrl-C stops it after the part of a chunk under way, keeping the chunks done")
 
 
 def default_agent(task: str, pixels: bool = False) -> str:
@@ -270,7 +280,7 @@ def default_preset(task: str, agent: str, observation: str = "state") -> str:
 
 
 def presets(task: str, agent: str) -> list[str]:
-    """The recipes of `agent` on `task` ("default" always; "cpu" for the Gymnasium tasks)."""
+    """The recipes of `agent` on `task` ("default" always; "cpu" for Gymnasium's tasks and in the table)."""
     cpu = ("cpu",) if task in GYMNASIUM_TASKS and agent in CPU_SIZES else ()
     return sorted({"default", *cpu, *SETTINGS.get(task, {}).get(agent, {})})
 

@@ -119,11 +119,11 @@ def say_rounding(config) -> None:
         print(f"note: {config.rounding()}", file=sys.stderr)
 
 
-def say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str]) -> None:
+def say_gpu_sized(env_name: str, agent: str, config, seeds: int, gpus: list[str], pixels: bool = False) -> None:
     """Say, before anything compiles, when a run without a GPU is sized for one (`brax_defaults.gpu_sized_note`)."""
     from agents import brax_defaults
 
-    note = None if gpus else brax_defaults.gpu_sized_note(env_name, agent, config.total_steps, seeds)
+    note = None if gpus else brax_defaults.gpu_sized_note(env_name, agent, config.total_steps, seeds, pixels)
     if note:
         print(f"note: {note}", file=sys.stderr)
 
@@ -205,7 +205,7 @@ def cmd_train(args, extra: list[str]) -> int:
     config = agent_config(args.env, agent, args.preset, config_fields(args), args.steps, args.replay,
                           observation=options.get("observation", "state"))
     say_rounding(config)
-    say_gpu_sized(args.env, agent, config, args.seeds, gpus)
+    say_gpu_sized(args.env, agent, config, args.seeds, gpus, pixels=options.get("observation") == "pixels")
     if count > 1:
         run = checkpoint.SavedRun(args.env, args.seeds, config, options, args.seed, None, agent, args.judge_every)
         return _report(args, config, _train_in_processes(args, run, fresh=True, count=count, gpus=gpus))

@@ -27,6 +27,7 @@ from agents.cli import main as cli_main
 from agents.ppo import PPO, PPOConfig
 from agents.run import break_ties, seed_keys
 from agents.sac import SACConfig
+from agents.td3 import TD3Config
 
 TINY_PPO = PPOConfig(num_timesteps=512, num_envs=8, batch_size=8, num_minibatches=4, unroll_length=8,
                      num_updates_per_batch=1, num_evals=3, num_eval_envs=4, policy_hidden=(16,), value_hidden=(16,))
@@ -289,18 +290,32 @@ def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts_naming_the_cpu_preset
     cpu = PPOConfig(**brax_defaults.settings("hopper", "ppo", "cpu"))
     assert (f"hopper's PPO recipe trains {hopper.total_steps / 1e6:.1f}M env steps, sized for a GPU: on this CPU "
             f"that takes hours; --preset cpu trains a smaller one ({cpu.total_steps:,} env steps)") in said
+    commands.say_gpu_sized("dmc-cartpole-balance", "ppo", PPOConfig(**brax_defaults.settings("dmc-cartpole-balance",
+                                                                                      "ppo")), 1, gpus=[])
+    td3 = TD3Config(**brax_defaults.settings("dmc-cartpole-balance", "td3", "cpu"))
+    assert ("on this CPU that takes hours; --agent td3 --preset cpu trains a smaller one "
+            f"({td3.total_steps:,} env steps)") in capsys.readouterr().err  # PPO has no cpu preset there
+    pixels = TD3Config(**brax_defaults.settings("dmc-cartpole-balance", "td3", "pixels"))  # 0.5M steps: a CPU's hours
+    commands.say_gpu_sized("dmc-cartpole-balance", "td3", pixels, 1, gpus=[], pixels=True)
+    assert ("TD3 recipe from camera images trains 0.5M env steps, sized for a GPU: on this CPU that takes hours; camera "
+            "images come from MJX's ray caster here") in capsys.readouterr().err
     commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
     commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
 
 
 @pytest.mark.parametrize("agent", ["ppo", "sac", "td3"])
-def test_every_gymnasium_task_has_a_cpu_preset_that_keeps_the_tasks_own_fields(agent):
+def test_every_gymnasium_and_dm_control_task_has_a_cpu_preset_that_keeps_the_tasks_own_fields(agent):
     """`--preset cpu`: the task's row resized for a CPU (envs, batches, networks, steps), its reward
-    scaling, discount, critic support and solve_return kept; nothing to warn about on a CPU."""
+    scaling, discount, critic support and solve_return kept; nothing to warn about on a CPU. Every agent
+    has it on Gymnasium's tasks, SAC and TD3 on dm_control's."""
     from agents import commands, registry
 
-    for task in brax_defaults.GYMNASIUM_TASKS:
+    dm_control = [name for name, *_ in envs.TASKS if name.startswith("dmc-")]
+    assert len(dm_control) >= 39
+    for task in dm_control:
+        assert ("cpu" in brax_defaults.presets(task, agent)) == (agent != "ppo"), task
+    for task in [*brax_defaults.GYMNASIUM_TASKS, *(dm_control if agent != "ppo" else [])]:
         assert "cpu" in brax_defaults.presets(task, agent)
         config = commands.agent_config(task, agent, "cpu", {}, None, None)
         row = brax_defaults.settings(task, agent)
