@@ -205,7 +205,7 @@ for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
 del _task, _ppo, _sac, _goal, _solve
 
 
-# The Gymnasium tasks' "cpu" preset (`cpu_settings`): the default row resized by CPU_SIZES (its own fields stay).
+# The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
                    "walker2d", "reacher", "pusher", "swimmer")
 # 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
@@ -225,17 +225,12 @@ GPU_SIZED_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 100_000
 
 
 def cpu_settings(task: str, agent: str) -> dict[str, Any]:
-    """The "cpu" preset's fields for `agent` on one of GYMNASIUM_TASKS (see CPU_SIZES)."""
+    """The "cpu" preset's fields for `agent` on `task`, where `presets` offers it (see CPU_SIZES)."""
     row = dict(SETTINGS.get(task, {}).get(agent, {}).get("default", {}))
     if row.get("num_timesteps", 0) <= CPU_SIZES[agent]["num_timesteps"]:
         return row
     kept = {k: v for k, v in row.items() if k not in CPU_SIZES[agent] and k not in CPU_DROPPED}
     return {**kept, **CPU_SIZES[agent]}
-
-
-for _task in _DMC_TASKS:  # dm_control's "cpu" rows: SAC's and TD3's; PPO's at CPU_SIZES did not learn (training.md)
-    SETTINGS[_task]["sac"]["cpu"], SETTINGS[_task]["td3"]["cpu"] = cpu_settings(_task, "sac"), cpu_settings(_task, "td3")
-del _task
 
 
 def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: bool = False) -> str | None:
@@ -280,9 +275,10 @@ def default_preset(task: str, agent: str, observation: str = "state") -> str:
 
 
 def presets(task: str, agent: str) -> list[str]:
-    """The recipes of `agent` on `task` ("default" always; "cpu" for Gymnasium's tasks and in the table)."""
-    cpu = ("cpu",) if task in GYMNASIUM_TASKS and agent in CPU_SIZES else ()
-    return sorted({"default", *cpu, *SETTINGS.get(task, {}).get(agent, {})})
+    """The recipes of `agent` on `task` ("default" always; "cpu" for every agent on Gymnasium's tasks, and for SAC
+    and TD3 on dm_control's: PPO at CPU_SIZES did not learn there, docs/training.md)."""
+    cpu = agent in CPU_SIZES and (task in GYMNASIUM_TASKS or (task in _DMC_TASKS and agent in ("sac", "td3")))
+    return sorted({"default", *(("cpu",) if cpu else ()), *SETTINGS.get(task, {}).get(agent, {})})
 
 
 def settings(task: str, agent: str, preset: str = "default") -> dict[str, Any]:
@@ -290,6 +286,6 @@ def settings(task: str, agent: str, preset: str = "default") -> dict[str, Any]:
     if preset not in presets(task, agent):
         raise ValueError(f"--preset {preset!r} does not exist for --agent {agent} on {task}; "
                          f"choose one of {', '.join(presets(task, agent))}")
-    if preset == "cpu" and task in GYMNASIUM_TASKS:
+    if preset == "cpu":
         return cpu_settings(task, agent)
     return dict(SETTINGS.get(task, {}).get(agent, {}).get(preset, {}))
