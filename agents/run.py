@@ -109,7 +109,7 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     if seed_axis not in SEED_AXES:
         raise ValueError(f"unknown seed_axis {seed_axis!r}; choose one of {SEED_AXES}")
     if seeds > 1:
-        return jax.vmap(fn) if seed_axis == "vmap" else lambda *args: jax.lax.map(lambda a: fn(*a), args)
+        return jax.vmap(fn) if seed_axis == "vmap" else partial(_map_in_place, fn)
 
     def single(*args):
         return jax.tree.map(lambda x: x[None], fn(*jax.tree.map(lambda x: x[0], args)))
@@ -117,10 +117,28 @@ def seed_batched(fn: Callable, seeds: int, seed_axis: str | None = None) -> Call
     return single
 
 
+def _map_in_place(fn: Callable, state: Any, *args):
+    """`fn(state, *args) -> (state, *outputs)` over the leading seed axis, one seed after another, each seed's new
+    state written into `state`'s buffers: a donated train state is updated in place, where `lax.map`'s stacked
+    outputs would hold a second copy of every seed's replay."""
+    at = lambda tree, i: jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, i, keepdims=False), tree)
+    put = lambda tree, new, i: jax.tree.map(lambda x, v: jax.lax.dynamic_update_index_in_dim(x, v, i, 0), tree, new)
+    seeds = len(jax.tree.leaves(state)[0])
+    shapes = jax.eval_shape(fn, *at((state, *args), 0))[1:]
+    outputs = jax.tree.map(lambda s: jnp.zeros((seeds, *s.shape), s.dtype), shapes)
+
+    def one_seed(i, carry):
+        new = fn(*at((carry[0], *args), i))
+        return put(carry[0], new[0], i), put(carry[1], new[1:], i)
+
+    state, outputs = jax.lax.fori_loop(0, seeds, one_seed, (state, outputs))
+    return (state, *outputs)
+
+
 def seeds_init(learner: Any, seeds: int) -> Callable:
     """`learner.init` over a leading seed axis, one seed after another on the CPU: there jaxlib 0.10's batched QR
     (image networks' orthogonal init) waits on XLA's thread pool from inside it, and so may wait forever."""
-    return seed_batched(learner.init, seeds, default_seed_axis()) if seeds > 1 else jax.vmap(learner.init)
+    return partial(jax.lax.map, learner.init) if seeds > 1 and default_seed_axis() == "map" else jax.vmap(learner.init)
 
 
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:

@@ -1,6 +1,7 @@
 """DQN: targets, truncation handling, determinism, checkpoint/resume, policy loading, CLI errors."""
 
 import dataclasses
+from functools import partial
 import json
 
 import jax
@@ -13,7 +14,7 @@ import envs
 from agents import DQN, DQNConfig, checkpoint, device_options, load_policy, train, train_run
 from agents.cli import main as cli_main
 from agents.dqn import greedy, unpack
-from agents.run import CLOCK_KEYS, run_keys
+from agents.run import CLOCK_KEYS, _train_steps, run_keys, seed_batched
 
 
 class Counter(envs.Env):
@@ -216,6 +217,18 @@ def test_mapped_and_vmapped_seeds_train_alike():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-3, atol=1e-4)
     with pytest.raises(ValueError, match="seed_axis"):
         train_run("cartpole", SMALL, seeds=2, progress=False, seed_axis="pmap")
+
+
+def test_seeds_run_one_after_another_update_the_donated_state_in_place():
+    """Mapped seeds write each seed's new train state into the donated one: the chunk program holds one seed's
+    state beside the run's, not a second copy of every seed's replay (as `lax.map`'s stacked outputs would)."""
+    learner = DQN(dataclasses.replace(SMALL, buffer_size=200_000), envs.make("cartpole"), agents=4)
+    ts = jax.eval_shape(jax.vmap(learner.init), jax.random.split(jax.random.PRNGKey(0), 4))
+    state_bytes = sum(x.size * x.dtype.itemsize for x in jax.tree.leaves(ts))
+    program = jax.jit(seed_batched(partial(_train_steps, learner), 4, "map"), donate_argnums=0)
+    memory = program.lower(ts).compile().memory_analysis()
+    assert memory.alias_size_in_bytes >= state_bytes
+    assert memory.temp_size_in_bytes < 0.5 * state_bytes, (memory.temp_size_in_bytes, state_bytes)
 
 
 GPU_SHAPED = DQNConfig(total_steps=600, learning_starts=200, batch_size=32, buffer_size=4000, eval_every=200,
