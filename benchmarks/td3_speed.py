@@ -4,6 +4,8 @@ whole chunk, for a task's TD3 recipe (`agents/brax_defaults.py`) with `--seeds` 
 warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole output.
 
     python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
+    python -m benchmarks.td3_speed --env dmc-cartpole-swingup --preset pixels --env-opt observation=pixels \
+        --env-opt width=84 --env-opt height=84 --env-opt frame_stack=3 --env-opt action_repeat=2 --parts act,learn
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ def project_by_hat(probs, reward, discount, support):
 
 
 def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
-            parts=("act", "learn", "learn_hat", "chunk")) -> dict:
+            parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default") -> dict:
     """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
     contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state."""
     import envs
@@ -50,8 +52,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     from agents import td3 as td3_module
     from agents.td3 import TD3, TD3Config
 
-    config = TD3Config(**{**brax_defaults.settings(env_name, "td3"), **overrides})
-    td3 = TD3(config, envs.make(env_name))
+    config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
+    td3 = TD3(config, envs.make(env_name, **(env_options or {})))
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     start = time.perf_counter()
     ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys))
@@ -84,7 +86,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = _timed(programs[part], ts, repeats=repeats)
         print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
-    record = {"kind": "td3-speed", "env": env_name, "seeds": seeds, "overrides": overrides,
+    record = {"kind": "td3-speed", "env": env_name, "env_options": env_options or {}, "preset": preset,
+              "seeds": seeds, "overrides": overrides,
               "projection": td3_module.project.__name__, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
               "compile_and_first_s": {part: first for part, (first, _) in timed.items()},
@@ -120,10 +123,13 @@ def main(argv=None) -> None:
                         help="a TD3Config field over the task's recipe; repeatable")
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
                         help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction)")
+    parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
+                        help="an envs.make option (observation=pixels, width=84, ...); repeatable")
+    parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     tuple(args.parts.split(",")))
+                     tuple(args.parts.split(",")), dict(_parse_set(s) for s in args.env_opts), args.preset)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         from pathlib import Path
