@@ -123,15 +123,12 @@ def _map_in_place(fn: Callable, state: Any, *args):
     outputs would hold a second copy of every seed's replay."""
     at = lambda tree, i: jax.tree.map(lambda x: jax.lax.dynamic_index_in_dim(x, i, keepdims=False), tree)
     put = lambda tree, new, i: jax.tree.map(lambda x, v: jax.lax.dynamic_update_index_in_dim(x, v, i, 0), tree, new)
-    seeds = len(jax.tree.leaves(state)[0])
-    shapes = jax.eval_shape(fn, *at((state, *args), 0))[1:]
-    outputs = jax.tree.map(lambda s: jnp.zeros((seeds, *s.shape), s.dtype), shapes)
 
-    def one_seed(i, carry):
-        new = fn(*at((carry[0], *args), i))
-        return put(carry[0], new[0], i), put(carry[1], new[1:], i)
+    def one_seed(state, i):
+        new = fn(*at((state, *args), i))
+        return put(state, new[0], i), new[1:]
 
-    state, outputs = jax.lax.fori_loop(0, seeds, one_seed, (state, outputs))
+    state, outputs = jax.lax.scan(one_seed, state, jnp.arange(len(jax.tree.leaves(state)[0])))
     return (state, *outputs)
 
 
