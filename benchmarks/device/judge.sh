@@ -3,7 +3,7 @@
 # env, 10 episodes per seed, into /tmp/judge/TAG/TAG.judged.json.
 set -eu
 SRC=$1; TAG=$2; J=/tmp/judge/$TAG
-rm -rf $J && mkdir -p $J && tar xzf $SRC/$TAG.tgz -C $J
+rm -rf $J && mkdir -p $J && cat $SRC/$TAG.tgz* | tar xz -C $J  # train.sh's archive, whole or in parts
 python3 - "$J" "$TAG" <<'PY'
 import json, sys
 J, TAG = sys.argv[1:]

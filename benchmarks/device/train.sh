@@ -18,4 +18,6 @@ if kill -0 $trainings 2>/dev/null; then
 fi
 grep -v "^WARNING\|Warp\b.*initialized\|Delay kernel" /tmp/runs$TAG/log.txt | tail -c 6000
 tar czf $OUT/$TAG.tgz --exclude=train_state.ckpt -C /tmp runs$TAG
+# A returned file holds at most 16 MiB (pixel policies are ~12 MB a seed): larger archives come back in parts.
+if [ "$(stat -c %s $OUT/$TAG.tgz)" -gt 15000000 ]; then split -b 15M $OUT/$TAG.tgz $OUT/$TAG.tgz.part. && rm $OUT/$TAG.tgz; fi
 ls -la $OUT
