@@ -160,14 +160,15 @@ _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noi
 _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(v_min=-35.0),
                   **dict.fromkeys(("dmc-pendulum-swingup", "dmc-cartpole-swingup"), dict(discounting=0.99, v_max=100.0)),
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
-# TD3 from camera images, a starting point: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml and its
-# "medium" DMC tasks: Adam at 1e-4, 1,024-wide layers, 3-step returns, discount 0.99, target step 0.01, 1M frames
-# = 500k env steps at its action repeat of 2, 4,000 frames before learning) at GPU scale: 64 envs and batches of
-# 1,024 per seed (DrQ-v2: one env, 256). A replay of 100k stacked frames: 12.7 GB per seed at 84x84x9.
-_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=1024, num_updates=2, actor_learning_rate=1e-4,
-                  critic_learning_rate=1e-4, weight_decay=0.0, tau=0.01, discounting=0.99, num_steps=3,
-                  actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1, std_max=0.4, policy_noise=0.2,
-                  v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000, num_evals=11,
+# TD3 from camera images, a starting point: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium"
+# tasks: 1,024-wide layers, 3-step returns, discount 0.99, target step 0.01, 1M frames = 500k env steps at action repeat
+# 2) at GPU scale: 64 envs and batches of 1,024 per seed; a replay of 100k frame stacks, 12.7 GB per seed at 84x84x9. Not
+# DrQ-v2's: 8 updates per 64 env steps at Adam's 3e-4 and LayerNorm critics; 2 at 1e-4 without learned nothing, from
+# pixels (saturated actors) or state (docs/agents.md, "TD3 from pixels").
+_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=1024, num_updates=8, actor_learning_rate=3e-4,
+                  critic_learning_rate=3e-4, critic_layer_norm=True, weight_decay=0.0, tau=0.01, discounting=0.99,
+                  num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1, std_max=0.4,
+                  policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000, num_evals=11,
                   compute_dtype="bfloat16")
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs

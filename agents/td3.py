@@ -132,13 +132,12 @@ SMALLEST_IMAGE = 15  # pixels a side that leave its last convolution a 1x1 map
 
 class Encoder(nn.Module):
     """DrQ-v2's encoder: uint8 frames to [-0.5, 0.5], `ENCODER_STRIDES`' convolutions with ReLU, flattened."""
-    dtype: Any = jnp.float32  # the convolutions' (the config's compute_dtype); parameters float32
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = frames.astype(jnp.float32) / 255.0 - 0.5
         for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID",
                                 kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
         return x.reshape(*x.shape[:-3], -1)
 
@@ -251,7 +250,7 @@ class TD3:
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
         self.image_shape = image_shape(env)  # camera images: DrQ-v2's encoder, trunks and shifts
-        self.encoder = None if self.image_shape is None else Encoder(dtype)
+        self.encoder = None if self.image_shape is None else Encoder()
         if self.image_shape is not None and min(self.image_shape[:2]) < SMALLEST_IMAGE:
             raise ValueError(f"TD3 from camera images needs at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE} pixels for "
                              f"DrQ-v2's encoder; {env!r} renders {self.image_shape[0]}x{self.image_shape[1]}: raise "
