@@ -208,7 +208,7 @@ def test_every_option_trains_with_finite_losses():
 
 
 def test_mapped_and_vmapped_seeds_train_alike():
-    """The CPU runs seeds one after another (`lax.map`), accelerators vmap them: the same
+    """The CPU runs seeds one after another (`_map_in_place`), accelerators vmap them: the same
     agents either way, up to float rounding of batched against plain matmuls."""
     mapped = train_run("cartpole", SMALL, seeds=2, progress=False, seed_axis="map")
     vmapped = train_run("cartpole", SMALL, seeds=2, progress=False, seed_axis="vmap")
