@@ -5,7 +5,7 @@ warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole
 
     python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
     python -m benchmarks.td3_speed --env dmc-cartpole-swingup --preset pixels --env-opt observation=pixels \
-        --env-opt width=84 --env-opt height=84 --env-opt frame_stack=3 --env-opt action_repeat=2 --parts act,learn
+        --env-opt impl=warp --parts act,learn   # dm_control's pixels: 84x84, 3 frames, action repeat 2 by default
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """DQN: targets, truncation handling, determinism, checkpoint/resume, policy loading, CLI errors."""
 
 import dataclasses
-from functools import partial
 import json
+from functools import partial
 
 import jax
 import jax.numpy as jnp
