@@ -23,8 +23,9 @@ from flax import struct
 
 from agents import device_options
 from agents import evaluation
-from agents.dqn import DQN, EPISODE_TOTALS, add_up, first_state
+from agents.dqn import DQN, EPISODE_TOTALS, add_up, copy_where, first_state
 from agents.ppo import image_shape, scale_by_adam
+from agents.frame_replay import FrameReplay
 from agents.replay import UniformReplay
 from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup,
                         example_transition, pack, polyak, prefill, sample_batches, step_envs)
@@ -211,7 +212,8 @@ def n_step_rows(steps: Transition, ended: jax.Array, valid: jax.Array, discounti
     powers = jnp.broadcast_to(discounting ** jnp.arange(ended.shape[0], dtype=ended.dtype)[:, None], ended.shape)
     last = (alive.sum(0) - 1).astype(jnp.int32)  # the step the transition ends with
     pick = jax.vmap(lambda column, k: column[k], in_axes=(1, 0))  # each env's step `last`
-    row = Transition(obs=steps.obs[0], action=steps.action[0], reward=(powers * alive * steps.reward).sum(0),
+    reward = jnp.where(alive > 0, steps.reward, 0.0)  # a step after the end is another episode's: maybe NaN
+    row = Transition(obs=steps.obs[0], action=steps.action[0], reward=(powers * reward).sum(0),
                      discount=pick(powers, last) * pick(steps.discount, last), next_obs=pick(steps.next_obs, last))
     return row, (alive * (1.0 - valid)).sum(0) == 0
 
@@ -262,7 +264,12 @@ class TD3:
         self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
         self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
-        self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
+        vectorized = device_options.vectorized_replay(platform)
+        if self.encoder is None:
+            self.buffer = UniformReplay(config.max_replay_size, vectorized=vectorized)
+        else:  # each frame once (DrQ-v2's), not the 2 * frame_stack of a row of stacks
+            frame_stack = self.image_shape[2] // getattr(env, "channels", self.image_shape[2])
+            self.buffer = FrameReplay(config.max_replay_size, config.num_envs, frame_stack, config.num_steps, vectorized)
 
     # ---- the networks, on normalized observations or the encoder's features of camera images -------------
     def normalize(self, normalizer, obs):
@@ -284,9 +291,19 @@ class TD3:
     def joined(self, network, encoder, name: str):
         return network if self.encoder is None else {name: network, "encoder": encoder}
 
-    def row(self, steps: Transition):
-        """What the replay stores: packed float rows of state transitions; transitions of uint8 frames as they are."""
-        return pack(steps) if self.encoder is None else steps
+    def store(self, buffer, steps: Transition, frames: Transition, ended: jax.Array, valid: jax.Array):
+        """The replay with `steps`' rows where `valid`: packed float rows of state transitions; from camera images the
+        step's `frames` and the rows, whose obs and next_obs are step indices (`FrameReplay`)."""
+        if self.encoder is None:
+            return self.buffer.add(buffer, pack(steps), mask=valid)
+        return self.buffer.add(buffer, frames.obs, frames.next_obs, ended, steps, valid)
+
+    def indexed(self, buffer, steps: Transition) -> Transition:
+        """From camera images, `steps` with step indices for observations: the frames are stored apart."""
+        if self.encoder is None:
+            return steps
+        index = jnp.full(steps.reward.shape, buffer.written)
+        return steps._replace(obs=index, next_obs=index)
 
     def twin_logits(self, critic_params, obs, action):
         """Both critics' atom logits, (2, batch, atoms)."""
@@ -310,14 +327,14 @@ class TD3:
         (normalizer, actor_params), obs = ts.params, ts.env_state.obs
         noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
         action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
-        env_state, steps, valid, stats = step_envs(self.train_env, ts.env_state, action)
-        window = ts.window
+        env_state, frames, valid, stats = step_envs(self.train_env, ts.env_state, action)
+        steps, window = self.indexed(ts.buffer, frames), ts.window
         if cfg.num_steps > 1:
             newest = (steps, env_state.done.astype(jnp.float32), valid.astype(jnp.float32))
             window = jax.tree.map(lambda old, new: jnp.concatenate([old[1:], new[None]]), window, newest)
             steps, valid = n_step_rows(*window, cfg.discounting)
             valid &= ts.env_steps >= (cfg.num_steps - 1) * cfg.num_envs  # the window holds num_steps steps
-        buffer = self.buffer.add(ts.buffer, self.row(steps), mask=valid)
+        buffer = self.store(ts.buffer, steps, frames, env_state.done, valid)
         if self.encoder is None:  # images have no normalizer
             normalizer = running_statistics.update(normalizer, obs)
         fresh = jax.random.uniform(scale_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max)
@@ -395,19 +412,33 @@ class TD3:
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
                                                          "target_q": target_q}
 
+    LEARNED = ("params", "critic_params", "target_critic_params", "actor_opt_state", "critic_opt_state")
+
+    def sample(self, ts: TrainState, key: jax.Array) -> tuple[Transition, jax.Array | None]:
+        """`num_updates` uniform batches; from camera images also whether any draw may be learned from."""
+        cfg = self.config
+        if self.encoder is None:
+            return sample_batches(self, ts, key, cfg.num_updates), None
+        bits = jax.random.bits(key, (cfg.num_updates * cfg.batch_size,), jnp.uint32)
+        batch, learnable = self.buffer.sample_from_bits(ts.buffer, bits)
+        return jax.tree.map(lambda x: x.reshape(cfg.num_updates, cfg.batch_size, *x.shape[1:]), batch), learnable
+
     def update(self, ts: TrainState, key: jax.Array, iteration: jax.Array) -> tuple[TrainState, dict]:
         """`num_updates` updates on uniform batches, on the actor's clock by `iteration` (its index in the chunk)."""
         cfg = self.config
         sample_key, noise_key = jax.random.split(key)
-        batches = sample_batches(self, ts, sample_key, cfg.num_updates)
+        batches, learnable = self.sample(ts, sample_key)
         counts = iteration * cfg.num_updates + jnp.arange(cfg.num_updates)
 
         def one_update(ts, inputs):
             batch, key, count = inputs
             return self.learn(ts, batch, key, count % cfg.policy_frequency == cfg.policy_frequency - 1)
 
-        ts, stats = jax.lax.scan(one_update, ts, (batches, jax.random.split(noise_key, cfg.num_updates), counts))
-        return ts, {"critic_loss": stats["critic_loss"].mean(), "actor_loss": stats["actor_loss"].sum(),
+        learned, stats = jax.lax.scan(one_update, ts, (batches, jax.random.split(noise_key, cfg.num_updates), counts))
+        if learnable is not None:  # no draw could be learned from: the networks stay as they were
+            kept = {name: getattr(ts, name) for name in self.LEARNED}
+            learned = learned.replace(**copy_where(learnable, {name: getattr(learned, name) for name in kept}, kept))
+        return learned, {"critic_loss": stats["critic_loss"].mean(), "actor_loss": stats["actor_loss"].sum(),
                     "target_q": stats["target_q"].mean()}
 
     evaluate = SAC.evaluate  # the deterministic policy's returns
@@ -434,13 +465,19 @@ class TD3:
         actor_params, critic_params = self.joined(actor, encoder, "actor"), self.joined(twins, encoder, "twins")
         env_state = self.train_env.reset(env_key)
         example, flag = example_transition(env_state, self.action_size), jnp.float32(0)
+        if self.encoder is None:
+            buffer = self.buffer.init(pack(example))
+        else:
+            buffer = self.buffer.init(self.image_shape[:2] + (self.image_shape[2] // self.buffer.frame_stack,),
+                                      self.action_size)
+            example = example._replace(obs=jnp.int32(0), next_obs=jnp.int32(0))  # the rows' step indices
         window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`
             lambda x: jnp.zeros((cfg.num_steps, cfg.num_envs, *x.shape), x.dtype), (example, flag, flag))
         ts = TrainState(
             params=(normalizer, actor_params), critic_params=critic_params, target_critic_params=twins,
             actor_opt_state=self.actor_optimizer.init(actor), critic_opt_state=self.critic_optimizer.init(critic_params),
             noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
-            buffer=self.buffer.init(self.row(example)), window=window,
+            buffer=buffer, window=window,
             **first_state((normalizer, actor_params), env_state, loop_key))
         return prefill(self.collect, ts, fill_key, cfg.prefill_iterations)
 

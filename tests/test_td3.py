@@ -11,8 +11,8 @@ import pytest
 from test_sac import assert_trees_equal, drift, mapped, run_chunks
 
 import envs
-from agents.sac import unpack
-from agents.td3 import TD3, TD3Config, project, train
+from agents.sac import Transition, unpack
+from agents.td3 import TD3, TD3Config, n_step_rows, project, train
 
 SMALL = TD3Config(num_timesteps=392, num_envs=4, batch_size=16, num_updates=2, min_replay_size=32,
                   max_replay_size=256, num_evals=4, num_eval_envs=3, actor_hidden=(8,), critic_hidden=(8,),
@@ -152,6 +152,15 @@ def test_n_step_rows_sum_discounted_rewards_up_to_the_episode_end():
         np.testing.assert_allclose(three.discount[t], gamma ** (k - t) * one.discount[k], rtol=1e-6)
         np.testing.assert_array_equal(three.next_obs[t], one.next_obs[k])
         np.testing.assert_array_equal(three.obs[t], one.obs[t])
+
+
+def test_an_n_step_row_is_finite_when_a_step_after_its_end_is_not_physics():
+    """The step after an episode's end is the next episode's; a NaN reward there is not the row's (it is stored)."""
+    steps = Transition(obs=jnp.zeros((3, 1, 2)), action=jnp.zeros((3, 1, 1)), reward=jnp.array([[1.0], [2.0], [jnp.nan]]),
+                       discount=jnp.ones((3, 1)), next_obs=jnp.zeros((3, 1, 2)))
+    row, keep = n_step_rows(steps, ended=jnp.array([[0.0], [1.0], [1.0]]), valid=jnp.array([[1.0], [1.0], [0.0]]),
+                            discounting=0.5)
+    assert bool(keep[0]) and float(row.reward[0]) == 2.0 and float(row.discount[0]) == 0.5
 
 
 @pytest.mark.parametrize("policy_frequency,actor_steps", [(2, 1), (4, 0)])

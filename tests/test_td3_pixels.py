@@ -1,5 +1,5 @@
 """TD3 from camera images (`agents.td3` with DrQ-v2's parts): the random shift, DrQ-v2's encoder and the
-images too small for it, frames stored as uint8 in the n-step replay, the encoder trained by the critics'
+images too small for it, frames stored once as uint8 (`agents.frame_replay`), the encoder trained by the critics'
 loss and shared with the actor, exact resume, and the recipe the command line takes.
 
 Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
@@ -17,7 +17,6 @@ import envs
 from agents import registry
 from agents.commands import agent_config
 from agents.run import seeds_init
-from agents.sac import sample_batches
 from agents.td3 import SMALLEST_IMAGE, TD3, Encoder, TD3Config, random_shift
 
 TASK = "cartpole-balance-mjx"
@@ -83,14 +82,15 @@ def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_an
     env = envs.make(TASK, **PIXELS)
     td3 = TD3(TINY, env)
     ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
-    data, stored, width = ts.buffer.data, int(ts.buffer.size), TINY.num_envs
-    assert data.obs.dtype == jnp.uint8 and data.obs.shape == (TINY.max_replay_size, 16, 16, 3)
-    assert stored == TINY.min_replay_size - width  # 2-step rows: the first step's complete a step later
-    # No episode ends this early: a row's next frames, two steps on, are the row two steps later's frames.
-    np.testing.assert_array_equal(data.next_obs[:stored - 2 * width], data.obs[2 * width:stored])
-    assert np.ptp(np.asarray(data.obs[:stored])) > 0
+    buffer, width = ts.buffer, TINY.num_envs
+    assert buffer.seen.dtype == jnp.uint8 and buffer.seen.shape == (td3.buffer.steps * width, 16, 16, 3)
+    assert int(td3.buffer.size(buffer)) == TINY.min_replay_size - width  # 2-step rows: the first step's complete later
+    # No episode ends this early: each step's next frame is the frame the next step acted on.
+    stored = int(buffer.written) * width
+    np.testing.assert_array_equal(buffer.next_frame[:stored - width], buffer.seen[width:stored])
+    assert np.ptp(np.asarray(buffer.seen[:stored])) > 0
 
-    batch = jax.tree.map(lambda x: x[0], sample_batches(td3, ts, jax.random.PRNGKey(1), 1))
+    batch = jax.tree.map(lambda x: x[0], td3.sample(ts, jax.random.PRNGKey(1))[0])
     learned, _ = jax.jit(td3.learn)(ts, batch, jax.random.PRNGKey(2), jnp.bool_(True))
     encoder = lambda t: td3.twins_and_encoder(t.critic_params)[1]
     assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(encoder(ts)), jax.tree.leaves(encoder(learned))))
