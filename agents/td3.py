@@ -264,12 +264,11 @@ class TD3:
         self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
         self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
-        vectorized = device_options.vectorized_replay(platform)
         if self.encoder is None:
-            self.buffer = UniformReplay(config.max_replay_size, vectorized=vectorized)
+            self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
         else:  # each frame once (DrQ-v2's), not the 2 * frame_stack of a row of stacks
             frame_stack = self.image_shape[2] // getattr(env, "channels", self.image_shape[2])
-            self.buffer = FrameReplay(config.max_replay_size, config.num_envs, frame_stack, config.num_steps, vectorized)
+            self.buffer = FrameReplay(config.max_replay_size, config.num_envs, frame_stack, config.num_steps)
 
     # ---- the networks, on normalized observations or the encoder's features of camera images -------------
     def normalize(self, normalizer, obs):
