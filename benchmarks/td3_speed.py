@@ -6,6 +6,7 @@ warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole
     python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
     python -m benchmarks.td3_speed --env dmc-cartpole-swingup --preset pixels --env-opt observation=pixels \
         --env-opt impl=warp --parts act,learn   # dm_control's pixels: 84x84, 3 frames, action repeat 2 by default
+    python -m benchmarks.td3_speed ... --parts none   # XLA's count of an update's flops alone, from shapes (no init)
 """
 
 from __future__ import annotations
@@ -54,9 +55,14 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
     td3 = TD3(config, envs.make(env_name, **(env_options or {})))
+    # XLA's count of one seed's update (the actor's step included: both branches of its cond), from shapes alone
+    one_seed, key = jax.eval_shape(td3.init, jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
+    batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, one_seed, key)[0])
+    cost = jax.jit(td3.learn).lower(one_seed, batch, key, jnp.bool_(True)).cost_analysis()
+    gflop = (cost[0] if isinstance(cost, list) else cost)["flops"] / 1e9
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     start = time.perf_counter()
-    ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys))
+    ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys)) if parts else None
     init_s = time.perf_counter() - start
     steps = jax.random.split(jax.random.PRNGKey(1), (seeds, iterations))
 
@@ -90,6 +96,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
               "seeds": seeds, "overrides": overrides,
               "projection": td3_module.project.__name__, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
+              "learn_gflop_per_update": gflop,
               "compile_and_first_s": {part: first for part, (first, _) in timed.items()},
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}}
     if "act" in timed:
@@ -97,6 +104,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     for part in ("learn", "learn_hat"):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
+    if "learn" in timed:
+        record["learn_tflop_per_s"] = gflop * seeds * record["learn_updates_per_s_per_seed"] / 1e3
     if "chunk" in timed:
         chunk_s = timed["chunk"][1]
         record.update(chunk_iterations=config.iterations_per_chunk,
@@ -122,14 +131,15 @@ def main(argv=None) -> None:
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TD3Config field over the task's recipe; repeatable")
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
-                        help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction)")
+                        help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction; "
+                             "none: only XLA's count of an update's flops)")
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     tuple(args.parts.split(",")), dict(_parse_set(s) for s in args.env_opts), args.preset)
+                     tuple(part for part in args.parts.split(",") if part not in ("", "none")), dict(_parse_set(s) for s in args.env_opts), args.preset)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         from pathlib import Path
