@@ -162,7 +162,7 @@ _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
 # TD3 from camera images, a starting point: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium"
 # tasks: 1,024-wide layers, 3-step returns, discount 0.99, target step 0.01, 1M frames = 500k env steps at action repeat
-# 2) at GPU scale: 64 envs and batches of 1,024 per seed; a replay of 100k frame stacks, 12.7 GB per seed at 84x84x9. Not
+# 2) at GPU scale: 64 envs and batches of 1,024 per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9. Not
 # DrQ-v2's: 8 updates per 64 env steps at Adam's 3e-4 and LayerNorm critics; 2 at 1e-4 without learned nothing, from
 # pixels (saturated actors) or state (docs/agents.md, "TD3 from pixels").
 _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=1024, num_updates=8, actor_learning_rate=3e-4,

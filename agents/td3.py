@@ -75,6 +75,7 @@ class TD3Config(ReplayTiming):
     augment_pad: int = 4
     feature_size: int = 50
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
+    encoder_dtype: str = "float32"  # from camera images, the encoder's convolutions ("bfloat16": as compute_dtype's)
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
     max_replay_size: int = 100_000  # transitions per seed
     num_evals: int = 6  # as SACConfig's: one evaluation after each of num_evals - 1 chunks
@@ -89,7 +90,7 @@ class TD3Config(ReplayTiming):
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
         "pre_tanh_penalty": NON_NEGATIVE, "augment_pad": NON_NEGATIVE_COUNT, "feature_size": COUNT,
-        "compute_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
+        "compute_dtype": OneOf(COMPUTE_DTYPES), "encoder_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
         "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
 
     def __post_init__(self):
@@ -132,13 +133,16 @@ SMALLEST_IMAGE = 15  # pixels a side that leave its last convolution a 1x1 map
 
 
 class Encoder(nn.Module):
-    """DrQ-v2's encoder: uint8 frames to [-0.5, 0.5], `ENCODER_STRIDES`' convolutions with ReLU, flattened."""
+    """DrQ-v2's encoder: uint8 frames to [-0.5, 0.5], `ENCODER_STRIDES`' convolutions with ReLU, flattened;
+    convolved in `dtype`, its parameters float32."""
+
+    dtype: Any = jnp.float32
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
-        x = frames.astype(jnp.float32) / 255.0 - 0.5
+        x = (frames.astype(jnp.float32) / 255.0 - 0.5).astype(self.dtype)
         for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID",
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
                                 kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
         return x.reshape(*x.shape[:-3], -1)
 
@@ -252,7 +256,7 @@ class TD3:
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
         self.image_shape = image_shape(env)  # camera images: DrQ-v2's encoder, trunks and shifts
-        self.encoder = None if self.image_shape is None else Encoder()
+        self.encoder = None if self.image_shape is None else Encoder(COMPUTE_DTYPES[config.encoder_dtype])
         if self.image_shape is not None and min(self.image_shape[:2]) < SMALLEST_IMAGE:
             raise ValueError(f"TD3 from camera images needs at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE} pixels for "
                              f"DrQ-v2's encoder; {env!r} renders {self.image_shape[0]}x{self.image_shape[1]}: raise "

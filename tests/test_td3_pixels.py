@@ -5,6 +5,7 @@ loss and shared with the actor, exact resume, and the recipe the command line ta
 Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
 step with the ray-cast camera, so the default run compiles no env and the slow test compiles one run."""
 
+import dataclasses
 import re
 
 import jax
@@ -48,6 +49,22 @@ def test_the_encoder_is_drqv2s_and_smaller_images_are_refused():
     small = SMALLEST_IMAGE - 1
     with pytest.raises(ValueError, match=f"at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE}.*{small}x{small}.*--env-opt width="):
         TD3(TINY, envs.make(TASK, observation="pixels", width=small, height=small))
+
+
+def test_a_bfloat16_encoder_convolves_in_bfloat16_with_float32_parameters():
+    """`--encoder_dtype bfloat16`: the convolutions' operands in bf16 (a GPU's tensor cores), the parameters, which
+    Adam updates, float32; its features are the float32 encoder's to bf16's precision."""
+    frames = jax.random.randint(jax.random.PRNGKey(0), (4, 20, 20, 3), 0, 256).astype(jnp.uint8)
+    params = Encoder().init(jax.random.PRNGKey(1), frames)
+    assert {x.dtype for x in jax.tree.leaves(Encoder(jnp.bfloat16).init(jax.random.PRNGKey(1), frames))} == {np.dtype("float32")}
+    full, half = Encoder().apply(params, frames), Encoder(jnp.bfloat16).apply(params, frames)
+    assert full.dtype == jnp.float32 and half.dtype == jnp.bfloat16
+    np.testing.assert_allclose(np.asarray(half, np.float32), full, atol=0.05 * float(jnp.abs(full).max()))
+    td3 = TD3(dataclasses.replace(TINY, encoder_dtype="bfloat16"), envs.make(TASK, **PIXELS))
+    program = jax.jit(td3.encoder.apply).lower(params, frames).as_text()
+    assert re.findall(r"stablehlo.convolution.*-> tensor<[^>]*bf16>", program)
+    with pytest.raises(ValueError, match="encoder_dtype"):
+        TD3Config(encoder_dtype="float16")
 
 
 def qr_batch_dims(fn, *args) -> list[int]:
