@@ -24,8 +24,8 @@ from flax import struct
 from agents import device_options
 from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, copy_where, first_state
-from agents.ppo import image_shape, scale_by_adam
 from agents.frame_replay import FrameReplay
+from agents.ppo import image_shape, scale_by_adam
 from agents.replay import UniformReplay
 from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup,
                         example_transition, pack, polyak, prefill, sample_batches, step_envs)
@@ -90,8 +90,9 @@ class TD3Config(ReplayTiming):
         "noise_clip": NON_NEGATIVE, "std_min": NON_NEGATIVE, "std_max": NON_NEGATIVE,
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
         "pre_tanh_penalty": NON_NEGATIVE, "augment_pad": NON_NEGATIVE_COUNT, "feature_size": COUNT,
-        "compute_dtype": OneOf(COMPUTE_DTYPES), "encoder_dtype": OneOf(COMPUTE_DTYPES), "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT,
-        "num_evals": Range(2, integer=True), "num_eval_envs": COUNT}
+        "compute_dtype": OneOf(COMPUTE_DTYPES), "encoder_dtype": OneOf(COMPUTE_DTYPES),
+        "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT, "num_evals": Range(2, integer=True),
+        "num_eval_envs": COUNT}
 
     def __post_init__(self):
         check_fields(self, self.RANGES)
