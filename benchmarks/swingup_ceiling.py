@@ -54,9 +54,9 @@ def best_actions(env, state, steps: int, restarts: int, iterations: int, key: ja
 
 def dm_control_sum(state, actions: np.ndarray) -> float:
     """dm_control's own rewards summed over `actions`, from `state`'s positions and velocities."""
-    from envs.interop.dm_control import load
+    import envs
 
-    dm_env = load("cartpole", "swingup")
+    dm_env = envs.load_dm_control("cartpole", "swingup")
     dm_env.reset()
     physics = dm_env.physics
     with physics.reset_context():
