@@ -112,6 +112,12 @@ def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_an
     encoder = lambda t: td3.twins_and_encoder(t.critic_params)[1]
     assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(encoder(ts)), jax.tree.leaves(encoder(learned))))
     assert_trees_equal(td3.actor_and_encoder(learned.params[1])[1], encoder(learned))  # the actor acts on it
+    # Where no draw may be learned from (every row flagged: NaN physics), an update leaves the networks as they were.
+    flagged = ts.replace(buffer=ts.buffer.replace(valid=jnp.zeros_like(ts.buffer.valid)))
+    update = jax.jit(td3.update)
+    assert_trees_equal(update(flagged, jax.random.PRNGKey(3), jnp.int32(1))[0].critic_params, ts.critic_params)
+    assert not all(np.array_equal(a, b) for a, b in zip(
+        jax.tree.leaves(update(ts, jax.random.PRNGKey(3), jnp.int32(1))[0].critic_params), jax.tree.leaves(ts.critic_params)))
 
     whole, history = run_chunks(td3, ts, TINY.num_chunks)
     part, _ = run_chunks(td3, ts, 1)
