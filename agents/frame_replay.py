@@ -107,8 +107,8 @@ class FrameReplay:
         step, env = step[learnable], env[learnable]
         row = self.slot(step, env)
         last = step + state.last[row]
-        frames_seen = [self.frame_before(state, step, env, back) for back in range(self.frame_stack - 1, -1, -1)]
-        frames_seen += [self.frame_before(state, last, env, back) for back in range(self.frame_stack - 2, -1, -1)]
+        frames_seen = self.frames_back(state, step, env, range(self.frame_stack - 1, -1, -1))
+        frames_seen += self.frames_back(state, last, env, range(self.frame_stack - 2, -1, -1))
         seen = state.seen[jnp.concatenate(frames_seen)]
         newest = state.next_frame[self.slot(last, env)]
         stacks = jnp.split(seen, 2 * self.frame_stack - 1)
@@ -120,11 +120,11 @@ class FrameReplay:
     def slot(self, step: jax.Array, env: jax.Array) -> jax.Array:
         return (step % self.steps) * self.num_envs + env
 
-    def frame_before(self, state: FrameReplayState, step: jax.Array, env: jax.Array, back: int) -> jax.Array:
-        """The slot of the frame `back` steps before `step`'s newest seen frame, no earlier than its episode's first
+    def frames_back(self, state: FrameReplayState, step: jax.Array, env: jax.Array, backs) -> list[jax.Array]:
+        """The slots of the seen frames each of `backs` steps before `step`, no earlier than its episode's first
         (a reset fills the stack with its first frame)."""
         first = step - state.age[self.slot(step, env)]
-        return self.slot(jnp.maximum(step - back, first), env)
+        return [self.slot(jnp.maximum(step - back, first), env) for back in backs]
 
 
 def valid_first(valid: jax.Array) -> jax.Array:

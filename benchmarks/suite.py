@@ -270,6 +270,13 @@ def load_records(path: str | os.PathLike) -> list[dict]:
     return records
 
 
+def append_record(path: str | os.PathLike, record: dict) -> None:
+    """`record` added to the end of the JSON list in `path` (a new list where there is no file): a script's `--json`."""
+    path = Path(path)
+    found = json.loads(path.read_text()) if path.exists() else []
+    path.write_text(json.dumps([*found, record], indent=1) + "\n")
+
+
 def merge_records(old: list[dict], new: list[dict]) -> list[dict]:
     """`old` with its records of the kinds `new` holds replaced by `new`'s (`bench --merge`): one
     section re-run into a file of every section. The old meta record stays, with a note."""

@@ -103,11 +103,9 @@ def main(argv=None) -> None:
     record = measure(args.steps, args.restarts, args.iterations, args.resets)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
-        from pathlib import Path
+        from benchmarks.suite import append_record
 
-        path = Path(args.json)
-        found = json.loads(path.read_text()) if path.exists() else []
-        path.write_text(json.dumps([*found, record], indent=1) + "\n")
+        append_record(args.json, record)
 
 
 if __name__ == "__main__":

@@ -138,15 +138,14 @@ def main(argv=None) -> None:
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
+    parts = tuple(part for part in args.parts.split(",") if part not in ("", "none"))
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     tuple(part for part in args.parts.split(",") if part not in ("", "none")), dict(_parse_set(s) for s in args.env_opts), args.preset)
+                     parts, dict(_parse_set(s) for s in args.env_opts), args.preset)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
-        from pathlib import Path
+        from benchmarks.suite import append_record
 
-        path = Path(args.json)
-        found = json.loads(path.read_text()) if path.exists() else []
-        path.write_text(json.dumps([*found, record], indent=1))
+        append_record(args.json, record)
 
 
 if __name__ == "__main__":
