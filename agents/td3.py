@@ -5,9 +5,8 @@ and collecting -> the critic's and the actor's losses -> one update -> one train
 Built like `agents.sac` (pure, jittable, vmapped over seeds, resumed exactly) from its shared parts.
 The recipe (many envs, twin C51 critics with clipped double Q, delayed actor updates without a target
 actor, per-env exploration noise, AdamW, optional bf16 matmuls) and where it differs from FastTD3's
-code: docs/agents.md, "TD3: FastTD3's recipe". From camera images it adds DrQ-v2's parts (Yarats et al.
-2021, github.com/facebookresearch/drqv2): a convolutional encoder trained by the critics' loss alone,
-each network's trunk over its features, and random shifts of the sampled images ("TD3 from pixels").
+code: docs/agents.md, "TD3: FastTD3's recipe". What the networks read and how replay keeps it is the object
+`self.inputs` (`agents.td3_inputs`): state vectors, or camera images with DrQ-v2's parts ("TD3 from pixels").
 """
 
 from __future__ import annotations
@@ -21,20 +20,15 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agents import device_options
 from agents import evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, add_up, copy_where, first_state
-from agents.frame_replay import FrameReplay
 from agents.ppo import image_shape, scale_by_adam
-from agents.replay import UniformReplay
 from agents.sac import (SAC, ReplayTiming, Transition, check_layer_widths, check_prefill, continuous_setup,
-                        example_transition, pack, polyak, prefill, sample_batches, step_envs)
+                        example_transition, polyak, prefill, step_envs)
+from agents.td3_inputs import COMPUTE_DTYPES, inputs_for
 from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
                          check_fields)
-
-COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
-
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayTiming):
@@ -117,7 +111,8 @@ class TD3Config(ReplayTiming):
         return self.iterations_per_chunk * self.num_updates // self.policy_frequency
 
 
-# ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits; DrQ-v2's encoder ----
+# ---- networks: FastTD3's MLPs (ReLU), the actor's tanh head, the critic's atom logits (DrQ-v2's encoder and
+# its trunk from camera images: `agents.td3_inputs`) ----
 def _dense(features: int, dtype, **kwargs) -> nn.Dense:
     # PyTorch's default layer init (FastTD3's): U(+-1/sqrt(fan_in)) kernels.
     kwargs.setdefault("kernel_init", nn.initializers.variance_scaling(1 / 3, "fan_in", "uniform"))
@@ -128,34 +123,6 @@ def _trunk(features: jax.Array, size: int, dtype) -> jax.Array:
     """DrQ-v2's trunk over the encoder's features (size 0: none, state observations): Dense, LayerNorm, tanh."""
     return jnp.tanh(nn.LayerNorm(dtype=dtype)(_dense(size, dtype)(features))) if size else features
 
-
-ENCODER_STRIDES = (2, 1, 1, 1)  # DrQ-v2's four 3x3 convolutions of 32 channels, unpadded
-SMALLEST_IMAGE = 15  # pixels a side that leave its last convolution a 1x1 map
-
-
-class Encoder(nn.Module):
-    """DrQ-v2's encoder: uint8 frames to [-0.5, 0.5], `ENCODER_STRIDES`' convolutions with ReLU, flattened;
-    convolved in `dtype`, its parameters float32."""
-
-    dtype: Any = jnp.float32
-
-    @nn.compact
-    def __call__(self, frames: jax.Array) -> jax.Array:
-        x = (frames.astype(jnp.float32) / 255.0 - 0.5).astype(self.dtype)
-        for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
-                                kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
-        return x.reshape(*x.shape[:-3], -1)
-
-
-def random_shift(key: jax.Array, frames: jax.Array, pad: int) -> jax.Array:
-    """DrQ-v2's augmentation of a batch of images (batch, H, W, C): each padded by `pad` pixels, its edges
-    repeated, and cut back to H x W at its own offset, drawn uniformly in [0, 2 pad] on each axis."""
-    height, width, channels = frames.shape[-3:]
-    padded = jnp.pad(frames, ((0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
-    offsets = jax.random.randint(key, (frames.shape[0], 2), 0, 2 * pad + 1)
-    crop = lambda image, at: jax.lax.dynamic_slice(image, (at[0], at[1], 0), (height, width, channels))
-    return jax.vmap(crop)(padded, offsets)
 
 
 class Actor(nn.Module):
@@ -225,8 +192,8 @@ def n_step_rows(steps: Transition, ended: jax.Array, valid: jax.Array, discounti
 
 @struct.dataclass
 class TrainState:
-    params: Any  # (normalizer state, actor params): what `policy` and checkpoints take (`TD3.actor_and_encoder`)
-    critic_params: Any  # the twin critics, stacked on a leading axis of 2 (`TD3.twins_and_encoder`)
+    params: Any  # (normalizer state, actor params): what `policy` and checkpoints take (`inputs.split`)
+    critic_params: Any  # the twin critics, stacked on a leading axis of 2 (`inputs.split`)
     target_critic_params: Any  # the twins' Polyak averages (the encoder has none: DrQ-v2's)
     actor_opt_state: Any
     critic_opt_state: Any
@@ -256,58 +223,14 @@ class TD3:
         """`platform` and `agents`: as `agents.sac.SAC`'s."""
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
-        self.image_shape = image_shape(env)  # camera images: DrQ-v2's encoder, trunks and shifts
-        self.encoder = None if self.image_shape is None else Encoder(COMPUTE_DTYPES[config.encoder_dtype])
-        if self.image_shape is not None and min(self.image_shape[:2]) < SMALLEST_IMAGE:
-            raise ValueError(f"TD3 from camera images needs at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE} pixels for "
-                             f"DrQ-v2's encoder; {env!r} renders {self.image_shape[0]}x{self.image_shape[1]}: raise "
-                             "--env-opt width= and height= (DrQ-v2's: 84)")
-        trunk = 0 if self.encoder is None else config.feature_size
-        self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype, trunk)
+        self.image_shape = image_shape(env)  # camera images: `device_options` maps their seeds
+        self.inputs = inputs_for(config, env, self.obs_size, self.action_size, platform)  # state or camera images
+        self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype, self.inputs.trunk)
         self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype, config.critic_layer_norm,
-                                      trunk)
+                                      self.inputs.trunk)
         self.support = jnp.linspace(config.v_min, config.v_max, config.num_atoms, dtype=jnp.float32)
         self.actor_optimizer = _adamw(config.actor_learning_rate, config.weight_decay, config.max_grad_norm)
         self.critic_optimizer = _adamw(config.critic_learning_rate, config.weight_decay, config.max_grad_norm)
-        if self.encoder is None:
-            self.buffer = UniformReplay(config.max_replay_size, vectorized=device_options.vectorized_replay(platform))
-        else:  # each frame once (DrQ-v2's), not the 2 * frame_stack of a row of stacks
-            frame_stack = self.image_shape[2] // getattr(env, "channels", self.image_shape[2])
-            self.buffer = FrameReplay(config.max_replay_size, config.num_envs, frame_stack, config.num_steps)
-
-    # ---- the networks, on normalized observations or the encoder's features of camera images -------------
-    def normalize(self, normalizer, obs):
-        from brax.training.acme import running_statistics
-        return running_statistics.normalize(obs, normalizer) if self.config.normalize_observations else obs
-
-    def features(self, normalizer, encoder, obs):
-        """What the actor and critics read: state observations normalized, or camera images encoded."""
-        return self.normalize(normalizer, obs) if self.encoder is None else self.encoder.apply(encoder, obs)
-
-    def actor_and_encoder(self, actor_params):
-        """The actor's network and, from camera images, its copy of the critics' encoder (else None)."""
-        return (actor_params, None) if self.encoder is None else (actor_params["actor"], actor_params["encoder"])
-
-    def twins_and_encoder(self, critic_params):
-        """The twin critics and, from camera images, the encoder that their loss trains (else None)."""
-        return (critic_params, None) if self.encoder is None else (critic_params["twins"], critic_params["encoder"])
-
-    def joined(self, network, encoder, name: str):
-        return network if self.encoder is None else {name: network, "encoder": encoder}
-
-    def store(self, buffer, steps: Transition, frames: Transition, ended: jax.Array, valid: jax.Array):
-        """The replay with `steps`' rows where `valid`: packed float rows of state transitions; from camera images the
-        step's `frames` and the rows, whose obs and next_obs are step indices (`FrameReplay`)."""
-        if self.encoder is None:
-            return self.buffer.add(buffer, pack(steps), mask=valid)
-        return self.buffer.add(buffer, frames.obs, frames.next_obs, ended, steps, valid)
-
-    def indexed(self, buffer, steps: Transition) -> Transition:
-        """From camera images, `steps` with step indices for observations: the frames are stored apart."""
-        if self.encoder is None:
-            return steps
-        index = jnp.full(steps.reward.shape, buffer.written)
-        return steps._replace(obs=index, next_obs=index)
 
     def twin_logits(self, critic_params, obs, action):
         """Both critics' atom logits, (2, batch, atoms)."""
@@ -320,27 +243,25 @@ class TD3:
     def policy(self, params, obs):
         """The actor's action in [-1, 1]; `params` = (normalizer state, actor params)."""
         normalizer, actor_params = params
-        actor, encoder = self.actor_and_encoder(actor_params)
-        return self.actor.apply(actor, self.features(normalizer, encoder, obs))
+        actor, encoder = self.inputs.split(actor_params, "actor")
+        return self.actor.apply(actor, self.inputs.features(normalizer, encoder, obs))
 
     def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
         """One step of every env with the actor and each env's noise (redrawn as its episode ends), as `SAC.collect`."""
-        from brax.training.acme import running_statistics
         cfg = self.config
         noise_key, scale_key = jax.random.split(key)
         (normalizer, actor_params), obs = ts.params, ts.env_state.obs
         noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
         action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
         env_state, frames, valid, stats = step_envs(self.train_env, ts.env_state, action)
-        steps, window = self.indexed(ts.buffer, frames), ts.window
+        steps, window = self.inputs.indexed(ts.buffer, frames), ts.window
         if cfg.num_steps > 1:
             newest = (steps, env_state.done.astype(jnp.float32), valid.astype(jnp.float32))
             window = jax.tree.map(lambda old, new: jnp.concatenate([old[1:], new[None]]), window, newest)
             steps, valid = n_step_rows(*window, cfg.discounting)
             valid &= ts.env_steps >= (cfg.num_steps - 1) * cfg.num_envs  # the window holds num_steps steps
-        buffer = self.store(ts.buffer, steps, frames, env_state.done, valid)
-        if self.encoder is None:  # images have no normalizer
-            normalizer = running_statistics.update(normalizer, obs)
+        buffer = self.inputs.store(ts.buffer, steps, frames, env_state.done, valid)
+        normalizer = self.inputs.observed(normalizer, obs)
         fresh = jax.random.uniform(scale_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max)
         ts = ts.replace(params=(normalizer, actor_params), buffer=buffer, env_state=env_state, window=window,
                         noise_scale=jnp.where(env_state.done > 0, fresh, ts.noise_scale),
@@ -353,11 +274,11 @@ class TD3:
         Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection."""
         cfg = self.config
         normalizer, actor_params = ts.params
-        twins, encoder = self.twins_and_encoder(critic_params)
-        obs = self.features(normalizer, encoder, batch.obs)
-        next_obs = jax.lax.stop_gradient(self.features(normalizer, encoder, batch.next_obs))  # DrQ-v2's
+        twins, encoder = self.inputs.split(critic_params, "twins")
+        obs = self.inputs.features(normalizer, encoder, batch.obs)
+        next_obs = jax.lax.stop_gradient(self.inputs.features(normalizer, encoder, batch.next_obs))  # DrQ-v2's
         smoothing = jnp.clip(jax.random.normal(key, batch.action.shape) * cfg.policy_noise, -cfg.noise_clip, cfg.noise_clip)
-        next_action = jnp.clip(self.actor.apply(self.actor_and_encoder(actor_params)[0], next_obs) + smoothing, -1, 1)
+        next_action = jnp.clip(self.actor.apply(self.inputs.split(actor_params, "actor")[0], next_obs) + smoothing, -1, 1)
         next_probs = jax.nn.softmax(self.twin_logits(ts.target_critic_params, next_obs, next_action))
         reward, discount = batch.reward * cfg.reward_scaling, batch.discount * cfg.discounting
         target = jax.vmap(lambda p: project(p, reward, discount, self.support))(next_probs)
@@ -373,8 +294,8 @@ class TD3:
     def actor_loss(self, actor, ts: TrainState, batch: Transition):
         """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty;
         the encoder's features are the critics' to train (DrQ-v2's)."""
-        twins, encoder = self.twins_and_encoder(ts.critic_params)
-        obs = jax.lax.stop_gradient(self.features(ts.params[0], encoder, batch.obs))
+        twins, encoder = self.inputs.split(ts.critic_params, "twins")
+        obs = jax.lax.stop_gradient(self.inputs.features(ts.params[0], encoder, batch.obs))
         action, pre_tanh = self.actor.apply(actor, obs, with_pre_tanh=True)
         values = self.twin_values(jax.nn.softmax(self.twin_logits(twins, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
@@ -384,47 +305,35 @@ class TD3:
     # ---- learning -----------------------------------------------------------
     def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:
         normalizer, actor_params = ts.params
-        actor, encoder = self.actor_and_encoder(actor_params)
+        actor, encoder = self.inputs.split(actor_params, "actor")
         loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, batch)
         updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor)
-        actor_params = self.joined(optax.apply_updates(actor, updates), encoder, "actor")
+        actor_params = self.inputs.joined(optax.apply_updates(actor, updates), encoder, "actor")
         return ts.replace(params=(normalizer, actor_params), actor_opt_state=opt_state), loss
-
-    def shifted(self, batch: Transition, key: jax.Array) -> Transition:
-        """DrQ-v2's augmentation of a batch of camera images: each image shifted on its own (`random_shift`),
-        observations apart from next observations."""
-        obs_key, next_key = jax.random.split(key)
-        pad = self.config.augment_pad
-        return batch._replace(obs=random_shift(obs_key, batch.obs, pad),
-                              next_obs=random_shift(next_key, batch.next_obs, pad))
 
     def learn(self, ts: TrainState, batch: Transition, key: jax.Array, actor_turn: jax.Array):
         """One update on `batch`: the critics (and the encoder), the actor on `actor_turn` (the same for every
-        seed), the targets. Camera images are shifted first (`shifted`)."""
-        if self.encoder is not None:
-            key, shift_key = jax.random.split(key)
-            batch = self.shifted(batch, shift_key)
+        seed), the targets. Camera images are shifted first (`agents.td3_inputs.ImageInputs.augmented`)."""
+        batch = self.inputs.augmented(batch, jax.random.fold_in(key, 1))
         (critic_loss, target_q), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
             ts.critic_params, ts, batch, key)
         updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
         critic_params = optax.apply_updates(ts.critic_params, updates)
-        actor = self.actor_and_encoder(ts.params[1])[0]  # acting on the encoder the critics trained
-        params = (ts.params[0], self.joined(actor, self.twins_and_encoder(critic_params)[1], "actor"))
+        actor = self.inputs.split(ts.params[1], "actor")[0]  # acting on the encoder the critics trained
+        params = (ts.params[0], self.inputs.joined(actor, self.inputs.split(critic_params, "twins")[1], "actor"))
         ts = ts.replace(params=params, critic_params=critic_params, critic_opt_state=opt_state)
         ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
-        target = polyak(ts.target_critic_params, self.twins_and_encoder(ts.critic_params)[0], self.config.tau)
+        target = polyak(ts.target_critic_params, self.inputs.split(ts.critic_params, "twins")[0], self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
                                                          "target_q": target_q}
 
     LEARNED = ("params", "critic_params", "target_critic_params", "actor_opt_state", "critic_opt_state")
 
     def sample(self, ts: TrainState, key: jax.Array) -> tuple[Transition, jax.Array | None]:
-        """`num_updates` uniform batches; from camera images also whether any draw may be learned from."""
+        """`num_updates` uniform batches, and whether any draw may be learned from (None: every one may)."""
         cfg = self.config
-        if self.encoder is None:
-            return sample_batches(self, ts, key, cfg.num_updates), None
         bits = jax.random.bits(key, (cfg.num_updates * cfg.batch_size,), jnp.uint32)
-        batch, learnable = self.buffer.sample_from_bits(ts.buffer, bits)
+        batch, learnable = self.inputs.draw(ts.buffer, bits)
         return jax.tree.map(lambda x: x.reshape(cfg.num_updates, cfg.batch_size, *x.shape[1:]), batch), learnable
 
     def update(self, ts: TrainState, key: jax.Array, iteration: jax.Array) -> tuple[TrainState, dict]:
@@ -450,31 +359,20 @@ class TD3:
     # ---- a training run ---------------------------------------------------------
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
         """Fresh networks, optimizers, noise scales and envs, then the first fill; `hyperparams`: none traced yet."""
-        from brax.training.acme import running_statistics, specs
         if hyperparams is not None:
             raise ValueError("TD3 cannot sweep settings within one program yet (no field of TD3Config is traced); "
                              "run one `mjxsuite train --agent td3` per value instead")
         cfg = self.config
         actor_key, critic_key, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
-        obs0, act0, encoder, normalizer = jnp.zeros((1, self.obs_size)), jnp.zeros((1, self.action_size)), None, None
-        if self.encoder is None:
-            normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
-        else:
-            critic_key, encoder_key = jax.random.split(critic_key)
-            frames = jnp.zeros((1, *self.image_shape), jnp.uint8)
-            encoder = self.encoder.init(encoder_key, frames)
-            obs0 = self.encoder.apply(encoder, frames)
+        normalizer, encoder, obs0 = self.inputs.init(jax.random.fold_in(key, 1))
+        act0 = jnp.zeros((1, self.action_size))
         actor = self.actor.init(actor_key, obs0)
         twins = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
-        actor_params, critic_params = self.joined(actor, encoder, "actor"), self.joined(twins, encoder, "twins")
+        actor_params = self.inputs.joined(actor, encoder, "actor")
+        critic_params = self.inputs.joined(twins, encoder, "twins")
         env_state = self.train_env.reset(env_key)
-        example, flag = example_transition(env_state, self.action_size), jnp.float32(0)
-        if self.encoder is None:
-            buffer = self.buffer.init(pack(example))
-        else:
-            buffer = self.buffer.init(self.image_shape[:2] + (self.image_shape[2] // self.buffer.frame_stack,),
-                                      self.action_size)
-            example = example._replace(obs=jnp.int32(0), next_obs=jnp.int32(0))  # the rows' step indices
+        buffer, example = self.inputs.init_buffer(example_transition(env_state, self.action_size))
+        flag = jnp.float32(0)
         window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`
             lambda x: jnp.zeros((cfg.num_steps, cfg.num_envs, *x.shape), x.dtype), (example, flag, flag))
         ts = TrainState(

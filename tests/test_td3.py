@@ -226,7 +226,7 @@ def test_the_pre_tanh_penalty_alone_pulls_a_saturated_actor_off_its_bound(penalt
     saturated = {"params": {**actor["params"], head: {**actor["params"][head], "bias": jnp.full(td3.action_size, 5.0)}}}
     ts = ts.replace(params=(normalizer, saturated), critic_params=critic)
     batch = td3_batch(td3, ts)
-    obs = td3.normalize(normalizer, batch.obs)
+    obs = td3.inputs.features(normalizer, None, batch.obs)
     _, pre_tanh = td3.actor.apply(saturated, obs, with_pre_tanh=True)
     loss = td3.actor_loss(saturated, ts, batch)
     np.testing.assert_allclose(loss, -td3.twin_values(jnp.full(SMALL.num_atoms, 1 / SMALL.num_atoms))

@@ -18,7 +18,8 @@ import envs
 from agents import registry
 from agents.commands import agent_config
 from agents.run import seeds_init
-from agents.td3 import SMALLEST_IMAGE, TD3, Encoder, TD3Config, random_shift
+from agents.td3 import TD3, TD3Config
+from agents.td3_inputs import SMALLEST_IMAGE, Encoder, random_shift
 
 TASK = "cartpole-balance-mjx"
 PIXELS = dict(observation="pixels", width=16, height=16)
@@ -61,7 +62,7 @@ def test_a_bfloat16_encoder_convolves_in_bfloat16_with_float32_parameters():
     assert full.dtype == jnp.float32 and half.dtype == jnp.bfloat16
     np.testing.assert_allclose(np.asarray(half, np.float32), full, atol=0.05 * float(jnp.abs(full).max()))
     td3 = TD3(dataclasses.replace(TINY, encoder_dtype="bfloat16"), envs.make(TASK, **PIXELS))
-    program = jax.jit(td3.encoder.apply).lower(params, frames).as_text()
+    program = jax.jit(td3.inputs.encoder.apply).lower(params, frames).as_text()
     assert re.findall(r"stablehlo.convolution.*-> tensor<[^>]*bf16>", program)
     with pytest.raises(ValueError, match="encoder_dtype"):
         TD3Config(encoder_dtype="float16")
@@ -99,9 +100,9 @@ def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_an
     env = envs.make(TASK, **PIXELS)
     td3 = TD3(TINY, env)
     ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
-    buffer, width = ts.buffer, TINY.num_envs
-    assert buffer.seen.dtype == jnp.uint8 and buffer.seen.shape == (td3.buffer.steps * width, 16, 16, 3)
-    assert int(td3.buffer.size(buffer)) == TINY.min_replay_size - width  # 2-step rows: the first step's complete later
+    buffer, width, replay = ts.buffer, TINY.num_envs, td3.inputs.buffer
+    assert buffer.seen.dtype == jnp.uint8 and buffer.seen.shape == (replay.steps * width, 16, 16, 3)
+    assert int(replay.size(buffer)) == TINY.min_replay_size - width  # 2-step rows: the first step's complete later
     # No episode ends this early: each step's next frame is the frame the next step acted on.
     stored = int(buffer.written) * width
     np.testing.assert_array_equal(buffer.next_frame[:stored - width], buffer.seen[width:stored])
@@ -109,9 +110,9 @@ def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_an
 
     batch = jax.tree.map(lambda x: x[0], td3.sample(ts, jax.random.PRNGKey(1))[0])
     learned, _ = jax.jit(td3.learn)(ts, batch, jax.random.PRNGKey(2), jnp.bool_(True))
-    encoder = lambda t: td3.twins_and_encoder(t.critic_params)[1]
+    encoder = lambda t: td3.inputs.split(t.critic_params, "twins")[1]
     assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(encoder(ts)), jax.tree.leaves(encoder(learned))))
-    assert_trees_equal(td3.actor_and_encoder(learned.params[1])[1], encoder(learned))  # the actor acts on it
+    assert_trees_equal(td3.inputs.split(learned.params[1], "actor")[1], encoder(learned))  # the actor acts on it
     # Where no draw may be learned from (every row flagged: NaN physics), an update leaves the networks as they were.
     flagged = ts.replace(buffer=ts.buffer.replace(valid=jnp.zeros_like(ts.buffer.valid)))
     update = jax.jit(td3.update)
