@@ -271,7 +271,8 @@ class TD3:
     # ---- the losses -----------------------------------------------------------
     def critic_loss(self, critic_params, ts: TrainState, batch: Transition, key: jax.Array):
         """Cross entropy of each critic against the target critics' projected `r + gamma * discount *
-        Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection."""
+        Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection. Returns the
+        loss and (the target's mean value, the features of `batch.obs`, for the actor's step)."""
         cfg = self.config
         normalizer, actor_params = ts.params
         twins, encoder = self.inputs.split(critic_params, "twins")
@@ -289,13 +290,12 @@ class TD3:
         target = jax.lax.stop_gradient(target)
         log_probs = jax.nn.log_softmax(self.twin_logits(twins, obs, batch.action))
         loss = -(target * log_probs).sum(-1).mean(-1).sum()  # the two critics' losses, summed
-        return loss, self.twin_values(target[0]).mean()
+        return loss, (self.twin_values(target[0]).mean(), obs)
 
-    def actor_loss(self, actor, ts: TrainState, batch: Transition):
-        """Minus the mean value of the actor's actions (the lower twin's with clipped double Q), plus its penalty;
-        the encoder's features are the critics' to train (DrQ-v2's)."""
-        twins, encoder = self.inputs.split(ts.critic_params, "twins")
-        obs = jax.lax.stop_gradient(self.inputs.features(ts.params[0], encoder, batch.obs))
+    def actor_loss(self, actor, ts: TrainState, obs: jax.Array):
+        """Minus the mean value of the actor's actions on the features `obs` (the lower twin's with clipped double
+        Q), plus its penalty."""
+        twins = self.inputs.split(ts.critic_params, "twins")[0]
         action, pre_tanh = self.actor.apply(actor, obs, with_pre_tanh=True)
         values = self.twin_values(jax.nn.softmax(self.twin_logits(twins, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
@@ -303,10 +303,12 @@ class TD3:
         return (penalty * jnp.square(pre_tanh).mean() if penalty else 0.0) - value.mean()
 
     # ---- learning -----------------------------------------------------------
-    def step_actor(self, ts: TrainState, batch: Transition) -> tuple[TrainState, jax.Array]:
+    def step_actor(self, ts: TrainState, obs: jax.Array) -> tuple[TrainState, jax.Array]:
+        """The actor's step on the features `obs` that the critics' step read: from camera images the encoder's
+        before that step, and its to train alone (DrQ-v2's)."""
         normalizer, actor_params = ts.params
         actor, encoder = self.inputs.split(actor_params, "actor")
-        loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, batch)
+        loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, jax.lax.stop_gradient(obs))
         updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor)
         actor_params = self.inputs.joined(optax.apply_updates(actor, updates), encoder, "actor")
         return ts.replace(params=(normalizer, actor_params), actor_opt_state=opt_state), loss
@@ -315,14 +317,14 @@ class TD3:
         """One update on `batch`: the critics (and the encoder), the actor on `actor_turn` (the same for every
         seed), the targets. Camera images are shifted first (`agents.td3_inputs.ImageInputs.augmented`)."""
         batch = self.inputs.augmented(batch, jax.random.fold_in(key, 1))
-        (critic_loss, target_q), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
+        (critic_loss, (target_q, obs)), grads = jax.value_and_grad(self.critic_loss, has_aux=True)(
             ts.critic_params, ts, batch, key)
         updates, opt_state = self.critic_optimizer.update(grads, ts.critic_opt_state, ts.critic_params)
         critic_params = optax.apply_updates(ts.critic_params, updates)
         actor = self.inputs.split(ts.params[1], "actor")[0]  # acting on the encoder the critics trained
         params = (ts.params[0], self.inputs.joined(actor, self.inputs.split(critic_params, "twins")[1], "actor"))
         ts = ts.replace(params=params, critic_params=critic_params, critic_opt_state=opt_state)
-        ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, batch)
+        ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, obs)
         target = polyak(ts.target_critic_params, self.inputs.split(ts.critic_params, "twins")[0], self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
                                                          "target_q": target_q}

@@ -7,6 +7,7 @@ warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole
     python -m benchmarks.td3_speed --env dmc-cartpole-swingup --preset pixels --env-opt observation=pixels \
         --env-opt impl=warp --parts act,learn   # dm_control's pixels: 84x84, 3 frames, action repeat 2 by default
     python -m benchmarks.td3_speed ... --parts none   # XLA's count of an update's flops alone, from shapes (no init)
+    python -m benchmarks.td3_speed ... --trace DIR    # then one more run of each part under jax.profiler, by kernel
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import argparse
 import ast
 import json
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -45,9 +47,11 @@ def project_by_hat(probs, reward, discount, support):
 
 
 def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
-            parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default") -> dict:
+            parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default",
+            trace: str | None = None) -> dict:
     """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
-    contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state."""
+    contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state; with `trace`, each
+    part's kernels (`_kernels`)."""
     import envs
     from agents import brax_defaults
     from agents import td3 as td3_module
@@ -92,13 +96,14 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = _timed(programs[part], ts, repeats=repeats)
         print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
+    kernels = _kernels(programs, ts, parts, trace) if trace else {}
     record = {"kind": "td3-speed", "env": env_name, "env_options": env_options or {}, "preset": preset,
               "seeds": seeds, "overrides": overrides,
               "projection": td3_module.project.__name__, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
               "learn_gflop_per_update": gflop,
               "compile_and_first_s": {part: first for part, (first, _) in timed.items()},
-              "seconds": {part: seconds for part, (_, seconds) in timed.items()}}
+              "seconds": {part: seconds for part, (_, seconds) in timed.items()}, **kernels}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
     for part in ("learn", "learn_hat"):
@@ -112,6 +117,19 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
                       chunk_env_steps_per_s_per_seed=config.iterations_per_chunk * config.num_envs / chunk_s,
                       chunk_updates_per_s_per_seed=config.iterations_per_chunk * config.num_updates / chunk_s)
     return record
+
+
+def _kernels(programs: dict, ts, parts, directory: str) -> dict:
+    """One more run of each compiled part under `jax.profiler` (a trace in directory/part), its device time summed
+    by kernel (`benchmarks.gpu_profile.summary`)."""
+    from benchmarks import gpu_profile
+
+    summaries = {}
+    for part in parts:
+        with gpu_profile.traced(Path(directory) / part):
+            jax.block_until_ready(programs[part](ts))
+        summaries[part] = gpu_profile.summary(Path(directory) / part)
+    return {"kernels": summaries, "trace_dir": directory}
 
 
 def _parse_set(text: str) -> tuple[str, object]:
@@ -137,10 +155,11 @@ def main(argv=None) -> None:
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
+    parser.add_argument("--trace", metavar="DIR", help="trace one more run of each part there; kernels in the record")
     args = parser.parse_args(argv)
     parts = tuple(part for part in args.parts.split(",") if part not in ("", "none"))
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     parts, dict(_parse_set(s) for s in args.env_opts), args.preset)
+                     parts, dict(_parse_set(s) for s in args.env_opts), args.preset, args.trace)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         from benchmarks.suite import append_record

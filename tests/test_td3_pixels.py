@@ -68,6 +68,17 @@ def test_a_bfloat16_encoder_convolves_in_bfloat16_with_float32_parameters():
         TD3Config(encoder_dtype="float16")
 
 
+def test_the_actors_step_learns_on_the_features_that_the_critics_step_encoded():
+    """DrQ-v2's update: the actor's step reads the encoder's features of the observations from the critics' step
+    (the encoder before that step, detached), so a whole update convolves no more than the critics' step alone."""
+    td3 = TD3(TINY, envs.make(TASK, **PIXELS))
+    ts, key = jax.eval_shape(td3.init, jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
+    batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, ts, key)[0])
+    convolutions = lambda fn, *args: jax.jit(fn).lower(*args).as_text().count("stablehlo.convolution")
+    critics = convolutions(jax.grad(td3.critic_loss, has_aux=True), ts.critic_params, ts, batch, key)
+    assert critics > 0 and convolutions(td3.learn, ts, batch, key, jnp.bool_(True)) == critics
+
+
 def qr_batch_dims(fn, *args) -> list[int]:
     """The batch dimensions of every QR kernel (jaxlib's LAPACK custom calls on the CPU) in `fn`'s program."""
     text = jax.jit(fn).lower(*args).as_text()
