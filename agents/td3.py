@@ -271,8 +271,8 @@ class TD3:
     # ---- the losses -----------------------------------------------------------
     def critic_loss(self, critic_params, ts: TrainState, batch: Transition, key: jax.Array):
         """Cross entropy of each critic against the target critics' projected `r + gamma * discount *
-        Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection. Returns the
-        loss and (the target's mean value, the features of `batch.obs`, for the actor's step)."""
+        Z(s', a')`, a' the actor's smoothed next action; clipped double Q: the lower mean's projection.
+        Aux: (the target's mean value, the features of `batch.obs`, which the actor's step reads)."""
         cfg = self.config
         normalizer, actor_params = ts.params
         twins, encoder = self.inputs.split(critic_params, "twins")
@@ -304,8 +304,7 @@ class TD3:
 
     # ---- learning -----------------------------------------------------------
     def step_actor(self, ts: TrainState, obs: jax.Array) -> tuple[TrainState, jax.Array]:
-        """The actor's step on the features `obs` that the critics' step read: from camera images the encoder's
-        before that step, and its to train alone (DrQ-v2's)."""
+        """The actor's step on the features `obs` of the critics' step (from images: the encoder before it; DrQ-v2's)."""
         normalizer, actor_params = ts.params
         actor, encoder = self.inputs.split(actor_params, "actor")
         loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, jax.lax.stop_gradient(obs))
@@ -367,14 +366,13 @@ class TD3:
         cfg = self.config
         actor_key, critic_key, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
         normalizer, encoder, obs0 = self.inputs.init(jax.random.fold_in(key, 1))
-        act0 = jnp.zeros((1, self.action_size))
+        act0, flag = jnp.zeros((1, self.action_size)), jnp.float32(0)
         actor = self.actor.init(actor_key, obs0)
         twins = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
         actor_params = self.inputs.joined(actor, encoder, "actor")
         critic_params = self.inputs.joined(twins, encoder, "twins")
         env_state = self.train_env.reset(env_key)
         buffer, example = self.inputs.init_buffer(example_transition(env_state, self.action_size))
-        flag = jnp.float32(0)
         window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`
             lambda x: jnp.zeros((cfg.num_steps, cfg.num_envs, *x.shape), x.dtype), (example, flag, flag))
         ts = TrainState(
