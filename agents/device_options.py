@@ -58,6 +58,12 @@ def transposed_kernel_gradient(platform: str | None = None) -> bool:
     return on_cpu(platform)
 
 
+def canonical_conv_gradients(platform: str | None = None) -> bool:
+    """Convolutions' gradients as canonical convolutions on the CPU (`agents.networks.canonical_conv`), for XLA's
+    fast path inside loops; a GPU's convolution rewriter matches JAX's own."""
+    return on_cpu(platform)
+
+
 # XLA's default command buffers (CUDA graphs) plus WHILE and CONDITIONAL, for the training programs'
 # loops only: env rollouts keep XLA's defaults (docs/bench-gpu.json, "dqn-command-buffers").
 GPU_COMMAND_BUFFERS = "FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,DYNAMIC_SLICE_FUSION,WHILE,CONDITIONAL"

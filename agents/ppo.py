@@ -8,6 +8,7 @@ inside `jit`, vmaps over seeds and resumes exactly. The interface is `agents.dqn
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import math
@@ -18,8 +19,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from agents import evaluation
+from agents import device_options, evaluation
 from agents.dqn import DQN, EPISODE_TOTALS, first_state, stack_hyperparams
+from agents.networks import canonical_convs
 from envs import Env, wrap_for_training
 from envs.ranges import COUNT, FINITE, NON_NEGATIVE, POSITIVE, PROBABILITY, Range, check_fields
 
@@ -152,10 +154,11 @@ def check_image_fits(config: PPOConfig, shape: tuple[int, int, int]) -> None:
         height, width = (height - kernel) // stride + 1, (width - kernel) // stride + 1
 
 
-def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: PPOConfig):
+def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: PPOConfig, canonical: bool = False):
     """Brax's vision PPO networks for uint8 images of `shape`: each network's own convolutions, flattened
     rather than pooled (where things are matters), initialised as MuJoCo Playground's CartpoleBalance
-    vision recipe; frames go to [0, 1] inside the networks, so rollouts store uint8 (docs/agents.md)."""
+    vision recipe; frames go to [0, 1] inside the networks, so rollouts store uint8 (docs/agents.md).
+    `canonical`: applied through `agents.networks.canonical_convs` (for XLA:CPU)."""
     from brax.training import networks as brax_networks
     from brax.training.agents.ppo import networks_vision
     check_image_fits(config, shape)
@@ -169,7 +172,8 @@ def make_vision_networks(shape: tuple[int, int, int], action_size: int, config: 
 
     def on_frames(network):
         def apply(normalizer_params, params, frames):
-            return network.apply(normalizer_params, params, {PIXELS_KEY: frames.astype(jnp.float32) / 255.0})
+            with canonical_convs() if canonical else contextlib.nullcontext():
+                return network.apply(normalizer_params, params, {PIXELS_KEY: frames.astype(jnp.float32) / 255.0})
 
         return brax_networks.FeedForwardNetwork(init=network.init, apply=apply)
 
@@ -260,7 +264,8 @@ class PPO:
                 env.observation_size, env.action_size, preprocess_observations_fn=preprocess,
                 policy_hidden_layer_sizes=config.policy_hidden, value_hidden_layer_sizes=config.value_hidden)
         else:
-            self.networks = make_vision_networks(self.image_shape, env.action_size, config)
+            self.networks = make_vision_networks(self.image_shape, env.action_size, config,
+                                                 device_options.canonical_conv_gradients(platform))
         self.make_policy = ppo_networks.make_inference_fn(self.networks)
         # Adam's direction only, scaled by `hyper.neg_learning_rate` (as `agents.dqn.DQN`'s).
         clip = [optax.clip_by_global_norm(config.max_grad_norm)] if config.max_grad_norm is not None else []

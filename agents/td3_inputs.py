@@ -15,6 +15,7 @@ import jax.numpy as jnp
 
 from agents import device_options
 from agents.frame_replay import FrameReplay
+from agents.networks import canonical_conv
 from agents.ppo import image_shape
 from agents.replay import UniformReplay
 from agents.sac import Transition, pack, unpack
@@ -29,12 +30,14 @@ class Encoder(nn.Module):
     convolved in `dtype`, its parameters float32."""
 
     dtype: Any = jnp.float32
+    canonical_gradients: bool = False  # `agents.networks.canonical_conv` (for XLA:CPU); the same values
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = (frames.astype(jnp.float32) / 255.0 - 0.5).astype(self.dtype)
+        conv = canonical_conv if self.canonical_gradients else None
         for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype, conv_general_dilated=conv,
                                 kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
         return x.reshape(*x.shape[:-3], -1)
 
@@ -52,7 +55,9 @@ def random_shift(key: jax.Array, frames: jax.Array, pad: int) -> jax.Array:
 def inputs_for(config, env, obs_size: int, action_size: int, platform: str | None) -> StateInputs | ImageInputs:
     """`ImageInputs` where `env` observes camera images (`agents.ppo.image_shape`), else `StateInputs`."""
     shape = image_shape(env)
-    return StateInputs(config, obs_size, action_size, platform) if shape is None else ImageInputs(config, env, shape)
+    if shape is None:
+        return StateInputs(config, obs_size, action_size, platform)
+    return ImageInputs(config, env, shape, device_options.canonical_conv_gradients(platform))
 
 
 class StateInputs:
@@ -114,13 +119,13 @@ class ImageInputs:
     """Camera images (uint8 frames stacked on the channel axis): DrQ-v2's encoder and trunk (`feature_size`), no
     normalizer, each frame stored once, the sampled images shifted by up to `augment_pad` pixels."""
 
-    def __init__(self, config, env, shape: tuple[int, int, int]):
+    def __init__(self, config, env, shape: tuple[int, int, int], canonical_gradients: bool = False):
         if min(shape[:2]) < SMALLEST_IMAGE:
             raise ValueError(f"TD3 from camera images needs at least {SMALLEST_IMAGE}x{SMALLEST_IMAGE} pixels for "
                              f"DrQ-v2's encoder; {env!r} renders {shape[0]}x{shape[1]}: raise --env-opt width= and "
                              "height= (DrQ-v2's: 84)")
         self.config, self.shape, self.trunk = config, shape, config.feature_size
-        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype])
+        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], canonical_gradients)
         self.frame_shape = (*shape[:2], getattr(env, "channels", shape[2]))
         self.buffer = FrameReplay(config.max_replay_size, config.num_envs, shape[2] // self.frame_shape[2],
                                   config.num_steps)

@@ -8,6 +8,7 @@ the networks; the slow test trains, saves and acts.
 
 import dataclasses
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -65,6 +66,27 @@ def test_vision_networks_act_on_uint8_frames():
     # Scaled inside the network: the uint8 frames and their float [0, 1] copies act alike.
     scaled = ppo.networks.policy_network.apply(normalizer, policy, frames)
     assert np.isfinite(np.asarray(scaled)).all()
+
+
+def test_on_the_cpu_the_vision_networks_gradients_in_a_loop_are_canonical_convolutions():
+    """XLA:CPU canonicalizes only a program's top-level convolutions, and runs the others on its slow generic path:
+    in a loop, JAX's own gradients of Brax's convolutions stay there. PPO on the CPU applies its networks through
+    `agents.networks.canonical_convs` (`agents.device_options.canonical_conv_gradients`): the same gradients, every
+    convolution canonical; for a GPU it keeps JAX's own."""
+    config = dataclasses.replace(TINY, cnn_output_channels=(4, 4), cnn_kernel_size=(3, 3), cnn_stride=(2, 1))
+    env = envs.make(TASK, observation="pixels", width=12, height=12)
+    frames = jax.random.randint(jax.random.PRNGKey(0), (4, 12, 12, 3), 0, 256).astype(jnp.uint8)
+    grads, forms = [], []
+    for platform in ("cpu", "gpu"):
+        value = PPO(config, env, platform=platform).networks.value_network
+        params = value.init(jax.random.PRNGKey(1))
+        grad = jax.grad(lambda p, value=value: jnp.square(value.apply(None, p, frames)).sum())
+        grads.append(jax.tree.leaves(grad(params)))
+        loop = jax.jit(lambda p, grad=grad: jax.lax.scan(lambda p, _: (grad(p), None), p, None, length=2)[0])
+        forms.append(set(re.findall(r"convolution\(.*dim_labels=([\w>-]+)", loop.lower(params).compile().as_text())))
+    for a, b in zip(*grads, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    assert forms[0] == {"b01f_01io->b01f"} and len(forms[1]) > 1, forms
 
 
 def test_config_checks_name_the_fields():

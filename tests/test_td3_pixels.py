@@ -8,6 +8,7 @@ step with the ray-cast camera, so the default run compiles no env and the slow t
 import dataclasses
 import re
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -18,6 +19,7 @@ import envs
 from agents import registry
 from agents.commands import agent_config
 from agents.run import seeds_init
+from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
 from agents.td3_inputs import SMALLEST_IMAGE, Encoder, random_shift
 
@@ -77,6 +79,34 @@ def test_the_actors_step_learns_on_the_features_that_the_critics_step_encoded():
     convolutions = lambda fn, *args: jax.jit(fn).lower(*args).as_text().count("stablehlo.convolution")
     critics = convolutions(jax.grad(td3.critic_loss, has_aux=True), ts.critic_params, ts, batch, key)
     assert critics > 0 and convolutions(td3.learn, ts, batch, key, jnp.bool_(True)) == critics
+
+
+@pytest.mark.parametrize("size, kernel, stride", [(20, 3, 2), (21, 3, 2), (17, 3, 1), (64, 8, 4), (15, 4, 3)])
+def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
+    """`agents.networks.canonical_conv`'s gradients (for XLA:CPU) are JAX's own, for strides that do and do not
+    divide the image; padding it does not handle is refused with what it takes."""
+    x = jax.random.normal(jax.random.PRNGKey(0), (3, size, size, 5))
+    w = jax.random.normal(jax.random.PRNGKey(1), (kernel, kernel, 5, 7))
+    conv = lambda fn: lambda x, w: jnp.sin(nn.Conv(7, (kernel,) * 2, stride, "VALID", conv_general_dilated=fn).apply(
+        {"params": {"kernel": w, "bias": jnp.zeros(7)}}, x)).sum()
+    ours, jaxs = jax.grad(conv(canonical_conv), (0, 1))(x, w), jax.grad(conv(None), (0, 1))(x, w)
+    for a, b in zip(ours, jaxs, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
+    with pytest.raises(ValueError, match="unpadded NHWC images with HWIO kernels; got padding"):
+        nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
+
+
+def test_on_the_cpu_the_encoders_gradients_in_a_loop_are_canonical_convolutions():
+    """XLA:CPU runs a convolution fast only in its canonical form (NHWC, HWIO) and canonicalizes only those at a
+    program's top level: in a loop JAX's own gradients of the encoder took its slow generic path. TD3 on the CPU
+    convolves through `canonical_conv`, so every convolution of its encoder's gradients in a loop is canonical."""
+    td3 = TD3(TINY, envs.make(TASK, **PIXELS), platform="cpu")
+    frames = jnp.zeros((4, 16, 16, 9), jnp.uint8)
+    params = td3.inputs.encoder.init(jax.random.PRNGKey(0), frames)
+    step = lambda p, _: (jax.grad(lambda p: jnp.square(td3.inputs.encoder.apply(p, frames)).sum())(p), None)
+    program = jax.jit(lambda p: jax.lax.scan(step, p, None, length=2)[0]).lower(params).compile().as_text()
+    forms = re.findall(r"convolution\(.*dim_labels=([\w>-]+)", program)
+    assert len(forms) >= 7 and set(forms) == {"b01f_01io->b01f"}, forms
 
 
 def qr_batch_dims(fn, *args) -> list[int]:
