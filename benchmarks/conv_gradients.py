@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+
+from benchmarks.suite import append_record, timed_program
 
 STEPS = 4  # gradient steps in the scan
 TASK, IMAGE = "dmc-cartpole-balance", 32  # the update's env: dm_control's pixels at IMAGE x IMAGE
@@ -22,16 +22,9 @@ UPDATE = dict(num_envs=16, batch_size=128, num_updates=4, actor_hidden=(256, 256
               compute_dtype="float32", max_replay_size=50_000, min_replay_size=512)
 
 
-def _timed(program, *args, repeats: int = 3) -> dict:
-    start = time.perf_counter()
-    jax.block_until_ready(program(*args))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(program(*args))
-        times.append(time.perf_counter() - start)
-    return {"compile_and_first_s": first, "seconds": float(np.median(times))}
+def _timed(program, *args) -> dict:
+    first, seconds = timed_program(program, *args)
+    return {"compile_and_first_s": first, "seconds": seconds}
 
 
 def encoder_steps(canonical: bool, batch: int, size: int) -> dict:
@@ -89,8 +82,6 @@ def main(argv=None) -> None:
                         for name, t in parts.items()}}
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
-        from benchmarks.suite import append_record
-
         append_record(args.json, record)
 
 

@@ -277,6 +277,20 @@ def append_record(path: str | os.PathLike, record: dict) -> None:
     path.write_text(json.dumps([*found, record], indent=1) + "\n")
 
 
+def timed_program(program, *args, repeats: int = 3) -> tuple[float, float]:
+    """(compile + first run seconds, median seconds of `repeats` further runs), each run waited for in full."""
+    import jax
+    start = time.perf_counter()
+    jax.block_until_ready(program(*args))
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(program(*args))
+        times.append(time.perf_counter() - start)
+    return first, statistics.median(times)
+
+
 def merge_records(old: list[dict], new: list[dict]) -> list[dict]:
     """`old` with its records of the kinds `new` holds replaced by `new`'s (`bench --merge`): one
     section re-run into a file of every section. The old meta record stays, with a note."""

@@ -20,20 +20,8 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
-
-def _timed(program, *args, repeats: int) -> tuple[float, float]:
-    """(compile + first run seconds, median seconds of `repeats` further runs)."""
-    start = time.perf_counter()
-    jax.block_until_ready(program(*args))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(program(*args))
-        times.append(time.perf_counter() - start)
-    return first, float(np.median(times))
+from benchmarks.suite import append_record, timed_program
 
 
 def project_by_hat(probs, reward, discount, support):
@@ -94,7 +82,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk}
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
-        timed[part] = _timed(programs[part], ts, repeats=repeats)
+        timed[part] = timed_program(programs[part], ts, repeats=repeats)
         print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
     kernels = _kernels(programs, ts, parts, trace) if trace else {}
     record = {"kind": "td3-speed", "env": env_name, "env_options": env_options or {}, "preset": preset,
@@ -162,8 +150,6 @@ def main(argv=None) -> None:
                      parts, dict(_parse_set(s) for s in args.env_opts), args.preset, args.trace)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
-        from benchmarks.suite import append_record
-
         append_record(args.json, record)
 
 
