@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 
 from agents.checkpoint import atomic_write
-from benchmarks.td3_speed import _parse_set, _timed
+from benchmarks.suite import timed_program
+from benchmarks.td3_speed import _parse_set
 
 
 def grouped_convolutions(hlo: str) -> dict[str, int]:
@@ -66,7 +67,7 @@ def measure(env_name: str, impl: str, seeds: int, seed_axis: str, env_options: d
               **grouped_convolutions(programs["training_step"].lower(ts).as_text())}
     save(record)
     for part, program in programs.items():
-        first, seconds = _timed(program, ts, repeats=repeats)
+        first, seconds = timed_program(program, ts, repeats=repeats)
         record.update({f"{part}_compile_and_first_s": first, f"{part}_s": seconds,
                        f"{part}_env_steps_per_s": seeds * config.env_steps_per_training_step / seconds})
         save(record)
