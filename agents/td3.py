@@ -30,6 +30,7 @@ from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
                          check_fields)
 
+
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayTiming):
     """Every hyperparameter of a run, timed as SAC's (`agents.sac.ReplayTiming`). The defaults suit small tasks on a
@@ -122,7 +123,6 @@ def _dense(features: int, dtype, **kwargs) -> nn.Dense:
 def _trunk(features: jax.Array, size: int, dtype) -> jax.Array:
     """DrQ-v2's trunk over the encoder's features (size 0: none, state observations): Dense, LayerNorm, tanh."""
     return jnp.tanh(nn.LayerNorm(dtype=dtype)(_dense(size, dtype)(features))) if size else features
-
 
 
 class Actor(nn.Module):
