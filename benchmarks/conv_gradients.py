@@ -27,23 +27,25 @@ def _timed(program, *args) -> dict:
     return {"compile_and_first_s": first, "seconds": seconds}
 
 
+def _gradient_steps(loss, params) -> dict:
+    """`STEPS` plain gradient steps on `loss` in a `lax.scan`, timed."""
+    step = lambda p, _: (jax.tree.map(lambda w, g: w - 1e-3 * g, p, jax.grad(loss)(p)), None)
+    return _timed(jax.jit(lambda p: jax.lax.scan(step, p, None, length=STEPS)[0]), params)
+
+
 def encoder_steps(canonical: bool, batch: int, size: int) -> dict:
     from agents.td3_inputs import Encoder
     encoder = Encoder(canonical_gradients=canonical)
     frames = jax.random.randint(jax.random.PRNGKey(0), (batch, size, size, 9), 0, 256).astype(jnp.uint8)
     params = encoder.init(jax.random.PRNGKey(1), frames)
-    loss = lambda p: jnp.square(encoder.apply(p, frames)).mean()
-    step = lambda p, _: (jax.tree.map(lambda w, g: w - 1e-3 * g, p, jax.grad(loss)(p)), None)
-    return _timed(jax.jit(lambda p: jax.lax.scan(step, p, None, length=STEPS)[0]), params)
+    return _gradient_steps(lambda p: jnp.square(encoder.apply(p, frames)).mean(), params)
 
 
 def ppo_value_steps(canonical: bool, batch: int, size: int) -> dict:
     from agents.ppo import PPOConfig, make_vision_networks
     value = make_vision_networks((size, size, 3), 1, PPOConfig(), canonical).value_network
     frames = jax.random.randint(jax.random.PRNGKey(0), (batch, size, size, 3), 0, 256).astype(jnp.uint8)
-    loss = lambda p: jnp.square(value.apply(None, p, frames)).mean()
-    step = lambda p, _: (jax.tree.map(lambda w, g: w - 1e-3 * g, p, jax.grad(loss)(p)), None)
-    return _timed(jax.jit(lambda p: jax.lax.scan(step, p, None, length=STEPS)[0]), value.init(jax.random.PRNGKey(1)))
+    return _gradient_steps(lambda p: jnp.square(value.apply(None, p, frames)).mean(), value.init(jax.random.PRNGKey(1)))
 
 
 def td3_updates() -> dict:
