@@ -51,7 +51,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     one_seed, key = jax.eval_shape(td3.init, jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
     batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, one_seed, key)[0])
     cost = jax.jit(td3.learn).lower(one_seed, batch, key, jnp.bool_(True)).cost_analysis()
-    gflop = (cost[0] if isinstance(cost, list) else cost)["flops"] / 1e9
+    cost = cost[0] if isinstance(cost, list) else cost
+    gflop = cost["flops"] / 1e9 if cost else float("nan")  # XLA:GPU may give no count
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     start = time.perf_counter()
     ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys)) if parts else None
