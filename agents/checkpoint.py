@@ -288,14 +288,20 @@ def save_state(out_dir: Path, env: str, train_state: Any, chunks_done: int, fini
                clock: dict | None = None) -> None:
     """The whole train state (a `finished` run's `without_replay`), with its own chunk count, and the best
     parameters. `clock`: the run's seconds so far (`saved_clock`), in progress.json too (read without the state)."""
-    best_return = [float(r) for r in np.asarray(train_state.best_return)]
-    _write_arrays(out_dir / POLICY_FILE, "best_params", train_state.best_params, {"env": env, "best_return": best_return})
+    best_return = save_policy(out_dir, env, train_state.best_params, train_state.best_return)
     if finished:
         train_state = without_replay(train_state)
     _write_arrays(out_dir / STATE_FILE, "train_state", train_state,
                   {"env": env, "chunks_done": chunks_done, "replay_left_out": finished, "clock": clock or {}})
     atomic_write(out_dir / PROGRESS_FILE, json.dumps({"chunks_done": chunks_done, "best_return": best_return,
                                                        "clock": clock or {}}).encode())
+
+
+def save_policy(out_dir: Path, env: str, best_params: Any, best_return: Any) -> list[float]:
+    """best_params.ckpt alone (what `load_best_params` and a judge read), with its agents' best returns."""
+    best_return = [float(r) for r in np.asarray(best_return)]
+    _write_arrays(out_dir / POLICY_FILE, "best_params", best_params, {"env": env, "best_return": best_return})
+    return best_return
 
 
 class BackgroundSaves:
@@ -323,6 +329,9 @@ class BackgroundSaves:
 
         self._thread = threading.Thread(target=write, name="checkpoint-save")
         self._thread.start()
+
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
 
     def wait(self) -> None:
         if self._thread is not None:

@@ -254,6 +254,9 @@ class _Run:
         self.out = run_steps.open_run_dir(out_dir, self.saved_run, resume, self.writer, overwrite)
         self.lock = run_steps.RunDirLock(self.out if self.writer else None)
         self.saves = checkpoint.BackgroundSaves()
+        # Between checkpoints, best_params.ckpt alone after a judge that raised a best return, on a clock of its own:
+        # a run stopped before its next checkpoint (spaced out by its replay's size) keeps its best policy.
+        self.policy_clock, self.policy_best = run_steps.SaveClock(1, clock.seconds), None
 
     def not_started(self) -> RunResult:  # a signal before anything compiled
         saved = checkpoint.chunks_saved(self.out) if self.out is not None and self.resume else 0
@@ -455,8 +458,9 @@ class _Run:
             if self.on_chunk is not None and jax.process_count() > 1:  # other hosts' agents too, for the logger
                 eval_episode = placement.to_host(eval_episode)
         self.last = index + 1
-        look = (self.look_ahead and self.last < self.stop_at and not self._save_due(self.last)
-                and not self._signalled())
+        save_due = self._save_due(self.last)
+        look = self.look_ahead and self.last < self.stop_at and not save_due and not self._signalled()
+        policy = self._new_policy() if judging and not save_due else None  # read before the next chunk takes the state
         ahead = self._dispatched(self.ts) if look and not judging else None  # the device trains on meanwhile
         record = {k: np.asarray(v).tolist() for k, v in placement.to_host(metrics).items()}
         if judging:
@@ -470,7 +474,28 @@ class _Run:
         self._observe(index, record, eval_episode, judging)
         if ahead is None and not self.solved_early and self._save_due(self.last):
             self._checkpoint(self.ts, self.last)  # written while the next chunks train
+        elif policy is not None:
+            self._save_policy(*policy)
         return ahead
+
+    def _new_policy(self):
+        """Host copies of the best parameters and returns where they rose since the last policy written and its
+        clock allows another while no save is under way, else None (the same on every process)."""
+        due = self.out is not None and self.policy_clock.due(self.last) and not self.saves.busy()
+        if not self.placement.same_on_every_process(due):
+            return None
+        best = np.array(self.placement.to_host(self.ts.best_return))  # a copy: a CPU's buffers are reused
+        if self.policy_best is not None and np.array_equal(best, self.policy_best):
+            return None
+        return jax.tree.map(np.array, self.placement.to_host(self.ts.best_params)), best
+
+    def _save_policy(self, params, best) -> None:
+        save_start = time.perf_counter()
+        if self.writer:  # a few MB, written while the next chunk trains
+            checkpoint.save_policy(self.out, self.env_name, params, best)
+        self.policy_best = best
+        self.policy_clock.saved(self.last, save_start)
+        self.result.save_s += time.perf_counter() - save_start
 
     def _observe(self, index: int, record: dict, eval_episode, judging: bool) -> None:
         """What watches a chunk's record: overflow, divergence, solve times, metrics, `on_chunk`, the bar."""

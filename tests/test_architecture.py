@@ -179,8 +179,9 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # raised by 3 for dm_control's CPU presets and the note that names them, by 15 for seeds mapped in place and 1 for why
 # the pixel recipe left DrQ-v2's update rate, by 170 for TD3's replay of camera frames stored once, frame_replay.py,
 # and 5 for its bf16 encoder option, by 61 for TD3's two kinds of input as objects, td3_inputs.py, in place of eleven
-# branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops)
-LARGEST_AGENTS = 6_742
+# branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops, by 35 for
+# the best policy written between checkpoints, which a pixel run's replay spaces out)
+LARGEST_AGENTS = 6_777
 
 
 def _functions(path: Path):

@@ -110,6 +110,24 @@ def test_an_interrupted_runs_time_split_is_read_from_progress_json_without_its_t
     assert record["wall_parts_s"] == parts and "eval.json" not in os.listdir(tmp_path / "part")
 
 
+def test_a_run_stopped_before_its_first_checkpoint_keeps_its_best_policy(tmp_path):
+    """A checkpoint holds the replay, so its spacing grows with the replay's size (`SaveClock`): a pixel
+    TD3 run Ctrl-C'd on the GPU before its first checkpoint kept no policy of its four judges. A judge
+    that raises a best return now writes best_params.ckpt alone, on a clock of its own."""
+    out, best = tmp_path / "run", {}
+
+    def stopped_at_the_third_chunk(index, ts, record):
+        best[index] = np.asarray(ts.best_return).tolist()
+        if index == 2:
+            raise RuntimeError("stopped")
+
+    with pytest.raises(RuntimeError, match="stopped"):
+        train_run("cartpole", SMALL, seeds=2, out_dir=out, progress=False, judge_every=1, checkpoint_every=100,
+                  checkpoint_seconds=0, on_chunk=stopped_at_the_third_chunk)
+    assert not (out / checkpoint.STATE_FILE).exists()
+    assert checkpoint.load_best_returns(out) == best[1] and np.all(np.isfinite(best[1]))  # chunk 1's judge's
+
+
 def test_wall_s_and_solve_wall_s_span_every_session_of_a_resumed_run(tmp_path):
     """Cases 28 and 56: after a --resume, eval.json's wall_s, its parts and solve_wall_s count the
     sessions before it too (the clock each checkpoint saves), not the resumed session alone."""
