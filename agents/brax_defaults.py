@@ -160,16 +160,17 @@ _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noi
 _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(v_min=-35.0),
                   **dict.fromkeys(("dmc-pendulum-swingup", "dmc-cartpole-swingup"), dict(discounting=0.99, v_max=100.0)),
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
-# TD3 from camera images, a starting point: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium"
-# tasks: 1,024-wide layers, 3-step returns, discount 0.99, target step 0.01, 1M frames = 500k env steps at action repeat
-# 2) at GPU scale: 64 envs and batches of 1,024 per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9. Not
-# DrQ-v2's: 8 updates per 64 env steps at Adam's 3e-4 and LayerNorm critics; 2 at 1e-4 without learned nothing, from
-# pixels (saturated actors) or state (docs/agents.md, "TD3 from pixels").
-_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=1024, num_updates=8, actor_learning_rate=3e-4,
+# TD3 from camera images: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium" tasks: 1,024-wide
+# layers, 3-step returns, discount 0.99, target step 0.01, batches of 256, 1M frames = 500k env steps at action repeat
+# 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9. Not DrQ-v2's: 32 updates
+# per 64 env steps at Adam's 3e-4, LayerNorm critics, the encoder in bf16. Batches of 1,024 at 8 updates in float32
+# were 4x slower per update and showed no learning on the GPU; 2 updates at 1e-4 learned nothing from pixels or state
+# (docs/agents.md, "TD3 from pixels").
+_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_updates=32, actor_learning_rate=3e-4,
                   critic_learning_rate=3e-4, critic_layer_norm=True, weight_decay=0.0, tau=0.01, discounting=0.99,
                   num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1, std_max=0.4,
-                  policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000, num_evals=11,
-                  compute_dtype="bfloat16")
+                  policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000, num_evals=21,
+                  compute_dtype="bfloat16", encoder_dtype="bfloat16")
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
@@ -257,8 +258,11 @@ def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: 
 
 
 def default_agent(task: str, pixels: bool = False) -> str:
-    """The agent a continuous task trains with when --agent is not given (PPO from camera images)."""
-    return "ppo" if pixels else DEFAULT_AGENT.get(task, "ppo")
+    """The agent a continuous task trains with when --agent is not given. From camera images: TD3 where it has
+    a pixel recipe (dm_control's tasks, DrQ-v2's benchmark: docs/agents.md, "TD3 from pixels"), else PPO."""
+    if pixels:
+        return "td3" if "pixels" in SETTINGS.get(task, {}).get("td3", {}) else "ppo"
+    return DEFAULT_AGENT.get(task, "ppo")
 
 
 def pixel_env_options(task: str, options: dict[str, Any]) -> dict[str, Any]:

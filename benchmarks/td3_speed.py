@@ -52,7 +52,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, one_seed, key)[0])
     cost = jax.jit(td3.learn).lower(one_seed, batch, key, jnp.bool_(True)).cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
-    gflop = cost["flops"] / 1e9 if cost else float("nan")  # XLA:GPU may give no count
+    gflop = cost["flops"] / 1e9 if cost else None  # XLA:GPU gives no count
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     start = time.perf_counter()
     ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys)) if parts else None
@@ -98,7 +98,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     for part in ("learn", "learn_hat"):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
-    if "learn" in timed:
+    if "learn" in timed and gflop is not None:
         record["learn_tflop_per_s"] = gflop * seeds * record["learn_updates_per_s_per_seed"] / 1e3
     if "chunk" in timed:
         chunk_s = timed["chunk"][1]

@@ -120,9 +120,10 @@ def test_dm_control_tasks_from_pixels_take_the_pixel_recipe_with_drqv2s_goal():
     assert _agent_config("dmc-cartpole-swingup", "ppo", None, {}, None, None).num_envs == 2048
     assert _agent_config("dmc-finger-spin", "ppo", None, {}, None, None, observation="pixels").solve_return is None
     assert set(brax_defaults.DRQV2_SCORES) <= {name for name, *_ in envs.TASKS}
-    # Without --agent, a task whose state recipe is TD3's (no image network) trains PPO from camera images.
+    # Without --agent, a dm_control task trains TD3's pixel recipe from camera images; other tasks PPO's.
     assert _choose_agent("dmc-cartpole-swingup", None, {}) == "td3"
-    assert _choose_agent("dmc-cartpole-swingup", None, PIXELS) == "ppo"
+    assert _choose_agent("dmc-cartpole-swingup", None, PIXELS) == "td3"
+    assert _choose_agent(TASK, None, PIXELS) == "ppo"
 
 
 def test_a_gpu_maps_the_seeds_of_image_networks_and_vmaps_the_others():

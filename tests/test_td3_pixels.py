@@ -16,7 +16,7 @@ import pytest
 from test_sac import assert_trees_equal, run_chunks
 
 import envs
-from agents import registry
+from agents import brax_defaults, registry
 from agents.commands import agent_config
 from agents.run import seeds_init
 from agents.networks import canonical_conv
@@ -131,9 +131,14 @@ def test_on_the_cpu_seeds_start_one_after_another_so_no_qr_is_batched(agent):
 
 def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
     config = agent_config("dmc-cheetah-run", "td3", None, {}, None, None, observation="pixels")
-    assert (config.num_envs, config.batch_size, config.solve_return, config.num_timesteps) == (64, 1024, 714.0, 500_000)
+    assert (config.num_envs, config.batch_size, config.solve_return, config.num_timesteps) == (64, 256, 714.0, 500_000)
+    assert (config.num_updates, config.encoder_dtype) == (32, "bfloat16")  # measured on the GPU (docs/agents.md)
     assert config.augment_pad == 4 and config.feature_size == 50  # DrQ-v2's
     assert agent_config("dmc-cheetah-run", "td3", None, {}, None, None).num_envs == 1024  # its state recipe
+    # TD3 is the default agent from pixels where it has that recipe (measured against PPO's: docs/agents.md)
+    assert brax_defaults.default_agent("dmc-cartpole-swingup", pixels=True) == "td3"
+    assert brax_defaults.default_agent("cartpole-balance-mjx", pixels=True) == "ppo"
+    assert brax_defaults.default_agent("dmc-cartpole-balance") == "ppo"  # from state: the table's, unchanged
 
 
 @pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
