@@ -30,6 +30,7 @@ from envs import Env
 from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITIVE, PROBABILITY, OneOf, Range, Valid,
                          check_fields)
 
+SATURATED_ACTION = 0.99  # an action component this near its bound counts as saturated (`actor_saturation`)
 
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayTiming):
@@ -294,23 +295,26 @@ class TD3:
 
     def actor_loss(self, actor, ts: TrainState, obs: jax.Array):
         """Minus the mean value of the actor's actions on the features `obs` (the lower twin's with clipped double
-        Q), plus its penalty."""
+        Q), plus its penalty; and the share of the actions' components at their bounds (a saturated actor's
+        tanh passes no gradient: such a seed stands still, docs/agents.md)."""
         twins = self.inputs.split(ts.critic_params, "twins")[0]
         action, pre_tanh = self.actor.apply(actor, obs, with_pre_tanh=True)
         values = self.twin_values(jax.nn.softmax(self.twin_logits(twins, obs, action)))
         value = values.min(0) if self.config.use_cdq else values.mean(0)
         penalty = self.config.pre_tanh_penalty  # 0 (the default) leaves the term out of the program
-        return (penalty * jnp.square(pre_tanh).mean() if penalty else 0.0) - value.mean()
+        loss = (penalty * jnp.square(pre_tanh).mean() if penalty else 0.0) - value.mean()
+        return loss, jnp.mean(jnp.abs(action) > SATURATED_ACTION)
 
     # ---- learning -----------------------------------------------------------
-    def step_actor(self, ts: TrainState, obs: jax.Array) -> tuple[TrainState, jax.Array]:
+    def step_actor(self, ts: TrainState, obs: jax.Array) -> tuple[TrainState, tuple]:
         """The actor's step on the features `obs` of the critics' step (from images: the encoder before it; DrQ-v2's)."""
         normalizer, actor_params = ts.params
         actor, encoder = self.inputs.split(actor_params, "actor")
-        loss, grads = jax.value_and_grad(self.actor_loss)(actor, ts, jax.lax.stop_gradient(obs))
+        loss_and_grads = jax.value_and_grad(self.actor_loss, has_aux=True)
+        (loss, saturation), grads = loss_and_grads(actor, ts, jax.lax.stop_gradient(obs))
         updates, opt_state = self.actor_optimizer.update(grads, ts.actor_opt_state, actor)
         actor_params = self.inputs.joined(optax.apply_updates(actor, updates), encoder, "actor")
-        return ts.replace(params=(normalizer, actor_params), actor_opt_state=opt_state), loss
+        return ts.replace(params=(normalizer, actor_params), actor_opt_state=opt_state), (loss, saturation)
 
     def learn(self, ts: TrainState, batch: Transition, key: jax.Array, actor_turn: jax.Array):
         """One update on `batch`: the critics (and the encoder), the actor on `actor_turn` (the same for every
@@ -323,10 +327,11 @@ class TD3:
         actor = self.inputs.split(ts.params[1], "actor")[0]  # acting on the encoder the critics trained
         params = (ts.params[0], self.inputs.joined(actor, self.inputs.split(critic_params, "twins")[1], "actor"))
         ts = ts.replace(params=params, critic_params=critic_params, critic_opt_state=opt_state)
-        ts, actor_loss = jax.lax.cond(actor_turn, self.step_actor, lambda ts, _: (ts, jnp.zeros(())), ts, obs)
+        no_step = lambda ts, _: (ts, (jnp.zeros(()), jnp.zeros(())))  # noqa: E731
+        ts, (actor_loss, saturation) = jax.lax.cond(actor_turn, self.step_actor, no_step, ts, obs)
         target = polyak(ts.target_critic_params, self.inputs.split(ts.critic_params, "twins")[0], self.config.tau)
         return ts.replace(target_critic_params=target), {"critic_loss": critic_loss, "actor_loss": actor_loss,
-                                                         "target_q": target_q}
+                                                         "actor_saturation": saturation, "target_q": target_q}
 
     LEARNED = ("params", "critic_params", "target_critic_params", "actor_opt_state", "critic_opt_state")
 
@@ -353,7 +358,7 @@ class TD3:
             kept = {name: getattr(ts, name) for name in self.LEARNED}
             learned = learned.replace(**copy_where(learnable, {name: getattr(learned, name) for name in kept}, kept))
         return learned, {"critic_loss": stats["critic_loss"].mean(), "actor_loss": stats["actor_loss"].sum(),
-                    "target_q": stats["target_q"].mean()}
+                         "actor_saturation": stats["actor_saturation"].sum(), "target_q": stats["target_q"].mean()}
 
     evaluate = SAC.evaluate  # the deterministic policy's returns
 
@@ -385,7 +390,8 @@ class TD3:
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 
-    CHUNK_TOTALS = {**EPISODE_TOTALS, "critic_loss": jnp.float32, "actor_loss": jnp.float32, "target_q": jnp.float32}
+    CHUNK_TOTALS = {**EPISODE_TOTALS, **dict.fromkeys(("critic_loss", "actor_loss", "actor_saturation", "target_q"),
+                                                      jnp.float32)}
 
     def train_steps(self, ts: TrainState) -> tuple[TrainState, dict, jax.Array]:
         """A chunk's acting and learning: the train state, its metrics and the next evaluation's key."""
@@ -402,8 +408,10 @@ class TD3:
         iterations = cfg.iterations_per_chunk
         inputs = (jax.random.split(loop_key, iterations), jnp.arange(iterations))
         ts, totals = add_up(self, iteration, ts.replace(key=key), inputs)
+        actor_steps = max(cfg.actor_updates_per_chunk, 1)
         metrics = {"critic_loss": totals["critic_loss"] / iterations, "target_q": totals["target_q"] / iterations,
-                   "actor_loss": totals["actor_loss"] / max(cfg.actor_updates_per_chunk, 1)}
+                   "actor_loss": totals["actor_loss"] / actor_steps,
+                   "actor_saturation": totals["actor_saturation"] / actor_steps}
         return ts, {**metrics, **evaluation.episode_metrics(totals)}, eval_key
 
     evaluate_and_keep_best = SAC.evaluate_and_keep_best  # keeps the best parameters and the step that solved

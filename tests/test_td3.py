@@ -228,9 +228,10 @@ def test_the_pre_tanh_penalty_alone_pulls_a_saturated_actor_off_its_bound(penalt
     batch = td3_batch(td3, ts)
     obs = td3.inputs.features(normalizer, None, batch.obs)
     _, pre_tanh = td3.actor.apply(saturated, obs, with_pre_tanh=True)
-    loss = td3.actor_loss(saturated, ts, obs)
+    loss, saturation = td3.actor_loss(saturated, ts, obs)
     np.testing.assert_allclose(loss, -td3.twin_values(jnp.full(SMALL.num_atoms, 1 / SMALL.num_atoms))
                                + penalty * np.mean(np.square(pre_tanh)), rtol=1e-5)
+    assert saturation == 1.0 and td3.actor_loss(actor, ts, obs)[1] == 0.0  # the metric tells the held actor apart
     moved, _ = td3.step_actor(ts, obs)
     bias = moved.params[1]["params"][head]["bias"]
     if penalty:
