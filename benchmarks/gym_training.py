@@ -183,6 +183,8 @@ def describe(record: dict) -> dict:
     evaluations = [json.loads(text) for text in metrics.read_text().splitlines()] if metrics.exists() else []
     overflow_keys = ("overflow_contacts", "overflow_constraints")
     curve_keys = ("env_steps", "eval_return", "steps_per_s", "judge_s", *overflow_keys)
+    if any("actor_saturation" in r for r in evaluations):  # TD3's: a seed that stands still shows there
+        curve_keys += ("actor_saturation",)
     record["evaluations"] = [{key: r.get(key) for key in curve_keys} for r in evaluations]
     # Training env-steps (of the most-overflowing seed, summed over chunks) that MuJoCo Warp's buffers could not hold.
     record["overflowed_steps"] = int(sum(np.max(r.get(key, 0)) for r in evaluations for key in overflow_keys))

@@ -108,6 +108,22 @@ def test_an_interrupted_runs_time_split_is_read_from_progress_json_without_its_t
     assert progress["clock"]["wall_s"] >= sum(parts.values()) - 1e-6
     record = gym_training.describe({"out": str(tmp_path / "part")})
     assert record["wall_parts_s"] == parts and "eval.json" not in os.listdir(tmp_path / "part")
+    assert "actor_saturation" not in record["evaluations"][0]  # TD3's alone
+
+
+@pytest.mark.slow  # compiles TD3's pendulum-mjx programs
+def test_a_td3_runs_record_carries_each_seeds_actor_saturation(tmp_path):
+    """The GPU benchmarks bring back run directories without their train state; a seed that stands still
+    (its actor at its bounds) shows in the record's curve, judged or not."""
+    from agents import TD3Config
+    from benchmarks import gym_training
+
+    tiny = TD3Config(num_timesteps=640, num_envs=8, min_replay_size=128, max_replay_size=256, batch_size=32,
+                     num_updates=2, num_evals=4, num_eval_envs=4, actor_hidden=(16,), critic_hidden=(16,), num_atoms=21)
+    train_run("pendulum-mjx", tiny, seeds=2, out_dir=tmp_path / "td3", progress=False, stop_after_chunks=2)
+    curve = gym_training.describe({"out": str(tmp_path / "td3")})["evaluations"]
+    assert len(curve) == 2 and all(len(r["actor_saturation"]) == 2 for r in curve)
+    assert all(0.0 <= s <= 1.0 for r in curve for s in r["actor_saturation"])
 
 
 def test_a_run_stopped_before_its_first_checkpoint_keeps_its_best_policy(tmp_path):
