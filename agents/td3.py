@@ -32,6 +32,7 @@ from envs.ranges import (COUNT, FINITE, NON_NEGATIVE, NON_NEGATIVE_COUNT, POSITI
 
 SATURATED_ACTION = 0.99  # an action component this near its bound counts as saturated (`actor_saturation`)
 
+
 @dataclasses.dataclass(frozen=True)
 class TD3Config(ReplayTiming):
     """Every hyperparameter of a run, timed as SAC's (`agents.sac.ReplayTiming`). The defaults suit small tasks on a
