@@ -12,6 +12,7 @@ code: docs/agents.md, "TD3: FastTD3's recipe". What the networks read and how re
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import Any, ClassVar
 
 import flax.linen as nn
@@ -74,6 +75,7 @@ class TD3Config(ReplayTiming):
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
     encoder_dtype: str = "float32"  # from camera images, the encoder's convolutions ("bfloat16": as compute_dtype's)
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
+    uniform_first_fill: bool = False  # those steps' actions uniform over [-1, 1] instead (DrQ-v2's num_expl_steps)
     max_replay_size: int = 100_000  # transitions per seed
     num_evals: int = 6  # as SACConfig's: one evaluation after each of num_evals - 1 chunks
     num_eval_envs: int = 64  # episodes per evaluation
@@ -248,13 +250,17 @@ class TD3:
         actor, encoder = self.inputs.split(actor_params, "actor")
         return self.actor.apply(actor, self.inputs.features(normalizer, encoder, obs))
 
-    def collect(self, ts: TrainState, key: jax.Array) -> tuple[TrainState, dict]:
-        """One step of every env with the actor and each env's noise (redrawn as its episode ends), as `SAC.collect`."""
+    def collect(self, ts: TrainState, key: jax.Array, uniform: bool = False) -> tuple[TrainState, dict]:
+        """One step of every env with the actor and each env's noise (redrawn as its episode ends), as `SAC.collect`;
+        `uniform`: with actions uniform over [-1, 1] instead."""
         cfg = self.config
         noise_key, scale_key = jax.random.split(key)
         (normalizer, actor_params), obs = ts.params, ts.env_state.obs
-        noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
-        action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
+        if uniform:
+            action = jax.random.uniform(noise_key, (cfg.num_envs, self.action_size), minval=-1.0, maxval=1.0)
+        else:
+            noise = jax.random.normal(noise_key, (cfg.num_envs, self.action_size)) * ts.noise_scale[:, None]
+            action = jnp.clip(self.policy(ts.params, obs) + noise, -1.0, 1.0)
         env_state, frames, valid, stats = step_envs(self.train_env, ts.env_state, action)
         steps, window = self.inputs.indexed(ts.buffer, frames), ts.window
         if cfg.num_steps > 1:
@@ -387,7 +393,7 @@ class TD3:
             noise_scale=jax.random.uniform(noise_key, (cfg.num_envs,), minval=cfg.std_min, maxval=cfg.std_max),
             buffer=buffer, window=window,
             **first_state((normalizer, actor_params), env_state, loop_key))
-        return prefill(self.collect, ts, fill_key, cfg.prefill_iterations)
+        return prefill(partial(self.collect, uniform=cfg.uniform_first_fill), ts, fill_key, cfg.prefill_iterations)
 
     chunk = DQN.chunk  # `train_steps`, then `evaluate_and_keep_best`
 

@@ -240,6 +240,19 @@ def test_the_pre_tanh_penalty_alone_pulls_a_saturated_actor_off_its_bound(penalt
         np.testing.assert_array_equal(bias, 5.0)
 
 
+def test_a_uniform_first_fill_spreads_its_actions_over_the_box():
+    """DrQ-v2 acts uniformly at random for its first steps (num_expl_steps); TD3's untrained actor with
+    its noise (std at most std_max, 0.4) keeps near 0, so a critic learns little about the bounds."""
+    def first_fill_actions(uniform):
+        td3 = TD3(dataclasses.replace(SMALL, uniform_first_fill=uniform), drift())
+        ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+        return np.asarray(unpack(ts.buffer.data[:SMALL.min_replay_size], td3.obs_size, td3.action_size).action)
+
+    uniform, actor = first_fill_actions(True), first_fill_actions(False)
+    assert np.abs(uniform).max() <= 1.0 and 0.45 < uniform.std() < 0.7 and np.abs(uniform).max() > 0.9
+    assert actor.std() < 0.4
+
+
 def td3_batch(td3, ts):
     return unpack(ts.buffer.data[:8], td3.obs_size, td3.action_size)
 
