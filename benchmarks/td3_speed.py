@@ -1,6 +1,6 @@
 """Where a TD3 chunk's time goes: env-steps/s of acting alone, updates/s of learning alone, and the
-whole chunk, for a task's TD3 recipe (`agents/brax_defaults.py`) with `--seeds` seeds vmapped as
-`mjxsuite train --seeds N` runs them. Compile time is kept apart; each program is timed after a
+whole chunk, for a task's TD3 recipe (`agents/brax_defaults.py`) with `--seeds` seeds vmapped, or one after
+another (`--seed-axis map`, as `mjxsuite train` runs image networks' seeds on a GPU). Compile time is kept apart; each program is timed after a
 warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole output.
 
     python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
@@ -8,6 +8,7 @@ warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole
         --env-opt impl=warp --parts act,learn   # dm_control's pixels: 84x84, 3 frames, action repeat 2 by default
     python -m benchmarks.td3_speed ... --parts none   # XLA's count of an update's flops alone, from shapes (no init)
     python -m benchmarks.td3_speed ... --trace DIR    # then one more run of each part under jax.profiler, by kernel
+    python -m benchmarks.td3_speed ... --seeds 4 --seed-axis map   # 4 seeds one after another (vmap: batched)
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import argparse
 import ast
 import json
 import time
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -36,13 +38,14 @@ def project_by_hat(probs, reward, discount, support):
 
 def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
             parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default",
-            trace: str | None = None) -> dict:
+            trace: str | None = None, seed_axis: str = "vmap") -> dict:
     """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
-    contraction, `learn_hat`) and a whole chunk, seeds vmapped, all from one train state; with `trace`, each
-    part's kernels (`_kernels`)."""
+    contraction, `learn_hat`) and a whole chunk, seeds vmapped or mapped (`seed_axis`, as `agents.run.seed_batched`),
+    all from one train state; with `trace`, each part's kernels (`_kernels`)."""
     import envs
     from agents import brax_defaults
     from agents import td3 as td3_module
+    from agents.run import seed_batched
     from agents.td3 import TD3, TD3Config
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
@@ -59,14 +62,16 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     init_s = time.perf_counter() - start
     steps = jax.random.split(jax.random.PRNGKey(1), (seeds, iterations))
 
+    over_seeds = partial(seed_batched, seeds=seeds, seed_axis=seed_axis)  # fn(state, ...) -> (state, *outputs)
+
     @jax.jit
     def act(ts):
-        return jax.vmap(lambda t, k: jax.lax.scan(td3.collect, t, k)[0])(ts, steps)
+        return over_seeds(lambda t, k: (jax.lax.scan(td3.collect, t, k)[0],))(ts, steps)
 
     def learn(ts):
         def body(t, inputs):
             return td3.update(t, *inputs)[0], None
-        return jax.vmap(lambda t, k: jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0])(ts, steps)
+        return over_seeds(lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],))(ts, steps)
 
     def learn_hat(ts):
         projection = td3_module.project
@@ -78,7 +83,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     @jax.jit
     def chunk(ts):
-        return jax.vmap(lambda t: td3.train_steps(t)[:2])(ts)
+        return over_seeds(lambda t: td3.train_steps(t)[:2])(ts)
 
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk}
     timed = {}
@@ -87,7 +92,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
         print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
     kernels = _kernels(programs, ts, parts, trace) if trace else {}
     record = {"kind": "td3-speed", "env": env_name, "env_options": env_options or {}, "preset": preset,
-              "seeds": seeds, "overrides": overrides,
+              "seeds": seeds, "seed_axis": seed_axis, "overrides": overrides,
               "projection": td3_module.project.__name__, "jax": jax.__version__,
               "device": jax.devices()[0].device_kind, "iterations": iterations, "init_s": init_s,
               "learn_gflop_per_update": gflop,
@@ -145,10 +150,12 @@ def main(argv=None) -> None:
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     parser.add_argument("--trace", metavar="DIR", help="trace one more run of each part there; kernels in the record")
+    parser.add_argument("--seed-axis", choices=("vmap", "map"), default="vmap",
+                        help="seeds batched or one after another (`mjxsuite train` maps image networks' on a GPU)")
     args = parser.parse_args(argv)
     parts = tuple(part for part in args.parts.split(",") if part not in ("", "none"))
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
-                     parts, dict(_parse_set(s) for s in args.env_opts), args.preset, args.trace)
+                     parts, dict(_parse_set(s) for s in args.env_opts), args.preset, args.trace, args.seed_axis)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         append_record(args.json, record)

@@ -353,3 +353,17 @@ def test_the_gymnasium_tasks_have_fasttd3_recipes(task):
     assert config.num_envs == (256 if task == "hopper" else 1024)
     assert config.batch_size == 32768 and config.compute_dtype == "bfloat16"
     assert config.critic_hidden == (1024, 512, 256) and config.v_min < 0 < config.v_max
+
+
+@pytest.mark.slow  # two compiles of pendulum-mjx's programs
+def test_td3_speed_times_seeds_vmapped_and_mapped():
+    """`python -m benchmarks.td3_speed --seed-axis map|vmap`: image networks' seeds are mapped on a GPU, so
+    their speed is measured both ways; XLA's flop count is taken where the backend gives one."""
+    from benchmarks import td3_speed
+
+    small = dict(num_envs=8, batch_size=32, num_updates=2, min_replay_size=64, actor_hidden=(16,), critic_hidden=(16,))
+    for axis in ("vmap", "map"):
+        record = td3_speed.measure("pendulum-mjx", 2, small, iterations=2, repeats=1, parts=("act", "learn"),
+                                   seed_axis=axis)
+        assert record["seed_axis"] == axis and record["learn_gflop_per_update"] > 0
+        assert record["act_env_steps_per_s_per_seed"] > 0 and record["learn_updates_per_s_per_seed"] > 0
