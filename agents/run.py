@@ -460,12 +460,14 @@ class _Run:
         self.last = index + 1
         save_due = self._save_due(self.last)
         look = self.look_ahead and self.last < self.stop_at and not save_due and not self._signalled()
-        policy = self._new_policy() if judging and not save_due else None  # read before the next chunk takes the state
         ahead = self._dispatched(self.ts) if look and not judging else None  # the device trains on meanwhile
         record = {k: np.asarray(v).tolist() for k, v in placement.to_host(metrics).items()}
+        policy = None
         if judging:
             record["judge_s"] = time.perf_counter() - trained_at
             self.judge_clock.judged(record["judge_s"])
+            if not save_due:  # read before the next chunk takes the state
+                policy = self._new_policy(record["best_return"])
             if look:  # after the judge's results reached the host, whose seconds are the judge's
                 ahead = self._dispatched(self.ts)
         self.result.train_s += trained_at - tick
@@ -478,16 +480,13 @@ class _Run:
             self._save_policy(*policy)
         return ahead
 
-    def _new_policy(self):
-        """Host copies of the best parameters and returns where they rose since the last policy written and its
-        clock allows another while no save is under way, else None (the same on every process)."""
-        due = self.out is not None and self.policy_clock.due(self.last) and not self.saves.busy()
-        if not self.placement.same_on_every_process(due):
+    def _new_policy(self, best: list[float]):
+        """A host copy of the best parameters where the judge's best returns `best` rose since the last policy
+        written and its clock allows another while no save is under way, else None (the same on every process)."""
+        due = self.out is not None and best != self.policy_best and self.policy_clock.due(self.last)
+        if not self.placement.same_on_every_process(due and not self.saves.busy()):
             return None
-        best = np.array(self.placement.to_host(self.ts.best_return))  # a copy: a CPU's buffers are reused
-        if self.policy_best is not None and np.array_equal(best, self.policy_best):
-            return None
-        return jax.tree.map(np.array, self.placement.to_host(self.ts.best_params)), best
+        return jax.tree.map(np.array, self.placement.to_host(self.ts.best_params)), best  # copies: buffers are reused
 
     def _save_policy(self, params, best) -> None:
         save_start = time.perf_counter()

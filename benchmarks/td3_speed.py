@@ -1,7 +1,8 @@
 """Where a TD3 chunk's time goes: env-steps/s of acting alone, updates/s of learning alone, and the
 whole chunk, for a task's TD3 recipe (`agents/brax_defaults.py`) with `--seeds` seeds vmapped, or one after
-another (`--seed-axis map`, as `mjxsuite train` runs image networks' seeds on a GPU). Compile time is kept apart; each program is timed after a
-warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on the whole output.
+another (`--seed-axis map`, as `mjxsuite train` runs image networks' seeds on a GPU). Compile time is kept
+apart; each program is timed after a warm-up, as the median of `--repeats` runs, `jax.block_until_ready` on
+the whole output.
 
     python -m benchmarks.td3_speed --env hopper --seeds 8 [--set batch_size=8192 ...] [--json FILE]
     python -m benchmarks.td3_speed --env dmc-cartpole-swingup --preset pixels --env-opt observation=pixels \
@@ -45,7 +46,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     import envs
     from agents import brax_defaults
     from agents import td3 as td3_module
-    from agents.run import seed_batched
+    from agents.run import seed_batched, seeds_init
     from agents.td3 import TD3, TD3Config
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
@@ -58,7 +59,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     gflop = cost["flops"] / 1e9 if cost else None  # XLA:GPU gives no count
     keys = jax.random.split(jax.random.PRNGKey(0), seeds)
     start = time.perf_counter()
-    ts = jax.block_until_ready(jax.jit(jax.vmap(td3.init))(keys)) if parts else None
+    ts = jax.block_until_ready(jax.jit(seeds_init(td3, seeds))(keys)) if parts else None  # as `train_run`'s
     init_s = time.perf_counter() - start
     steps = jax.random.split(jax.random.PRNGKey(1), (seeds, iterations))
 

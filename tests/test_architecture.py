@@ -179,10 +179,10 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # raised by 3 for dm_control's CPU presets and the note that names them, by 15 for seeds mapped in place and 1 for why
 # the pixel recipe left DrQ-v2's update rate, by 170 for TD3's replay of camera frames stored once, frame_replay.py,
 # and 5 for its bf16 encoder option, by 61 for TD3's two kinds of input as objects, td3_inputs.py, in place of eleven
-# branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops, by 35 for
+# branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops, by 34 for
 # the best policy written between checkpoints, which a pixel run's replay spaces out, by 12 for TD3's
 # actor_saturation and 6 for its uniform first fill, DrQ-v2's)
-LARGEST_AGENTS = 6_795
+LARGEST_AGENTS = 6_794
 
 
 def _functions(path: Path):
