@@ -71,31 +71,12 @@ _valid_conv.defvjp(_valid_conv_fwd, _valid_conv_bwd)
 def canonical_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
                    feature_group_count=1, **kwargs):
     """`nn.Conv`'s `conv_general_dilated` through `_valid_conv` (for XLA:CPU in loops)."""
-    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
-    return _valid_conv(lhs, rhs, tuple(window_strides))
-
-
-def _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count):
     unpadded = padding == "VALID" or [tuple(pad) for pad in padding] == [(0, 0)] * 2
     plain = set((*(lhs_dilation or ()), *(rhs_dilation or ()), feature_group_count)) <= {1}
     if not (unpadded and plain and dimension_numbers == jax.lax.conv_dimension_numbers(lhs.shape, rhs.shape, NHWC)):
-        raise ValueError(f"these convolutions take only unpadded NHWC images and HWIO kernels; got padding "
+        raise ValueError(f"canonical_conv only convolves unpadded NHWC images with HWIO kernels; got padding "
                          f"{padding}, dilations {lhs_dilation} {rhs_dilation}, groups {feature_group_count}")
-
-
-def patches_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
-                 feature_group_count=1, precision=None, preferred_element_type=None, **kwargs):
-    """`nn.Conv`'s `conv_general_dilated` as one matmul: each output pixel's window of the input (its patch, in
-    the kernel's HWI order) times the kernel flattened to (H W I, O). Vmapped over seeds with their own kernels it
-    is a batched matmul, where XLA's convolution becomes a grouped one that a GPU runs slowly."""
-    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
-    (rows, cols), (step_r, step_c) = rhs.shape[:2], window_strides
-    out_r, out_c = (lhs.shape[1] - rows) // step_r + 1, (lhs.shape[2] - cols) // step_c + 1
-    windows = [lhs[:, i:i + step_r * (out_r - 1) + 1:step_r, j:j + step_c * (out_c - 1) + 1:step_c]
-               for i in range(rows) for j in range(cols)]
-    patches = jnp.concatenate(windows, axis=-1)
-    return jax.lax.dot_general(patches, rhs.reshape(-1, rhs.shape[-1]), (((3,), (0,)), ((), ())),
-                               precision=precision, preferred_element_type=preferred_element_type)
+    return _valid_conv(lhs, rhs, tuple(window_strides))
 
 
 def _through_canonical_conv(call, args, kwargs, context):

@@ -74,7 +74,6 @@ class TD3Config(ReplayTiming):
     feature_size: int = 50
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
     encoder_dtype: str = "float32"  # from camera images, the encoder's convolutions ("bfloat16": as compute_dtype's)
-    encoder_conv: str = "xla"  # "patches": each convolution as one matmul of its input's patches (`patches_conv`)
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
     uniform_first_fill: bool = False  # those steps' actions uniform over [-1, 1] instead (DrQ-v2's num_expl_steps)
     max_replay_size: int = 100_000  # transitions per seed
@@ -91,7 +90,6 @@ class TD3Config(ReplayTiming):
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
         "pre_tanh_penalty": NON_NEGATIVE, "augment_pad": NON_NEGATIVE_COUNT, "feature_size": COUNT,
         "compute_dtype": OneOf(COMPUTE_DTYPES), "encoder_dtype": OneOf(COMPUTE_DTYPES),
-        "encoder_conv": OneOf(("xla", "patches")),
         "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT, "num_evals": Range(2, integer=True),
         "num_eval_envs": COUNT}
 

@@ -10,14 +10,13 @@ the whole output.
     python -m benchmarks.td3_speed ... --parts none   # XLA's count of an update's flops alone, from shapes (no init)
     python -m benchmarks.td3_speed ... --trace DIR    # then one more run of each part under jax.profiler, by kernel
     python -m benchmarks.td3_speed ... --seeds 4 --seed-axis map   # 4 seeds one after another (vmap: batched)
-    python -m benchmarks.td3_speed ... --seeds 4 --parts learn,learn_mapped,learn_patches,learn_patches_mapped
+    python -m benchmarks.td3_speed ... --seeds 4 --parts learn,learn_mapped   # vmapped and mapped, one train state
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
-import dataclasses
 import json
 import time
 from functools import partial
@@ -71,10 +70,10 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     def act(ts):
         return over_seeds(lambda t, k: (jax.lax.scan(td3.collect, t, k)[0],))(ts, steps)
 
-    def learn(ts):
+    def learn(ts, axis=seed_axis):
         def body(t, inputs):
             return td3.update(t, *inputs)[0], None
-        return over_seeds(lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],))(ts, steps)
+        return seed_batched(lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],), seeds, axis)(ts, steps)
 
     def learn_hat(ts):
         projection = td3_module.project
@@ -88,16 +87,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     def chunk(ts):
         return over_seeds(lambda t: td3.train_steps(t)[:2])(ts)
 
-    def learn_variant(fn, **fields):  # the same update, seeds `seed_axis_of`, from a TD3 of other fields
-        variant = TD3(dataclasses.replace(config, **fields), td3.env) if fields else td3
-        def body(t, inputs):
-            return variant.update(t, *inputs)[0], None
-        return jax.jit(lambda ts: seed_batched(lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],),
-                                               seeds, fn)(ts, steps))
-
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
-                "learn_mapped": learn_variant("map"), "learn_patches": learn_variant(seed_axis, encoder_conv="patches"),
-                "learn_patches_mapped": learn_variant("map", encoder_conv="patches")}
+                "learn_mapped": jax.jit(partial(learn, axis="map"))}
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
@@ -112,7 +103,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}, **kernels}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
-    for part in ("learn", "learn_hat", "learn_mapped", "learn_patches", "learn_patches_mapped"):
+    for part in ("learn", "learn_hat", "learn_mapped"):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
     if "learn" in timed and gflop is not None:
@@ -156,8 +147,7 @@ def main(argv=None) -> None:
                         help="a TD3Config field over the task's recipe; repeatable")
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
                         help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction; "
-                             "learn_mapped: seeds mapped whatever --seed-axis; learn_patches[_mapped]: the encoder's "
-                             "convolutions as matmuls of patches; none: only XLA's count of an update's flops)")
+                             "learn_mapped: seeds mapped whatever --seed-axis; none: only XLA's count of an update's flops)")
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")

@@ -19,7 +19,7 @@ import envs
 from agents import brax_defaults, registry
 from agents.commands import agent_config
 from agents.run import seeds_init
-from agents.networks import canonical_conv, patches_conv
+from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
 from agents.td3_inputs import SMALLEST_IMAGE, Encoder, random_shift
 
@@ -81,32 +81,19 @@ def test_the_actors_step_learns_on_the_features_that_the_critics_step_encoded():
     assert critics > 0 and convolutions(td3.learn, ts, batch, key, jnp.bool_(True)) == critics
 
 
-@pytest.mark.parametrize("ours", [canonical_conv, patches_conv])
 @pytest.mark.parametrize("size, kernel, stride", [(20, 3, 2), (21, 3, 2), (17, 3, 1), (64, 8, 4), (15, 4, 3)])
-def test_our_convolutions_give_jaxs_values_and_gradients(ours, size, kernel, stride):
-    """`canonical_conv` (for XLA:CPU) and `patches_conv` (seeds vmapped on a GPU) are JAX's convolution, its
-    gradients too, for strides that do and do not divide the image; padding they do not handle is refused."""
+def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
+    """`agents.networks.canonical_conv`'s gradients (for XLA:CPU) are JAX's own, for strides that do and do not
+    divide the image; padding it does not handle is refused with what it takes."""
     x = jax.random.normal(jax.random.PRNGKey(0), (3, size, size, 5))
     w = jax.random.normal(jax.random.PRNGKey(1), (kernel, kernel, 5, 7))
-    out = lambda fn: lambda x, w: nn.Conv(7, (kernel,) * 2, stride, "VALID", conv_general_dilated=fn).apply(
-        {"params": {"kernel": w, "bias": jnp.zeros(7)}}, x)
-    conv = lambda fn: lambda x, w: jnp.sin(out(fn)(x, w)).sum()
-    jaxs = out(None)(x, w)
-    np.testing.assert_allclose(out(ours)(x, w), jaxs, rtol=1e-5, atol=1e-5 * float(jnp.abs(jaxs).max()))
-    for a, b in zip(jax.grad(conv(ours), (0, 1))(x, w), jax.grad(conv(None), (0, 1))(x, w), strict=True):
+    conv = lambda fn: lambda x, w: jnp.sin(nn.Conv(7, (kernel,) * 2, stride, "VALID", conv_general_dilated=fn).apply(
+        {"params": {"kernel": w, "bias": jnp.zeros(7)}}, x)).sum()
+    ours, jaxs = jax.grad(conv(canonical_conv), (0, 1))(x, w), jax.grad(conv(None), (0, 1))(x, w)
+    for a, b in zip(ours, jaxs, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
-    with pytest.raises(ValueError, match="unpadded NHWC images and HWIO kernels; got padding"):
-        nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=ours).init(jax.random.PRNGKey(0), x)
-
-
-def test_with_patch_convolutions_vmapped_seeds_train_their_encoders_by_matmuls_not_grouped_convolutions():
-    """`--encoder_conv patches`: the update of seeds vmapped has no convolution left (XLA's would be grouped ones)."""
-    td3 = TD3(dataclasses.replace(TINY, encoder_conv="patches"), envs.make(TASK, **PIXELS), platform="gpu")
-    frames = jnp.zeros((4, 16, 16, 9), jnp.uint8)
-    params = jax.vmap(td3.inputs.encoder.init, (0, None))(jax.random.split(jax.random.PRNGKey(0), 2), frames)
-    grad = jax.vmap(jax.grad(lambda p: jnp.square(td3.inputs.encoder.apply(p, frames)).sum()))
-    program = jax.jit(grad).lower(params).as_text()
-    assert "convolution" not in program and program.count("dot_general") == 4 + 4 + 3  # forward, kernels, inputs
+    with pytest.raises(ValueError, match="unpadded NHWC images with HWIO kernels; got padding"):
+        nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
 
 
 def test_on_the_cpu_the_encoders_gradients_in_a_loop_are_canonical_convolutions():
