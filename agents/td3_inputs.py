@@ -7,6 +7,7 @@ once (`agents.frame_replay.FrameReplay`), sampled images shifted (`random_shift`
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import flax.linen as nn
@@ -30,15 +31,14 @@ class Encoder(nn.Module):
     convolved in `dtype`, its parameters float32."""
 
     dtype: Any = jnp.float32
-    canonical_gradients: bool = False  # `agents.networks.canonical_conv` (for XLA:CPU); the same values
+    conv: Callable | None = None  # None: XLA's convolution; or one of the same values (`canonical_conv`, for XLA:CPU)
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = (frames.astype(jnp.float32) / 255.0 - 0.5).astype(self.dtype)
-        conv = canonical_conv if self.canonical_gradients else None
         for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype, conv_general_dilated=conv,
-                                kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
+                                conv_general_dilated=self.conv, kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
         return x.reshape(*x.shape[:-3], -1)
 
 
@@ -125,7 +125,7 @@ class ImageInputs:
                              f"DrQ-v2's encoder; {env!r} renders {shape[0]}x{shape[1]}: raise --env-opt width= and "
                              "height= (DrQ-v2's: 84)")
         self.config, self.shape, self.trunk = config, shape, config.feature_size
-        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], canonical_gradients)
+        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], canonical_conv if canonical_gradients else None)
         self.frame_shape = (*shape[:2], getattr(env, "channels", shape[2]))
         self.buffer = FrameReplay(config.max_replay_size, config.num_envs, shape[2] // self.frame_shape[2],
                                   config.num_steps)

@@ -96,6 +96,23 @@ def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
         nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
 
 
+@pytest.mark.parametrize("size, channels, stride", [(84, 9, 2), (20, 5, 2), (21, 5, 2), (17, 32, 1)])
+def test_the_first_convolutions_that_td3_speed_times_are_xlas_values_and_gradients(size, channels, stride):
+    """`benchmarks.td3_speed`'s rewrites of the encoder's first convolution (2x2 pixel blocks on the channels,
+    channels padded to 8) change only how it is computed: values and gradients are XLA's convolution's."""
+    from benchmarks.td3_speed import FIRST_CONVS
+
+    x = jax.random.normal(jax.random.PRNGKey(0), (2, size, size, channels))
+    w = jax.random.normal(jax.random.PRNGKey(1), (3, 3, channels, 7))
+    out = lambda fn: lambda x, w: nn.Conv(7, (3, 3), stride, "VALID", conv_general_dilated=fn).apply(
+        {"params": {"kernel": w, "bias": jnp.zeros(7)}}, x)
+    loss = lambda fn: lambda x, w: jnp.sin(out(fn)(x, w)).sum()
+    for conv in FIRST_CONVS.values():
+        np.testing.assert_allclose(out(conv)(x, w), out(None)(x, w), rtol=1e-5, atol=1e-4)
+        for a, b in zip(jax.grad(loss(conv), (0, 1))(x, w), jax.grad(loss(None), (0, 1))(x, w), strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
+
+
 def test_on_the_cpu_the_encoders_gradients_in_a_loop_are_canonical_convolutions():
     """XLA:CPU runs a convolution fast only in its canonical form (NHWC, HWIO) and canonicalizes only those at a
     program's top level: in a loop JAX's own gradients of the encoder took its slow generic path. TD3 on the CPU
