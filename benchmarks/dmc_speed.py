@@ -28,13 +28,10 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import multiprocessing
 import os
 import statistics
-import subprocess
 import sys
-import tempfile
 import time
 
 import jax
@@ -45,6 +42,7 @@ import envs
 from agents.env_options import parse_opt_field
 from benchmarks import env_throughput, gpu_profile, gym_mujoco
 from benchmarks.peers import PeerMissing, version
+from benchmarks.suite import each_task_alone, without_options, write_records
 
 # Playground 0.2.0's look-alike of each task (its own XML, timestep and solver settings).
 # Every task of ours that Playground 0.2.0 registers a look-alike of (its dm_control_suite `_envs`).
@@ -232,39 +230,6 @@ def ratios(records: list[dict]) -> list[dict]:
     return found
 
 
-def _each_task_alone(argv: list[str], tasks: list[str], json_file: str | None) -> None:
-    """Every task in a process of its own: MuJoCo Warp's CUDA-graph captures of one task's programs
-    must not meet the next task's (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
-    records = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for task in tasks:
-            out = os.path.join(tmp, f"{task}.json")
-            subprocess.run([sys.executable, "-m", "benchmarks.dmc_speed", *argv, "--tasks", task, "--json", out],
-                           check=False)
-            if os.path.exists(out):
-                with open(out) as f:
-                    records += json.load(f)
-            if json_file:
-                _write(json_file, records)
-
-
-def _write(json_file: str, records: list[dict]) -> None:
-    with open(json_file + ".tmp", "w") as f:
-        json.dump(records, f, indent=1)
-    os.replace(json_file + ".tmp", json_file)
-
-
-def _without(argv: list[str], options: tuple[str, ...]) -> list[str]:
-    """`argv` less the given options and their values."""
-    kept, skipping = [], False
-    for arg in argv:
-        if arg.startswith("--"):
-            skipping = arg.split("=")[0] in options
-        if not skipping:
-            kept.append(arg)
-    return kept
-
-
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="+", default=["cheetah-run", "walker-walk", "humanoid-walk"],
@@ -285,7 +250,8 @@ def main(argv=None) -> None:
     opt = envs.mjx_options.check_opt({k: parse_opt_field(k, v, "--opt") for k, v in fields}, "--opt")
     if len(args.tasks) > 1:
         argv = sys.argv[1:] if argv is None else argv
-        return _each_task_alone(_without(argv, ("--tasks", "--json")), args.tasks, args.json)
+        return each_task_alone("benchmarks.dmc_speed", without_options(argv, ("--tasks", "--json")), args.tasks,
+                               args.json)
     task = args.tasks[0]
     found = [dm_control_speed(task)] if not args.no_dm_control else []
     _print(found, [])
@@ -295,7 +261,7 @@ def main(argv=None) -> None:
         found += measured
         _print(measured, [r for r in ratios(found) if r["num_envs"] == num_envs])
         if args.json:  # after every size: a run stopped part-way keeps what it measured
-            _write(args.json, found + ratios(found))
+            write_records(args.json, found + ratios(found))
 
 
 def _print(records: list[dict], found_ratios: list[dict]) -> None:

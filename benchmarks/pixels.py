@@ -16,6 +16,7 @@ On a GPU (impl="warp", MuJoCo Warp's batch renderer):
     python -m benchmarks.pixels --impl warp --tasks cartpole-swingup-mjx half-cheetah \
         --sizes 1024 4096 16384 --json pixels-gpu.json
 
+Under Warp each task runs in a process of its own (`benchmarks.suite.each_task_alone`).
 On the CPU it is a smoke test: `python -m benchmarks.pixels --sizes 2 --steps 3 --size 8`.
 """
 
@@ -32,6 +33,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from benchmarks.suite import each_task_alone, without_options, write_records
 
 
 def rollout_fn(task: str, num_envs: int, steps: int, options: dict):
@@ -105,11 +107,14 @@ def main(argv=None) -> int:
     parser.add_argument("--action-repeat", type=int, default=1, help="task steps per pixel env step")
     parser.add_argument("--json", help="write the records here")
     args = parser.parse_args(argv)
+    if args.impl == "warp" and len(args.tasks) > 1:
+        argv = sys.argv[1:] if argv is None else argv
+        each_task_alone("benchmarks.pixels", without_options(argv, ("--tasks", "--json")), args.tasks, args.json)
+        return 0
     records = measure(args.tasks, args.sizes, args.impl, args.steps, args.repeats, args.size, args.depth,
                       args.frame_stack, args.action_repeat)
     if args.json:
-        with open(args.json, "w") as out:
-            json.dump(records, out, indent=1)
+        write_records(args.json, records)
     return 0
 
 

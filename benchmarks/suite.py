@@ -277,6 +277,40 @@ def append_record(path: str | os.PathLike, record: dict) -> None:
     path.write_text(json.dumps([*found, record], indent=1) + "\n")
 
 
+def write_records(path: str | os.PathLike, records: list[dict]) -> None:
+    """`records` as the JSON list in `path`, written whole or not at all."""
+    with open(f"{path}.tmp", "w") as f:
+        json.dump(records, f, indent=1)
+    os.replace(f"{path}.tmp", path)
+
+
+def each_task_alone(module: str, argv: list[str], tasks: list[str], json_file: str | None) -> None:
+    """`python -m module argv --tasks task` for every task in a process of its own, their records gathered into
+    `json_file` after each: MuJoCo Warp's CUDA-graph captures of one task's programs must not meet the next
+    task's (docs/mjx.md, "MuJoCo Warp and CUDA graphs")."""
+    records = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for task in tasks:
+            out = os.path.join(tmp, f"{task}.json")
+            subprocess.run([sys.executable, "-m", module, *argv, "--tasks", task, "--json", out], check=False)
+            if os.path.exists(out):
+                with open(out) as f:
+                    records += json.load(f)
+            if json_file:
+                write_records(json_file, records)
+
+
+def without_options(argv: list[str], options: tuple[str, ...]) -> list[str]:
+    """`argv` less the given options and their values."""
+    kept, skipping = [], False
+    for arg in argv:
+        if arg.startswith("--"):
+            skipping = arg.split("=")[0] in options
+        if not skipping:
+            kept.append(arg)
+    return kept
+
+
 def timed_program(program, *args, repeats: int = 3) -> tuple[float, float]:
     """(compile + first run seconds, median seconds of `repeats` further runs), each run waited for in full."""
     import jax

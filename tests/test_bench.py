@@ -192,8 +192,21 @@ def test_dmc_speed_compares_with_playground_at_the_same_impl_and_size_only():
     records[0]["episode_steps_per_s"] = 1e6
     found = {r["peer"]: r for r in dmc_speed.ratios(records)}
     assert found["playground"]["ratio"] == pytest.approx(0.25) and found["playground"]["step_ratio"] == pytest.approx(0.5)
-    assert dmc_speed._without(["--sizes", "4", "8", "--tasks", "a", "b", "--json", "f", "--no-playground"],
-                              ("--tasks", "--json")) == ["--sizes", "4", "8", "--no-playground"]
+    assert suite.without_options(["--sizes", "4", "8", "--tasks", "a", "b", "--json", "f", "--no-playground"],
+                                 ("--tasks", "--json")) == ["--sizes", "4", "8", "--no-playground"]
+
+
+@pytest.mark.slow  # two processes, each compiling a tiny pixel env
+def test_each_task_alone_gathers_every_tasks_records_from_a_process_of_its_own(tmp_path):
+    """How `benchmarks.pixels` and `benchmarks.dmc_speed` run several tasks under Warp: one process each,
+    every task's records in the one file (here `benchmarks.pixels` with impl="jax", on the CPU)."""
+    out = tmp_path / "pixels.json"
+    suite.each_task_alone("benchmarks.pixels", ["--sizes", "2", "--steps", "2", "--size", "8", "--repeats", "1"],
+                          ["cartpole-swingup-mjx", "pendulum-mjx"], str(out))
+    records = json.loads(out.read_text())
+    ratios = {r["env"]: r["pixels_over_state"] for r in records if r["kind"] == "pixels-ratio"}
+    assert set(ratios) == {"cartpole-swingup-mjx", "pendulum-mjx"} and all(ratio > 0 for ratio in ratios.values())
+    assert len([r for r in records if r["kind"] == "pixels"]) == 4 and not list(tmp_path.glob("*.tmp"))
 
 
 @pytest.mark.heavy
