@@ -12,6 +12,7 @@ the whole output.
     python -m benchmarks.td3_speed ... --seeds 4 --seed-axis map   # 4 seeds one after another (vmap: batched)
     python -m benchmarks.td3_speed ... --seeds 4 --parts learn,learn_mapped   # vmapped and mapped, one train state
     python -m benchmarks.td3_speed ... --parts learn,learn_blocks,learn_padded  # the encoder's first convolution
+    python -m benchmarks.td3_speed ... --seeds 4 --parts learn_mapped,learn_seed_mapped_convs  # convs mapped alone
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import ast
 import copy
 import json
 import time
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 
 import jax
@@ -62,6 +63,30 @@ def padded_conv(lhs, rhs, *args, **kwargs):
 
 
 FIRST_CONVS = {"learn_blocks": blocks_conv, "learn_padded": padded_conv}
+
+
+def seed_mapped_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
+                     feature_group_count=1, precision=None, preferred_element_type=None):
+    """XLA's convolution, but vmapped (over seeds with their own kernels) it and its gradients run one seed after
+    another (`jax.custom_batching.sequential_vmap`) instead of as one grouped convolution, while the rest of a
+    vmapped update stays batched."""
+    if not set((*(lhs_dilation or ()), *(rhs_dilation or ()), feature_group_count)) <= {1}:
+        raise ValueError("seed_mapped_conv takes plain convolutions (no dilation, no groups)")
+    padding = padding if isinstance(padding, str) else tuple(tuple(pad) for pad in padding)
+    return _seed_mapped(tuple(window_strides), padding, dimension_numbers, precision, preferred_element_type)(lhs, rhs)
+
+
+@cache
+def _seed_mapped(window_strides, padding, dimension_numbers, precision, preferred_element_type):
+    def conv(lhs, rhs):
+        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, dimension_numbers=dimension_numbers,
+                                            precision=precision, preferred_element_type=preferred_element_type)
+
+    forward = jax.custom_batching.sequential_vmap(conv)
+    gradients = jax.custom_batching.sequential_vmap(lambda lhs, rhs, grad: jax.vjp(conv, lhs, rhs)[1](grad))
+    mapped = jax.custom_vjp(forward)  # custom_vmap has no reverse mode of its own: give it one
+    mapped.defvjp(lambda lhs, rhs: (forward(lhs, rhs), (lhs, rhs)), lambda saved, grad: gradients(*saved, grad))
+    return mapped
 
 
 def with_conv(td3, conv):
@@ -122,7 +147,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
                 "learn_mapped": jax.jit(partial(learn, axis="map")),
-                **{part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()}}
+                **{part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()},
+                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap", agent=with_conv(td3, seed_mapped_conv)))}
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
@@ -137,7 +163,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}, **kernels}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
-    for part in ("learn", "learn_hat", "learn_mapped", *FIRST_CONVS):
+    for part in ("learn", "learn_hat", "learn_mapped", *FIRST_CONVS, "learn_seed_mapped_convs"):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
     if "learn" in timed and gflop is not None:
@@ -182,7 +208,8 @@ def main(argv=None) -> None:
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
                         help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction; "
                              "learn_mapped: seeds mapped whatever --seed-axis; learn_blocks, learn_padded: the encoder's "
-                             "first convolution rewritten (`FIRST_CONVS`); none: only XLA's count of an update's flops)")
+                             "first convolution rewritten (`FIRST_CONVS`); learn_seed_mapped_convs: seeds vmapped but the "
+                             "encoder's convolutions one seed after another; none: only XLA's count of an update's flops)")
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")

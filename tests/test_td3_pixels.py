@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_sac import assert_trees_equal, run_chunks
+from test_sac import assert_trees_equal, mapped, run_chunks
 
 import envs
 from agents import brax_defaults, registry
@@ -111,6 +111,26 @@ def test_the_first_convolutions_that_td3_speed_times_are_xlas_values_and_gradien
         np.testing.assert_allclose(out(conv)(x, w), out(None)(x, w), rtol=1e-5, atol=1e-4)
         for a, b in zip(jax.grad(loss(conv), (0, 1))(x, w), jax.grad(loss(None), (0, 1))(x, w), strict=True):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
+
+
+@pytest.mark.slow  # the vmapped init renders its first fill: about a minute on 2 cores
+def test_seeds_vmapped_with_seed_mapped_convolutions_update_as_seeds_mapped():
+    """`benchmarks.td3_speed`'s `learn_seed_mapped_convs`: two seeds' update vmapped, but the encoder's convolutions
+    and their gradients one seed after another (no grouped convolution), ends where the seeds mapped end."""
+    from benchmarks.td3_speed import seed_mapped_conv, with_conv
+
+    td3 = TD3(TINY, envs.make(TASK, **PIXELS), platform="gpu")
+    ts = jax.vmap(td3.init)(jax.random.split(jax.random.PRNGKey(0), 2))
+    batches, _ = jax.vmap(td3.sample)(ts, jax.random.split(jax.random.PRNGKey(1), 2))
+    batch = jax.tree.map(lambda x: x[:, 0], batches)  # each seed's first update's
+    keys = jax.random.split(jax.random.PRNGKey(2), 2)
+    update = lambda agent: lambda t, b, k: agent.learn(t, b, k, jnp.bool_(True))
+    ours = jax.vmap(update(with_conv(td3, seed_mapped_conv)))
+    program = jax.jit(ours).lower(ts, batch, keys).as_text()
+    assert "stablehlo.convolution" in program and "feature_group_count = 2" not in program
+    for a, b in zip(jax.tree.leaves(jax.jit(ours)(ts, batch, keys)),
+                    jax.tree.leaves(jax.jit(mapped(update(td3)))(ts, batch, keys)), strict=True):
+        np.testing.assert_allclose(np.asarray(a, np.float32), np.asarray(b, np.float32), rtol=2e-4, atol=2e-5)
 
 
 def test_on_the_cpu_the_encoders_gradients_in_a_loop_are_canonical_convolutions():
