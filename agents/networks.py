@@ -71,12 +71,39 @@ _valid_conv.defvjp(_valid_conv_fwd, _valid_conv_bwd)
 def canonical_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
                    feature_group_count=1, **kwargs):
     """`nn.Conv`'s `conv_general_dilated` through `_valid_conv` (for XLA:CPU in loops)."""
+    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
+    return _valid_conv(lhs, rhs, tuple(window_strides))
+
+
+def _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count):
     unpadded = padding == "VALID" or [tuple(pad) for pad in padding] == [(0, 0)] * 2
     plain = set((*(lhs_dilation or ()), *(rhs_dilation or ()), feature_group_count)) <= {1}
     if not (unpadded and plain and dimension_numbers == jax.lax.conv_dimension_numbers(lhs.shape, rhs.shape, NHWC)):
-        raise ValueError(f"canonical_conv only convolves unpadded NHWC images with HWIO kernels; got padding "
+        raise ValueError(f"these convolutions take only unpadded NHWC images and HWIO kernels; got padding "
                          f"{padding}, dilations {lhs_dilation} {rhs_dilation}, groups {feature_group_count}")
-    return _valid_conv(lhs, rhs, tuple(window_strides))
+
+
+def seed_mapped_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
+                     feature_group_count=1, precision=None, preferred_element_type=None):
+    """XLA's convolution, but vmapped (over seeds with their own kernels) it and its gradients run one seed after
+    another (`jax.custom_batching.sequential_vmap`) instead of as one grouped convolution, while the rest of a
+    vmapped update stays batched."""
+    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
+    padding = padding if isinstance(padding, str) else tuple(tuple(pad) for pad in padding)
+    return _seed_mapped(tuple(window_strides), padding, dimension_numbers, precision, preferred_element_type)(lhs, rhs)
+
+
+@functools.cache
+def _seed_mapped(window_strides, padding, dimension_numbers, precision, preferred_element_type):
+    def conv(lhs, rhs):
+        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, dimension_numbers=dimension_numbers,
+                                            precision=precision, preferred_element_type=preferred_element_type)
+
+    forward = jax.custom_batching.sequential_vmap(conv)
+    gradients = jax.custom_batching.sequential_vmap(lambda lhs, rhs, grad: jax.vjp(conv, lhs, rhs)[1](grad))
+    mapped = jax.custom_vjp(forward)  # custom_vmap has no reverse mode of its own: give it one
+    mapped.defvjp(lambda lhs, rhs: (forward(lhs, rhs), (lhs, rhs)), lambda saved, grad: gradients(*saved, grad))
+    return mapped
 
 
 def _through_canonical_conv(call, args, kwargs, context):

@@ -22,7 +22,7 @@ import ast
 import copy
 import json
 import time
-from functools import cache, partial
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -65,30 +65,6 @@ def padded_conv(lhs, rhs, *args, **kwargs):
 FIRST_CONVS = {"learn_blocks": blocks_conv, "learn_padded": padded_conv}
 
 
-def seed_mapped_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
-                     feature_group_count=1, precision=None, preferred_element_type=None):
-    """XLA's convolution, but vmapped (over seeds with their own kernels) it and its gradients run one seed after
-    another (`jax.custom_batching.sequential_vmap`) instead of as one grouped convolution, while the rest of a
-    vmapped update stays batched."""
-    if not set((*(lhs_dilation or ()), *(rhs_dilation or ()), feature_group_count)) <= {1}:
-        raise ValueError("seed_mapped_conv takes plain convolutions (no dilation, no groups)")
-    padding = padding if isinstance(padding, str) else tuple(tuple(pad) for pad in padding)
-    return _seed_mapped(tuple(window_strides), padding, dimension_numbers, precision, preferred_element_type)(lhs, rhs)
-
-
-@cache
-def _seed_mapped(window_strides, padding, dimension_numbers, precision, preferred_element_type):
-    def conv(lhs, rhs):
-        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, dimension_numbers=dimension_numbers,
-                                            precision=precision, preferred_element_type=preferred_element_type)
-
-    forward = jax.custom_batching.sequential_vmap(conv)
-    gradients = jax.custom_batching.sequential_vmap(lambda lhs, rhs, grad: jax.vjp(conv, lhs, rhs)[1](grad))
-    mapped = jax.custom_vjp(forward)  # custom_vmap has no reverse mode of its own: give it one
-    mapped.defvjp(lambda lhs, rhs: (forward(lhs, rhs), (lhs, rhs)), lambda saved, grad: gradients(*saved, grad))
-    return mapped
-
-
 def with_conv(td3, conv):
     """`td3` whose encoder convolves through `conv`: the same parameters and values."""
     variant, variant.inputs = copy.copy(td3), copy.copy(td3.inputs)
@@ -103,7 +79,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     contraction, `learn_hat`) and a whole chunk, seeds vmapped or mapped (`seed_axis`, as `agents.run.seed_batched`),
     all from one train state; with `trace`, each part's kernels (`_kernels`)."""
     import envs
-    from agents import brax_defaults
+    from agents import brax_defaults, networks
     from agents import td3 as td3_module
     from agents.run import seed_batched, seeds_init
     from agents.td3 import TD3, TD3Config
@@ -148,7 +124,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
                 "learn_mapped": jax.jit(partial(learn, axis="map")),
                 **{part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()},
-                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap", agent=with_conv(td3, seed_mapped_conv)))}
+                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap", agent=with_conv(td3, networks.seed_mapped_conv)))}
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)

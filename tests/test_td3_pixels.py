@@ -18,6 +18,7 @@ from test_sac import assert_trees_equal, mapped, run_chunks
 import envs
 from agents import brax_defaults, registry
 from agents.commands import agent_config
+from agents.device_options import default_seed_axis
 from agents.run import seeds_init
 from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
@@ -92,7 +93,7 @@ def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
     ours, jaxs = jax.grad(conv(canonical_conv), (0, 1))(x, w), jax.grad(conv(None), (0, 1))(x, w)
     for a, b in zip(ours, jaxs, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
-    with pytest.raises(ValueError, match="unpadded NHWC images with HWIO kernels; got padding"):
+    with pytest.raises(ValueError, match="unpadded NHWC images and HWIO kernels; got padding"):
         nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
 
 
@@ -114,21 +115,23 @@ def test_the_first_convolutions_that_td3_speed_times_are_xlas_values_and_gradien
 
 
 @pytest.mark.slow  # the vmapped init renders its first fill: about a minute on 2 cores
-def test_seeds_vmapped_with_seed_mapped_convolutions_update_as_seeds_mapped():
-    """`benchmarks.td3_speed`'s `learn_seed_mapped_convs`: two seeds' update vmapped, but the encoder's convolutions
-    and their gradients one seed after another (no grouped convolution), ends where the seeds mapped end."""
-    from benchmarks.td3_speed import seed_mapped_conv, with_conv
-
+def test_with_image_seeds_vmap_seeds_update_batched_but_convolve_one_after_another_as_mapped_seeds_do():
+    """`--image_seeds vmap`: on a GPU the seeds are vmapped (`default_seed_axis`), the encoder's convolutions and
+    their gradients run one seed after another (`seed_mapped_conv`: no grouped convolution), and the update ends
+    where the mapped seeds' update (the default's) ends."""
     td3 = TD3(TINY, envs.make(TASK, **PIXELS), platform="gpu")
+    batched = TD3(dataclasses.replace(TINY, image_seeds="vmap"), envs.make(TASK, **PIXELS), platform="gpu")
+    assert default_seed_axis("gpu", td3) == "map" and default_seed_axis("gpu", batched) == "vmap"
+    assert default_seed_axis("cpu", batched) == "map"
     ts = jax.vmap(td3.init)(jax.random.split(jax.random.PRNGKey(0), 2))
     batches, _ = jax.vmap(td3.sample)(ts, jax.random.split(jax.random.PRNGKey(1), 2))
     batch = jax.tree.map(lambda x: x[:, 0], batches)  # each seed's first update's
     keys = jax.random.split(jax.random.PRNGKey(2), 2)
     update = lambda agent: lambda t, b, k: agent.learn(t, b, k, jnp.bool_(True))
-    ours = jax.vmap(update(with_conv(td3, seed_mapped_conv)))
-    program = jax.jit(ours).lower(ts, batch, keys).as_text()
+    program = jax.jit(jax.vmap(update(batched))).lower(ts, batch, keys).as_text()
     assert "stablehlo.convolution" in program and "feature_group_count = 2" not in program
-    for a, b in zip(jax.tree.leaves(jax.jit(ours)(ts, batch, keys)),
+    assert "feature_group_count = 2" in jax.jit(jax.vmap(update(td3))).lower(ts, batch, keys).as_text()
+    for a, b in zip(jax.tree.leaves(jax.jit(jax.vmap(update(batched)))(ts, batch, keys)),
                     jax.tree.leaves(jax.jit(mapped(update(td3)))(ts, batch, keys)), strict=True):
         np.testing.assert_allclose(np.asarray(a, np.float32), np.asarray(b, np.float32), rtol=2e-4, atol=2e-5)
 
