@@ -231,7 +231,7 @@ class TD3:
         """`platform` and `agents`: as `agents.sac.SAC`'s."""
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
-        self.image_shape = image_shape(env)  # camera images: `device_options` maps their seeds but with image_seeds
+        self.image_shape = image_shape(env)  # camera images: `device_options` maps their seeds, unless batched here
         self.batches_image_seeds = self.image_shape is not None and config.image_seeds == "vmap"
         self.inputs = inputs_for(config, env, self.obs_size, self.action_size, platform)  # state or camera images
         self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype, self.inputs.trunk)

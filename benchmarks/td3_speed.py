@@ -49,7 +49,8 @@ def blocks_conv(lhs, rhs, window_strides, padding, *args, **kwargs):
     if tuple(window_strides) != (2, 2) or rhs.shape[:2] != (3, 3) or height % 2 or width % 2:
         return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, *args, **kwargs)
     blocks = lhs.reshape(batch, height // 2, 2, width // 2, 2, channels).transpose(0, 1, 3, 2, 4, 5)
-    kernel = jnp.pad(rhs, ((0, 1), (0, 1), (0, 0), (0, 0))).reshape(2, 2, 2, 2, channels, -1).transpose(0, 2, 1, 3, 4, 5)
+    kernel = jnp.pad(rhs, ((0, 1), (0, 1), (0, 0), (0, 0)))  # 4x4, its last row and column zero
+    kernel = kernel.reshape(2, 2, 2, 2, channels, -1).transpose(0, 2, 1, 3, 4, 5)
     return jax.lax.conv_general_dilated(blocks.reshape(batch, height // 2, width // 2, 4 * channels),
                                         kernel.reshape(2, 2, 4 * channels, -1), (1, 1), padding, *args, **kwargs)
 
@@ -107,7 +108,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     def learn(ts, axis=seed_axis, agent=td3):
         def body(t, inputs):
             return agent.update(t, *inputs)[0], None
-        return seed_batched(lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],), seeds, axis)(ts, steps)
+        scanned = lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],)
+        return seed_batched(scanned, seeds, axis)(ts, steps)
 
     def learn_hat(ts):
         projection = td3_module.project
@@ -124,7 +126,8 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
                 "learn_mapped": jax.jit(partial(learn, axis="map")),
                 **{part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()},
-                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap", agent=with_conv(td3, networks.seed_mapped_conv)))}
+                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap",
+                                                           agent=with_conv(td3, networks.seed_mapped_conv)))}
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
@@ -182,10 +185,11 @@ def main(argv=None) -> None:
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE",
                         help="a TD3Config field over the task's recipe; repeatable")
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
-                        help="which programs to time, comma-separated (learn_hat: C51's projection as a dense contraction; "
-                             "learn_mapped: seeds mapped whatever --seed-axis; learn_blocks, learn_padded: the encoder's "
-                             "first convolution rewritten (`FIRST_CONVS`); learn_seed_mapped_convs: seeds vmapped but the "
-                             "encoder's convolutions one seed after another; none: only XLA's count of an update's flops)")
+                        help="which programs to time, comma-separated (learn_hat: C51's projection as a "
+                             "dense contraction; learn_mapped: seeds mapped whatever --seed-axis; learn_blocks, "
+                             "learn_padded: the encoder's first convolution rewritten (`FIRST_CONVS`); "
+                             "learn_seed_mapped_convs: seeds vmapped but the encoder's convolutions one seed after "
+                             "another; none: only XLA's count of an update's flops)")
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")
