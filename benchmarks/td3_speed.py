@@ -87,6 +87,10 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
     td3 = TD3(config, envs.make(env_name, **(env_options or {})))
+    image_parts = {*FIRST_CONVS, "learn_seed_mapped_convs"} & set(parts)
+    if image_parts and td3.image_shape is None:
+        raise ValueError(f"--parts {','.join(sorted(image_parts))} time the encoder of camera images; {env_name} "
+                         "observes a state vector here: add --env-opt observation=pixels")
     # XLA's count of one seed's update (the actor's step included: both branches of its cond), from shapes alone
     one_seed, key = jax.eval_shape(td3.init, jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
     batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, one_seed, key)[0])
@@ -124,10 +128,11 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
         return over_seeds(lambda t: td3.train_steps(t)[:2])(ts)
 
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
-                "learn_mapped": jax.jit(partial(learn, axis="map")),
-                **{part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()},
-                "learn_seed_mapped_convs": jax.jit(partial(learn, axis="vmap",
-                                                           agent=with_conv(td3, networks.seed_mapped_conv)))}
+                "learn_mapped": jax.jit(partial(learn, axis="map"))}
+    if td3.image_shape is not None:  # the encoder's convolutions computed otherwise
+        programs |= {part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()}
+        programs["learn_seed_mapped_convs"] = jax.jit(partial(learn, axis="vmap",
+                                                              agent=with_conv(td3, networks.seed_mapped_conv)))
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
