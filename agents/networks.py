@@ -89,14 +89,13 @@ def seed_mapped_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_d
     another (`jax.custom_batching.sequential_vmap`) instead of as one grouped convolution, while the rest of a
     vmapped update stays batched."""
     _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
-    padding = padding if isinstance(padding, str) else tuple(tuple(pad) for pad in padding)
-    return _seed_mapped(tuple(window_strides), padding, dimension_numbers, precision, preferred_element_type)(lhs, rhs)
+    return _seed_mapped(tuple(window_strides), dimension_numbers, precision, preferred_element_type)(lhs, rhs)
 
 
 @functools.cache
-def _seed_mapped(window_strides, padding, dimension_numbers, precision, preferred_element_type):
-    def conv(lhs, rhs):
-        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, dimension_numbers=dimension_numbers,
+def _seed_mapped(window_strides, dimension_numbers, precision, preferred_element_type):
+    def conv(lhs, rhs):  # unpadded, as `_check_plain_conv` requires
+        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, "VALID", dimension_numbers=dimension_numbers,
                                             precision=precision, preferred_element_type=preferred_element_type)
 
     forward = jax.custom_batching.sequential_vmap(conv)

@@ -278,10 +278,10 @@ def append_record(path: str | os.PathLike, record: dict) -> None:
 
 
 def write_records(path: str | os.PathLike, records: list[dict]) -> None:
-    """`records` as the JSON list in `path`, written whole or not at all."""
-    with open(f"{path}.tmp", "w") as f:
-        json.dump(records, f, indent=1)
-    os.replace(f"{path}.tmp", path)
+    """`records` as the JSON list in `path`, written whole or not at all (`agents.checkpoint.atomic_write`)."""
+    from agents.checkpoint import atomic_write
+
+    atomic_write(Path(path), json.dumps(records, indent=1).encode())
 
 
 def each_task_alone(module: str, argv: list[str], tasks: list[str], json_file: str | None) -> None:

@@ -64,6 +64,7 @@ def padded_conv(lhs, rhs, *args, **kwargs):
 
 
 FIRST_CONVS = {"learn_blocks": blocks_conv, "learn_padded": padded_conv}
+IMAGE_PARTS = (*FIRST_CONVS, "learn_seed_mapped_convs")  # parts that time the encoder of camera images
 
 
 def with_conv(td3, conv):
@@ -87,7 +88,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
     td3 = TD3(config, envs.make(env_name, **(env_options or {})))
-    image_parts = {*FIRST_CONVS, "learn_seed_mapped_convs"} & set(parts)
+    image_parts = set(IMAGE_PARTS) & set(parts)
     if image_parts and td3.image_shape is None:
         raise ValueError(f"--parts {','.join(sorted(image_parts))} time the encoder of camera images; {env_name} "
                          "observes a state vector here: add --env-opt observation=pixels")
@@ -147,7 +148,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}, **kernels}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
-    for part in ("learn", "learn_hat", "learn_mapped", *FIRST_CONVS, "learn_seed_mapped_convs"):
+    for part in ("learn", "learn_hat", "learn_mapped", *IMAGE_PARTS):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
     if "learn" in timed and gflop is not None:
