@@ -41,3 +41,16 @@ def summary(directory: str | Path, top: int = 12) -> dict:
     return {"kernel_s": round(busy, 4), "launches": len(kernels), "span_s": round(span, 4),
             "busy": round(busy / span, 3) if span else None,
             "top": [{"name": name[:80], "s": round(s, 4), "count": n} for name, (s, n) in ranked]}
+
+
+def kernels_of(runs: dict, directory: str | Path) -> dict:
+    """One more call of each `runs[name]()` (a compiled program, its inputs bound) under
+    `jax.profiler`, traced to directory/name, its device time summed by kernel (`summary`)."""
+    import jax
+
+    summaries = {}
+    for name, run in runs.items():
+        with traced(Path(directory) / name):
+            jax.block_until_ready(run())
+        summaries[name] = summary(Path(directory) / name)
+    return {"kernels": summaries, "trace_dir": str(directory)}

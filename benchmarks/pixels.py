@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from benchmarks import gpu_profile
 from benchmarks.suite import each_task_alone, without_options, write_records
 
 
@@ -59,7 +60,9 @@ def rollout_fn(task: str, num_envs: int, steps: int, options: dict):
 
 
 def measure(tasks, sizes, impl: str, steps: int, repeats: int, size: int, depth: bool, frame_stack: int,
-            action_repeat: int = 1) -> list[dict]:
+            action_repeat: int = 1, trace: str | None = None) -> list[dict]:
+    """Each task and size: pixel and state runs timed (records as the module says); with `trace`,
+    one more run of each under `jax.profiler`, its kernels in its record (`gpu_profile.kernels_of`)."""
     device = jax.devices()[0].device_kind
     records = []
     pixel_options = {"observation": "pixels", "width": size, "height": size, "depth": depth,
@@ -82,6 +85,10 @@ def measure(tasks, sizes, impl: str, steps: int, repeats: int, size: int, depth:
                     start = time.perf_counter()
                     jax.block_until_ready(run(jax.random.PRNGKey(r + 1)))
                     found[observation]["run_s"].append(time.perf_counter() - start)
+            if trace:
+                for observation, run in runs.items():
+                    found[observation] |= gpu_profile.kernels_of(
+                        {observation: functools.partial(run, jax.random.PRNGKey(0))}, f"{trace}/{task}-{num_envs}")
             for record in found.values():
                 record["steps_per_s"] = num_envs * steps / statistics.median(record["run_s"])
                 records.append(record)
@@ -106,13 +113,14 @@ def main(argv=None) -> int:
     parser.add_argument("--frame-stack", type=int, default=1)
     parser.add_argument("--action-repeat", type=int, default=1, help="task steps per pixel env step")
     parser.add_argument("--json", help="write the records here")
+    parser.add_argument("--trace", metavar="DIR", help="trace one more run of each there; kernels in its record")
     args = parser.parse_args(argv)
     if args.impl == "warp" and len(args.tasks) > 1:
         argv = sys.argv[1:] if argv is None else argv
         each_task_alone("benchmarks.pixels", without_options(argv, ("--tasks", "--json")), args.tasks, args.json)
         return 0
     records = measure(args.tasks, args.sizes, args.impl, args.steps, args.repeats, args.size, args.depth,
-                      args.frame_stack, args.action_repeat)
+                      args.frame_stack, args.action_repeat, args.trace)
     if args.json:
         write_records(args.json, records)
     return 0

@@ -23,11 +23,11 @@ import copy
 import json
 import time
 from functools import partial
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 
+from benchmarks import gpu_profile
 from benchmarks.suite import append_record, timed_program
 
 
@@ -138,7 +138,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
         print(f"{part}: compile and first run {timed[part][0]:.1f} s, then {timed[part][1]:.4f} s", flush=True)
-    kernels = _kernels(programs, ts, parts, trace) if trace else {}
+    kernels = gpu_profile.kernels_of({part: partial(programs[part], ts) for part in parts}, trace) if trace else {}
     record = {"kind": "td3-speed", "env": env_name, "env_options": env_options or {}, "preset": preset,
               "seeds": seeds, "seed_axis": seed_axis, "overrides": overrides,
               "projection": td3_module.project.__name__, "jax": jax.__version__,
@@ -159,19 +159,6 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
                       chunk_env_steps_per_s_per_seed=config.iterations_per_chunk * config.num_envs / chunk_s,
                       chunk_updates_per_s_per_seed=config.iterations_per_chunk * config.num_updates / chunk_s)
     return record
-
-
-def _kernels(programs: dict, ts, parts, directory: str) -> dict:
-    """One more run of each compiled part under `jax.profiler` (a trace in directory/part), its device time summed
-    by kernel (`benchmarks.gpu_profile.summary`)."""
-    from benchmarks import gpu_profile
-
-    summaries = {}
-    for part in parts:
-        with gpu_profile.traced(Path(directory) / part):
-            jax.block_until_ready(programs[part](ts))
-        summaries[part] = gpu_profile.summary(Path(directory) / part)
-    return {"kernels": summaries, "trace_dir": directory}
 
 
 def _parse_set(text: str) -> tuple[str, object]:
