@@ -58,6 +58,13 @@ compiled_physics_steps = jax.jit(physics_steps, static_argnums=2)
 compiled_forward = jax.jit(lambda model, data: mjx.forward(model, data))
 
 
+def without_constraints(model: mjx.Model) -> mjx.Model:
+    """`model` with its constraint stage disabled: `mjx.forward` then skips collision and the solve,
+    and every position and velocity it derives is the full forward's."""
+    flags = model.opt.disableflags | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    return model.tree_replace({"opt.disableflags": flags})
+
+
 def _time_pinned(data: mjx.Data, model: mjx.Model) -> mjx.Data:
     """`data` with `time` in the timestep's dtype: a weakly typed `time` makes jit(mjx.step) compile
     twice (float64 under jax_enable_x64, else `time + timestep` changes dtype in a scan)."""
@@ -294,6 +301,20 @@ class MjxEnv(Env):
         `model`: everything MuJoCo derives from qpos and qvel (positions, contacts, forces). Under
         impl="warp" MuJoCo Warp's buffers that a batch shares are lent for the call."""
         model = self.mjx_model if model is None else model
+        return self._warp.run(mjx.forward, model, data) if self._warp else compiled_forward(model, data)
+
+    # True where a step leaves the derived positions of the new qpos (dm_control's legacy step): a
+    # renderer then reads them as they are.
+    positions_fresh_after_step = False
+
+    def compute_positions(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
+        """What a renderer reads of `data.qpos`: the frames of bodies, geoms, cameras and lights.
+        Where the step leaves them fresh (`positions_fresh_after_step`), `data` itself; otherwise
+        `mjx.forward` without the constraint stage, which skips collision and the solve that no
+        position depends on."""
+        if self.positions_fresh_after_step:
+            return data
+        model = without_constraints(self.mjx_model if model is None else model)
         return self._warp.run(mjx.forward, model, data) if self._warp else compiled_forward(model, data)
 
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:

@@ -326,9 +326,9 @@ class WarpRenderer:
                                 data, in_batched[0])
             return render_batch(data), (True, True)
 
-        # The camera and geoms where data.qpos puts them (a step leaves the previous step's positions),
-        # then the episode's markers (reacher's target) placed over them.
-        data = task.compute_derived(data)
+        # The camera and geoms where data.qpos puts them (`compute_positions`: the step of most tasks
+        # leaves the previous substep's), then the episode's markers (reacher's target) placed over them.
+        data = task.compute_positions(data)
         return render_one(data if info is None else task.with_episode(data, info))
 
 

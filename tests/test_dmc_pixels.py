@@ -122,3 +122,27 @@ def test_the_judge_shows_a_pixel_policy_dm_controls_own_pictures():
         pytest.skip("no EGL on this machine: " + result.stderr.strip().splitlines()[-1])
     assert result.returncode == 0, result.stderr
     assert "judged" in result.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task_name", ["dmc-cheetah-run", "half-cheetah"])
+def test_the_renderer_reads_the_positions_that_a_full_forward_derives(task_name):
+    """MuJoCo Warp's renderer reads `compute_positions`: a dm_control task's state as its step leaves
+    it (the legacy step's refresh), another task's through `mjx.forward` without the constraint stage.
+    After steps that move the model (cheetah's tracking camera), both equal the frames of bodies,
+    geoms and cameras that a full `mjx.forward` derives (MJX-JAX keeps no lights' frames; MuJoCo Warp
+    derives them in the same stage as the cameras'); Gymnasium's step leaves them stale."""
+    task = envs.make(task_name).unwrapped
+
+    @jax.jit
+    def steps(key):
+        def body(state, key):
+            return task.step(state, jax.random.uniform(key, (task.action_size,), minval=-1, maxval=1)), None
+        return jax.lax.scan(body, task.reset(key), jax.random.split(key, 20))[0].pipeline_state
+
+    data = steps(jax.random.PRNGKey(4))
+    positions, derived = task.compute_positions(data), task.compute_derived(data)
+    assert task.positions_fresh_after_step == task_name.startswith("dmc-")
+    for field in ("xpos", "xmat", "geom_xpos", "geom_xmat", "cam_xpos", "cam_xmat"):
+        np.testing.assert_allclose(getattr(positions, field), getattr(derived, field), atol=1e-5, err_msg=field)
+    assert task.positions_fresh_after_step or not np.allclose(data.geom_xpos, derived.geom_xpos, atol=1e-5)

@@ -44,7 +44,7 @@ import mujoco
 import numpy as np
 
 from envs.assets import dm_control_asset
-from envs.mjx_env import MjxEnv, mjx
+from envs.mjx_env import MjxEnv, mjx, without_constraints
 
 VALUE_AT_MARGIN = 0.1  # dm_control's rewards._DEFAULT_VALUE_AT_MARGIN
 
@@ -167,6 +167,7 @@ class DmControlEnv(MjxEnv):
     control_timestep: ClassVar[float | None] = None  # the domain's _CONTROL_TIMESTEP (None: one step)
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
+    positions_fresh_after_step = True  # the legacy step's refresh (`refresh`)
     # A task whose reset runs physics (cheetah's settling steps) or a rejection loop (collision tests
     # until nothing touches) sets `costly_reset = True` (`MjxEnv.costly_reset`: under impl="warp" every
     # task's is): an auto-reset batch then resets only where an episode ended (`envs.BatchedAutoReset`);
@@ -228,8 +229,7 @@ class DmControlEnv(MjxEnv):
             # MJX offers Warp's forward pass, not its stages: with the constraint stage disabled it
             # skips collision and the solve, which mj_step1's stages never reach; the acceleration
             # stage (qacc, its warm start, constraint forces, sensors) stays the step's.
-            flags = model.opt.disableflags | mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-            fresh = mjx.forward(model.tree_replace({"opt.disableflags": flags}), data)
+            fresh = mjx.forward(without_constraints(model), data)
             return fresh.replace(sensordata=fresh.sensordata.at[..., self._acc_sensors].set(
                 data.sensordata[..., self._acc_sensors]), qacc=data.qacc, qacc_warmstart=data.qacc_warmstart,
                 qfrc_constraint=data.qfrc_constraint)
