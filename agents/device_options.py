@@ -18,9 +18,9 @@ def on_cpu(platform: str | None = None) -> bool:
 
 
 def default_seed_axis(platform: str | None = None, learner: Any = None) -> str:
-    """Seeds vmapped, but mapped on the CPU and for image networks, whose vmapped convolutions a GPU groups slowly,
-    unless the learner maps its convolutions alone (`batches_image_seeds`: TD3's `image_seeds="vmap"`)."""
-    images = getattr(learner, "image_shape", None) is not None and not getattr(learner, "batches_image_seeds", False)
+    """Seeds vmapped, but mapped on the CPU and for image networks (a learner with an `image_shape`), whose vmapped
+    convolutions a GPU groups slowly."""
+    images = getattr(learner, "image_shape", None) is not None
     return "map" if on_cpu(platform) or images else "vmap"
 
 

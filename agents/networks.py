@@ -83,28 +83,6 @@ def _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_n
                          f"{padding}, dilations {lhs_dilation} {rhs_dilation}, groups {feature_group_count}")
 
 
-def seed_mapped_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
-                     feature_group_count=1, precision=None, preferred_element_type=None):
-    """XLA's convolution, but vmapped (over seeds with their own kernels) it and its gradients run one seed after
-    another (`jax.custom_batching.sequential_vmap`) instead of as one grouped convolution, while the rest of a
-    vmapped update stays batched."""
-    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
-    return _seed_mapped(tuple(window_strides), dimension_numbers, precision, preferred_element_type)(lhs, rhs)
-
-
-@functools.cache
-def _seed_mapped(window_strides, dimension_numbers, precision, preferred_element_type):
-    def conv(lhs, rhs):  # unpadded, as `_check_plain_conv` requires
-        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, "VALID", dimension_numbers=dimension_numbers,
-                                            precision=precision, preferred_element_type=preferred_element_type)
-
-    forward = jax.custom_batching.sequential_vmap(conv)
-    gradients = jax.custom_batching.sequential_vmap(lambda lhs, rhs, grad: jax.vjp(conv, lhs, rhs)[1](grad))
-    mapped = jax.custom_vjp(forward)  # custom_vmap has no reverse mode of its own: give it one
-    mapped.defvjp(lambda lhs, rhs: (forward(lhs, rhs), (lhs, rhs)), lambda saved, grad: gradients(*saved, grad))
-    return mapped
-
-
 def _through_canonical_conv(call, args, kwargs, context):
     """An `nn.intercept_methods` interceptor: each bound `nn.Conv`'s call through `canonical_conv`."""
     conv = context.module

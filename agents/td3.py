@@ -74,9 +74,6 @@ class TD3Config(ReplayTiming):
     feature_size: int = 50
     compute_dtype: str = "float32"  # "bfloat16": the networks' matmuls in bf16 (FastTD3's AMP), params float32
     encoder_dtype: str = "float32"  # from camera images, the encoder's convolutions ("bfloat16": as compute_dtype's)
-    # How seeds from camera images share a GPU: "map", each seed's update after the other's; "vmap", batched, but the
-    # encoder's convolutions one seed after another (`agents.networks.seed_mapped_conv`; batched, a GPU groups them)
-    image_seeds: str = "map"
     min_replay_size: int = 1_024  # env steps with the untrained actor and its noise before learning
     uniform_first_fill: bool = False  # those steps' actions uniform over [-1, 1] instead (DrQ-v2's num_expl_steps)
     max_replay_size: int = 100_000  # transitions per seed
@@ -93,7 +90,6 @@ class TD3Config(ReplayTiming):
         "num_atoms": Range(2, integer=True), "v_min": FINITE, "v_max": FINITE, "init_scale": POSITIVE,
         "pre_tanh_penalty": NON_NEGATIVE, "augment_pad": NON_NEGATIVE_COUNT, "feature_size": COUNT,
         "compute_dtype": OneOf(COMPUTE_DTYPES), "encoder_dtype": OneOf(COMPUTE_DTYPES),
-        "image_seeds": OneOf(("map", "vmap")),
         "min_replay_size": NON_NEGATIVE_COUNT, "max_replay_size": COUNT, "num_evals": Range(2, integer=True),
         "num_eval_envs": COUNT}
 
@@ -231,8 +227,7 @@ class TD3:
         """`platform` and `agents`: as `agents.sac.SAC`'s."""
         continuous_setup(self, config, env)
         dtype = COMPUTE_DTYPES[config.compute_dtype]
-        self.image_shape = image_shape(env)  # camera images: `device_options` maps their seeds, unless batched here
-        self.batches_image_seeds = self.image_shape is not None and config.image_seeds == "vmap"
+        self.image_shape = image_shape(env)  # camera images: `device_options` maps their seeds
         self.inputs = inputs_for(config, env, self.obs_size, self.action_size, platform)  # state or camera images
         self.actor = Actor(self.action_size, tuple(config.actor_hidden), config.init_scale, dtype, self.inputs.trunk)
         self.critic = DistributionalQ(config.num_atoms, tuple(config.critic_hidden), dtype, config.critic_layer_norm,

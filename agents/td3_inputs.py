@@ -16,7 +16,7 @@ import jax.numpy as jnp
 
 from agents import device_options
 from agents.frame_replay import FrameReplay
-from agents.networks import canonical_conv, seed_mapped_conv
+from agents.networks import canonical_conv
 from agents.ppo import image_shape
 from agents.replay import UniformReplay
 from agents.sac import Transition, pack, unpack
@@ -31,7 +31,7 @@ class Encoder(nn.Module):
     convolved in `dtype`, its parameters float32."""
 
     dtype: Any = jnp.float32
-    # None: XLA's convolution; or one of the same values (`canonical_conv` for XLA:CPU, `seed_mapped_conv`)
+    # None: XLA's convolution; or one of the same values (`canonical_conv`, for XLA:CPU)
     conv: Callable | None = None
 
     @nn.compact
@@ -126,7 +126,7 @@ class ImageInputs:
                              f"DrQ-v2's encoder; {env!r} renders {shape[0]}x{shape[1]}: raise --env-opt width= and "
                              "height= (DrQ-v2's: 84)")
         self.config, self.shape, self.trunk = config, shape, config.feature_size
-        conv = canonical_conv if canonical_gradients else seed_mapped_conv if config.image_seeds == "vmap" else None
+        conv = canonical_conv if canonical_gradients else None
         self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], conv)
         self.frame_shape = (*shape[:2], getattr(env, "channels", shape[2]))
         self.buffer = FrameReplay(config.max_replay_size, config.num_envs, shape[2] // self.frame_shape[2],

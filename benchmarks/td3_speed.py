@@ -11,15 +11,12 @@ the whole output.
     python -m benchmarks.td3_speed ... --trace DIR    # then one more run of each part under jax.profiler, by kernel
     python -m benchmarks.td3_speed ... --seeds 4 --seed-axis map   # 4 seeds one after another (vmap: batched)
     python -m benchmarks.td3_speed ... --seeds 4 --parts learn,learn_mapped   # vmapped and mapped, one train state
-    python -m benchmarks.td3_speed ... --parts learn,learn_blocks,learn_padded  # the encoder's first convolution
-    python -m benchmarks.td3_speed ... --seeds 4 --parts learn_mapped,learn_seed_mapped_convs  # convs mapped alone
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
-import copy
 import json
 import time
 from functools import partial
@@ -41,39 +38,6 @@ def project_by_hat(probs, reward, discount, support):
     return jnp.einsum("bj,bji->bi", probs, weights)
 
 
-def blocks_conv(lhs, rhs, window_strides, padding, *args, **kwargs):
-    """A stride-2 3x3 convolution of an even-sized image as a stride-1 2x2 one of its 2x2 pixel blocks stacked on
-    the channels (4 times the channels, a quarter of the pixels), the kernel padded to 4x4 with zeros: the same
-    values. Other convolutions are XLA's. (The first of DrQ-v2's encoder has 9 channels, which cuDNN pads.)"""
-    batch, height, width, channels = lhs.shape
-    if tuple(window_strides) != (2, 2) or rhs.shape[:2] != (3, 3) or height % 2 or width % 2:
-        return jax.lax.conv_general_dilated(lhs, rhs, window_strides, padding, *args, **kwargs)
-    blocks = lhs.reshape(batch, height // 2, 2, width // 2, 2, channels).transpose(0, 1, 3, 2, 4, 5)
-    kernel = jnp.pad(rhs, ((0, 1), (0, 1), (0, 0), (0, 0)))  # 4x4, its last row and column zero
-    kernel = kernel.reshape(2, 2, 2, 2, channels, -1).transpose(0, 2, 1, 3, 4, 5)
-    return jax.lax.conv_general_dilated(blocks.reshape(batch, height // 2, width // 2, 4 * channels),
-                                        kernel.reshape(2, 2, 4 * channels, -1), (1, 1), padding, *args, **kwargs)
-
-
-def padded_conv(lhs, rhs, *args, **kwargs):
-    """A convolution whose input channels are padded with zeros to a multiple of 8 (the kernel's with zero rows):
-    the same values, channels as tensor cores take them."""
-    extra = -lhs.shape[-1] % 8
-    lhs, rhs = jnp.pad(lhs, ((0, 0),) * 3 + ((0, extra),)), jnp.pad(rhs, ((0, 0),) * 2 + ((0, extra), (0, 0)))
-    return jax.lax.conv_general_dilated(lhs, rhs, *args, **kwargs)
-
-
-FIRST_CONVS = {"learn_blocks": blocks_conv, "learn_padded": padded_conv}
-IMAGE_PARTS = (*FIRST_CONVS, "learn_seed_mapped_convs")  # parts that time the encoder of camera images
-
-
-def with_conv(td3, conv):
-    """`td3` whose encoder convolves through `conv`: the same parameters and values."""
-    variant, variant.inputs = copy.copy(td3), copy.copy(td3.inputs)
-    variant.inputs.encoder = td3.inputs.encoder.clone(conv=conv)
-    return variant
-
-
 def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
             parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default",
             trace: str | None = None, seed_axis: str = "vmap") -> dict:
@@ -81,17 +45,13 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     contraction, `learn_hat`) and a whole chunk, seeds vmapped or mapped (`seed_axis`, as `agents.run.seed_batched`),
     all from one train state; with `trace`, each part's kernels (`_kernels`)."""
     import envs
-    from agents import brax_defaults, networks
+    from agents import brax_defaults
     from agents import td3 as td3_module
     from agents.run import seed_batched, seeds_init
     from agents.td3 import TD3, TD3Config
 
     config = TD3Config(**{**brax_defaults.settings(env_name, "td3", preset), **overrides})
     td3 = TD3(config, envs.make(env_name, **(env_options or {})))
-    image_parts = set(IMAGE_PARTS) & set(parts)
-    if image_parts and td3.image_shape is None:
-        raise ValueError(f"--parts {','.join(sorted(image_parts))} time the encoder of camera images; {env_name} "
-                         "observes a state vector here: add --env-opt observation=pixels")
     # XLA's count of one seed's update (the actor's step included: both branches of its cond), from shapes alone
     one_seed, key = jax.eval_shape(td3.init, jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
     batch = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), jax.eval_shape(td3.sample, one_seed, key)[0])
@@ -110,9 +70,9 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
     def act(ts):
         return over_seeds(lambda t, k: (jax.lax.scan(td3.collect, t, k)[0],))(ts, steps)
 
-    def learn(ts, axis=seed_axis, agent=td3):
+    def learn(ts, axis=seed_axis):
         def body(t, inputs):
-            return agent.update(t, *inputs)[0], None
+            return td3.update(t, *inputs)[0], None
         scanned = lambda t, k: (jax.lax.scan(body, t, (k, jnp.arange(iterations)))[0],)
         return seed_batched(scanned, seeds, axis)(ts, steps)
 
@@ -130,10 +90,6 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
 
     programs = {"act": act, "learn": jax.jit(learn), "learn_hat": jax.jit(learn_hat), "chunk": chunk,
                 "learn_mapped": jax.jit(partial(learn, axis="map"))}
-    if td3.image_shape is not None:  # the encoder's convolutions computed otherwise
-        programs |= {part: jax.jit(partial(learn, agent=with_conv(td3, conv))) for part, conv in FIRST_CONVS.items()}
-        programs["learn_seed_mapped_convs"] = jax.jit(partial(learn, axis="vmap",
-                                                              agent=with_conv(td3, networks.seed_mapped_conv)))
     timed = {}
     for part in parts:  # each printed as it is done: a run stopped early keeps what it measured
         timed[part] = timed_program(programs[part], ts, repeats=repeats)
@@ -148,7 +104,7 @@ def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats
               "seconds": {part: seconds for part, (_, seconds) in timed.items()}, **kernels}
     if "act" in timed:
         record["act_env_steps_per_s_per_seed"] = iterations * config.num_envs / timed["act"][1]
-    for part in ("learn", "learn_hat", "learn_mapped", *IMAGE_PARTS):
+    for part in ("learn", "learn_hat", "learn_mapped"):
         if part in timed:
             record[f"{part}_updates_per_s_per_seed"] = iterations * config.num_updates / timed[part][1]
     if "learn" in timed and gflop is not None:
@@ -179,10 +135,8 @@ def main(argv=None) -> None:
                         help="a TD3Config field over the task's recipe; repeatable")
     parser.add_argument("--parts", default="act,learn,learn_hat,chunk",
                         help="which programs to time, comma-separated (learn_hat: C51's projection as a "
-                             "dense contraction; learn_mapped: seeds mapped whatever --seed-axis; learn_blocks, "
-                             "learn_padded: the encoder's first convolution rewritten (`FIRST_CONVS`); "
-                             "learn_seed_mapped_convs: seeds vmapped but the encoder's convolutions one seed after "
-                             "another; none: only XLA's count of an update's flops)")
+                             "dense contraction; learn_mapped: seeds mapped whatever --seed-axis; none: only XLA's "
+                             "count of an update's flops)")
     parser.add_argument("--env-opt", dest="env_opts", action="append", default=[], metavar="KEY=VALUE",
                         help="an envs.make option (observation=pixels, width=84, ...); repeatable")
     parser.add_argument("--preset", default="default", help="the task's TD3 recipe (e.g. pixels)")

@@ -367,5 +367,3 @@ def test_td3_speed_times_seeds_vmapped_and_mapped():
                                    seed_axis=axis)
         assert record["seed_axis"] == axis and record["learn_gflop_per_update"] > 0
         assert record["act_env_steps_per_s_per_seed"] > 0 and record["learn_updates_per_s_per_seed"] > 0
-    with pytest.raises(ValueError, match="learn_blocks time the encoder of camera images; pendulum-mjx observes"):
-        td3_speed.measure("pendulum-mjx", 1, small, iterations=1, repeats=1, parts=("learn_blocks",))

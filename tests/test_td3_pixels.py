@@ -13,12 +13,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_sac import assert_trees_equal, mapped, run_chunks
+from test_sac import assert_trees_equal, run_chunks
 
 import envs
 from agents import brax_defaults, registry
 from agents.commands import agent_config
-from agents.device_options import default_seed_axis
 from agents.run import seeds_init
 from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
@@ -95,45 +94,6 @@ def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
     with pytest.raises(ValueError, match="unpadded NHWC images and HWIO kernels; got padding"):
         nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
-
-
-@pytest.mark.parametrize("size, channels, stride", [(84, 9, 2), (20, 5, 2), (21, 5, 2), (17, 32, 1)])
-def test_the_first_convolutions_that_td3_speed_times_are_xlas_values_and_gradients(size, channels, stride):
-    """`benchmarks.td3_speed`'s rewrites of the encoder's first convolution (2x2 pixel blocks on the channels,
-    channels padded to 8) change only how it is computed: values and gradients are XLA's convolution's."""
-    from benchmarks.td3_speed import FIRST_CONVS
-
-    x = jax.random.normal(jax.random.PRNGKey(0), (2, size, size, channels))
-    w = jax.random.normal(jax.random.PRNGKey(1), (3, 3, channels, 7))
-    out = lambda fn: lambda x, w: nn.Conv(7, (3, 3), stride, "VALID", conv_general_dilated=fn).apply(
-        {"params": {"kernel": w, "bias": jnp.zeros(7)}}, x)
-    loss = lambda fn: lambda x, w: jnp.sin(out(fn)(x, w)).sum()
-    for conv in FIRST_CONVS.values():
-        np.testing.assert_allclose(out(conv)(x, w), out(None)(x, w), rtol=1e-5, atol=1e-4)
-        for a, b in zip(jax.grad(loss(conv), (0, 1))(x, w), jax.grad(loss(None), (0, 1))(x, w), strict=True):
-            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
-
-
-@pytest.mark.slow  # the vmapped init renders its first fill: about a minute on 2 cores
-def test_with_image_seeds_vmap_seeds_update_batched_but_convolve_one_after_another_as_mapped_seeds_do():
-    """`--image_seeds vmap`: on a GPU the seeds are vmapped (`default_seed_axis`), the encoder's convolutions and
-    their gradients run one seed after another (`seed_mapped_conv`: no grouped convolution), and the update ends
-    where the mapped seeds' update (the default's) ends."""
-    td3 = TD3(TINY, envs.make(TASK, **PIXELS), platform="gpu")
-    batched = TD3(dataclasses.replace(TINY, image_seeds="vmap"), envs.make(TASK, **PIXELS), platform="gpu")
-    assert default_seed_axis("gpu", td3) == "map" and default_seed_axis("gpu", batched) == "vmap"
-    assert default_seed_axis("cpu", batched) == "map"
-    ts = jax.vmap(td3.init)(jax.random.split(jax.random.PRNGKey(0), 2))
-    batches, _ = jax.vmap(td3.sample)(ts, jax.random.split(jax.random.PRNGKey(1), 2))
-    batch = jax.tree.map(lambda x: x[:, 0], batches)  # each seed's first update's
-    keys = jax.random.split(jax.random.PRNGKey(2), 2)
-    update = lambda agent: lambda t, b, k: agent.learn(t, b, k, jnp.bool_(True))
-    program = jax.jit(jax.vmap(update(batched))).lower(ts, batch, keys).as_text()
-    assert "stablehlo.convolution" in program and "feature_group_count = 2" not in program
-    assert "feature_group_count = 2" in jax.jit(jax.vmap(update(td3))).lower(ts, batch, keys).as_text()
-    for a, b in zip(jax.tree.leaves(jax.jit(jax.vmap(update(batched)))(ts, batch, keys)),
-                    jax.tree.leaves(jax.jit(mapped(update(td3)))(ts, batch, keys)), strict=True):
-        np.testing.assert_allclose(np.asarray(a, np.float32), np.asarray(b, np.float32), rtol=2e-4, atol=2e-5)
 
 
 def test_on_the_cpu_the_encoders_gradients_in_a_loop_are_canonical_convolutions():
