@@ -181,10 +181,16 @@ def describe(out_dir: Path) -> str:
     return f"{saved.agent} on {saved.env},{finished} {done} chunks or evaluations saved"
 
 
+# Config fields that a later version removed, each with why a run saved with it reads the same without it.
+RETIRED_FIELDS = {"image_seeds": "it chose how a GPU batched the seeds of camera images, not what they compute"}
+
+
 def config_from_record(config_class: type, fields: dict) -> Any:
-    """A config dataclass from its JSON record (JSON's lists back to the tuples of layer widths)."""
+    """A config dataclass from its JSON record (JSON's lists back to the tuples of layer widths), the
+    fields in `RETIRED_FIELDS` left out."""
     tuples = {f.name for f in dataclasses.fields(config_class) if "tuple" in str(f.type)}
-    return config_class(**{name: tuple(value) if name in tuples else value for name, value in fields.items()})
+    return config_class(**{name: tuple(value) if name in tuples else value for name, value in fields.items()
+                           if name not in RETIRED_FIELDS})
 
 
 def _write_arrays(path: Path, kind: str, tree: Any, meta: dict) -> None:

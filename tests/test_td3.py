@@ -3,6 +3,7 @@ delayed actor, bf16, seeds under map and vmap, exact resume (from a host copy of
 and through `train_run` stopped and resumed), and a learning canary on a toy task."""
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -367,3 +368,18 @@ def test_td3_speed_times_seeds_vmapped_and_mapped():
                                    seed_axis=axis)
         assert record["seed_axis"] == axis and record["learn_gflop_per_update"] > 0
         assert record["act_env_steps_per_s_per_seed"] > 0 and record["learn_updates_per_s_per_seed"] > 0
+
+
+def test_a_run_saved_with_a_retired_config_field_still_loads_and_an_unknown_one_says_so(tmp_path):
+    """`image_seeds` (removed: it chose how a GPU batched pixel seeds) is left out of a saved run's
+    config; a field no version had is a CheckpointError naming it."""
+    from agents import checkpoint
+
+    record = {"agent": "td3", "env": "pendulum-mjx", "seeds": 1, "config": dataclasses.asdict(TD3Config())}
+    record["config"]["image_seeds"] = "vmap"
+    (tmp_path / checkpoint.CONFIG_FILE).write_text(json.dumps(record))
+    assert checkpoint.load_config(tmp_path).config == TD3Config()
+    record["config"]["no_such_field"] = 1
+    (tmp_path / checkpoint.CONFIG_FILE).write_text(json.dumps(record))
+    with pytest.raises(checkpoint.CheckpointError, match="another mjxsuite version.*no_such_field"):
+        checkpoint.load_config(tmp_path)
