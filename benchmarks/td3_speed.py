@@ -38,12 +38,15 @@ def project_by_hat(probs, reward, discount, support):
     return jnp.einsum("bj,bji->bi", probs, weights)
 
 
+PARTS = ("act", "learn", "learn_hat", "learn_mapped", "chunk")  # the programs `measure` times
+
+
 def measure(env_name: str, seeds: int, overrides: dict, iterations: int, repeats: int,
             parts=("act", "learn", "learn_hat", "chunk"), env_options: dict | None = None, preset: str = "default",
             trace: str | None = None, seed_axis: str = "vmap") -> dict:
     """Acting alone, learning alone (C51's projection by scatter, `learn`, and as a dense
     contraction, `learn_hat`) and a whole chunk, seeds vmapped or mapped (`seed_axis`, as `agents.run.seed_batched`),
-    all from one train state; with `trace`, each part's kernels (`_kernels`)."""
+    all from one train state; with `trace`, each part's kernels (`gpu_profile.kernels_of`)."""
     import envs
     from agents import brax_defaults
     from agents import td3 as td3_module
@@ -146,6 +149,8 @@ def main(argv=None) -> None:
                         help="seeds batched or one after another (`mjxsuite train` maps image networks' on a GPU)")
     args = parser.parse_args(argv)
     parts = tuple(part for part in args.parts.split(",") if part not in ("", "none"))
+    if unknown := sorted(set(parts) - set(PARTS)):
+        parser.error(f"--parts {args.parts}: no part {', '.join(unknown)}; the parts are {','.join(PARTS)} (or none)")
     record = measure(args.env, args.seeds, dict(_parse_set(s) for s in args.sets), args.iterations, args.repeats,
                      parts, dict(_parse_set(s) for s in args.env_opts), args.preset, args.trace, args.seed_axis)
     print(json.dumps(record, indent=1), flush=True)

@@ -383,3 +383,11 @@ def test_a_run_saved_with_a_retired_config_field_still_loads_and_an_unknown_one_
     (tmp_path / checkpoint.CONFIG_FILE).write_text(json.dumps(record))
     with pytest.raises(checkpoint.CheckpointError, match="another mjxsuite version.*no_such_field"):
         checkpoint.load_config(tmp_path)
+
+
+def test_td3_speed_refuses_a_part_it_does_not_time(capsys):
+    from benchmarks import td3_speed
+
+    with pytest.raises(SystemExit) as exit_info:
+        td3_speed.main(["--parts", "learn,learn_blocks"])
+    assert exit_info.value.code == 2 and "no part learn_blocks; the parts are act,learn" in capsys.readouterr().err
