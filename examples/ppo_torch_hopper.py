@@ -231,6 +231,84 @@ def evaluate(agent: Agent, normalizer: RunningStatistics, env_id: str, episodes:
     return returns
 
 
+class Rollouts:
+    """One iteration's data, (unroll, time, env, ...), and the returns of the episodes that ended,
+    summed on the device (no host sync while collecting). obs has t + 1 steps: the last is the
+    unroll's final next-observation, whose value bootstraps the unroll (the next unroll's first)."""
+
+    def __init__(self, unrolls: int, t: int, n: int, obs_size: int, action_size: int, device):
+        self.obs = torch.zeros((unrolls, t + 1, n, obs_size), device=device)
+        self.raw_action = torch.zeros((unrolls, t, n, action_size), device=device)
+        self.log_prob, self.reward, self.termination, self.truncation = (
+            torch.zeros((unrolls, t, n), device=device) for _ in range(4))
+        self.episode_return = torch.zeros(n, device=device)
+        self.ended_returns, self.ended_count = torch.zeros((), device=device), torch.zeros((), device=device)
+
+    def data(self) -> dict:
+        """The iteration's unrolls, one row each (`by_unroll`)."""
+        return {"obs": by_unroll(self.obs), "raw_action": by_unroll(self.raw_action),
+                "log_prob": by_unroll(self.log_prob), "reward": by_unroll(self.reward),
+                "termination": by_unroll(self.termination), "truncation": by_unroll(self.truncation)}
+
+    def mean_ended_return(self) -> str:
+        """The mean return of the episodes ended since the last call (the host syncs here)."""
+        count = int(self.ended_count.item())
+        mean = f"{self.ended_returns.item() / count:.0f} ({count} episodes)" if count else "- (none ended)"
+        self.ended_returns.zero_()
+        self.ended_count.zero_()
+        return mean
+
+
+@torch.no_grad()
+def collect(agent: Agent, normalizer: RunningStatistics, envs, next_obs, buf: Rollouts, center, half):
+    """Every env unrolled `unrolls` times for t steps with the stochastic policy into `buf`; the
+    normalizer then takes the batch's observations (Brax: before the SGD passes on it). Returns the
+    last observation."""
+    unrolls, t = buf.reward.shape[:2]
+    for u in range(unrolls):
+        buf.obs[u, 0] = next_obs
+        for step in range(t):
+            loc, scale = agent.distribution(normalizer.normalize(next_obs))
+            raw_action = loc + scale * torch.randn_like(loc)  # the Gaussian sample; the env gets its tanh
+            buf.raw_action[u, step] = raw_action
+            buf.log_prob[u, step] = log_prob(loc, scale, raw_action)
+            next_obs, reward, terminated, truncated, _ = envs.step(center + half * torch.tanh(raw_action))
+            # Truncation (the time limit) is handled as Brax does, by masking the truncated step in
+            # the GAE (compute_gae) rather than bootstrapping from info["final_obs"]: it is the
+            # recipe that trains this task, it keeps the loss to one value pass over the unroll,
+            # and it costs one step in 1,000 on Hopper. A step that both falls and hits the limit
+            # counts as a fall.
+            terminated, truncated = terminated.float(), truncated.float()
+            buf.obs[u, step + 1] = next_obs
+            buf.reward[u, step] = reward.float()
+            buf.termination[u, step] = terminated
+            buf.truncation[u, step] = truncated * (1.0 - terminated)
+            buf.episode_return += reward.float()
+            ended = torch.maximum(terminated, truncated)
+            buf.ended_returns += (buf.episode_return * ended).sum()
+            buf.ended_count += ended.sum()
+            buf.episode_return *= 1.0 - ended
+    normalizer.update(buf.obs[:, :t].reshape(-1, buf.obs.shape[-1]))
+    return next_obs
+
+
+def learn(agent: Agent, normalizer: RunningStatistics, optimizer, data: dict, args) -> dict:
+    """`update_epochs` passes, each over the unrolls in shuffled minibatches of `batch_size` unrolls."""
+    num_unrolls = data["reward"].shape[0]
+    losses: dict = {}
+    for _ in range(args.update_epochs):
+        order = torch.randperm(num_unrolls, device=data["reward"].device)
+        for begin in range(0, num_unrolls, args.batch_size):
+            idx = order[begin:begin + args.batch_size]
+            loss, losses = ppo_loss(agent, normalizer, {k: v[idx] for k, v in data.items()}, args)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if args.max_grad_norm is not None:
+                nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
+            optimizer.step()
+    return losses
+
+
 def main(argv=None) -> dict:
     args = parse_args(argv)
     torch.manual_seed(args.seed)
@@ -252,81 +330,23 @@ def main(argv=None) -> dict:
 
     n, t = args.num_envs, args.unroll_length
     unrolls = args.batch_size * args.num_minibatches // n  # per env and iteration
-    steps_per_iteration = unrolls * t * n
-    num_iterations = max(1, math.ceil(args.total_timesteps / steps_per_iteration))
-    # One iteration's data, (unroll, time, env, ...); obs has t + 1 steps: the last is the unroll's
-    # final next-observation, whose value bootstraps the unroll (it is also the next unroll's first).
-    obs_buf = torch.zeros((unrolls, t + 1, n, obs_size), device=device)
-    raw_action_buf = torch.zeros((unrolls, t, n, action_size), device=device)
-    log_prob_buf, reward_buf, termination_buf, truncation_buf = (
-        torch.zeros((unrolls, t, n), device=device) for _ in range(4))
-
+    num_iterations = max(1, math.ceil(args.total_timesteps / (unrolls * t * n)))
+    buf = Rollouts(unrolls, t, n, obs_size, action_size, device)
     next_obs, _ = envs.reset(seed=args.seed)
-    episode_return = torch.zeros(n, device=device)
-    ended_returns, ended_count = torch.zeros((), device=device), torch.zeros((), device=device)
     global_step, last_print = 0, time.time()
-    losses: dict = {}
     for iteration in range(1, num_iterations + 1):
         if (time.time() - start) / 60 > args.max_minutes:
             print(f"stopping: --max-minutes {args.max_minutes} reached")
             break
-        # ---- collect: every env unrolled `unrolls` times for t steps with the stochastic policy ----
-        with torch.no_grad():
-            for u in range(unrolls):
-                obs_buf[u, 0] = next_obs
-                for step in range(t):
-                    loc, scale = agent.distribution(normalizer.normalize(next_obs))
-                    raw_action = loc + scale * torch.randn_like(loc)  # the Gaussian sample; the env gets its tanh
-                    raw_action_buf[u, step] = raw_action
-                    log_prob_buf[u, step] = log_prob(loc, scale, raw_action)
-                    next_obs, reward, terminated, truncated, _ = envs.step(center + half * torch.tanh(raw_action))
-                    # Truncation (the time limit) is handled as Brax does, by masking the truncated step in
-                    # the GAE (compute_gae) rather than bootstrapping from info["final_obs"]: it is the
-                    # recipe that trains this task, it keeps the loss to one value pass over the unroll,
-                    # and it costs one step in 1,000 on Hopper. A step that both falls and hits the limit
-                    # counts as a fall.
-                    terminated, truncated = terminated.float(), truncated.float()
-                    obs_buf[u, step + 1] = next_obs
-                    reward_buf[u, step] = reward.float()
-                    termination_buf[u, step] = terminated
-                    truncation_buf[u, step] = truncated * (1.0 - terminated)
-                    # Episode returns for the progress line, summed on the device: no host sync here.
-                    episode_return += reward.float()
-                    ended = torch.maximum(terminated, truncated)
-                    ended_returns += (episode_return * ended).sum()
-                    ended_count += ended.sum()
-                    episode_return *= 1.0 - ended
-                    global_step += n
-
-            # Brax updates the normalizer with the batch's observations before the SGD passes on it.
-            normalizer.update(obs_buf[:, :t].reshape(-1, obs_size))
-            data = {"obs": by_unroll(obs_buf), "raw_action": by_unroll(raw_action_buf),
-                    "log_prob": by_unroll(log_prob_buf), "reward": by_unroll(reward_buf),
-                    "termination": by_unroll(termination_buf), "truncation": by_unroll(truncation_buf)}
-
-        # ---- learn: update-epochs passes, each over the unrolls in num-minibatches shuffled minibatches ----
-        num_unrolls = unrolls * n
-        for _ in range(args.update_epochs):
-            order = torch.randperm(num_unrolls, device=device)
-            for begin in range(0, num_unrolls, args.batch_size):
-                idx = order[begin:begin + args.batch_size]
-                loss, losses = ppo_loss(agent, normalizer, {k: v[idx] for k, v in data.items()}, args)
-                optimizer.zero_grad(set_to_none=True)
-                loss.backward()
-                if args.max_grad_norm is not None:
-                    nn.utils.clip_grad_norm_(agent.parameters(), args.max_grad_norm)
-                optimizer.step()
-
+        next_obs = collect(agent, normalizer, envs, next_obs, buf, center, half)
+        global_step += unrolls * t * n
+        losses = learn(agent, normalizer, optimizer, buf.data(), args)
         if time.time() - last_print > 10 or iteration == num_iterations:
             last_print = time.time()
-            count = int(ended_count.item())  # the host syncs: once a progress line
-            mean = f"{ended_returns.item() / count:.0f} ({count} episodes)" if count else "- (none ended)"
-            ended_returns.zero_()
-            ended_count.zero_()
             parts = " ".join(f"{k} {v.item():.3g}" for k, v in losses.items())
             rate = global_step / (time.time() - start)
-            print(f"iter {iteration}/{num_iterations} steps {global_step:,} ({rate:,.0f}/s) "
-                  f"mean return of the episodes ended since the last line {mean}; {parts}", flush=True)
+            print(f"iter {iteration}/{num_iterations} steps {global_step:,} ({rate:,.0f}/s) mean return of the "
+                  f"episodes ended since the last line {buf.mean_ended_return()}; {parts}", flush=True)
 
     train_s = time.time() - start
     scores = evaluate(agent, normalizer, args.eval_env_id, args.eval_episodes, args.eval_max_steps, args.seed,
