@@ -18,10 +18,8 @@ def on_cpu(platform: str | None = None) -> bool:
 
 
 def default_seed_axis(platform: str | None = None, learner: Any = None) -> str:
-    """Seeds vmapped, but mapped on the CPU and for image networks (a learner with an `image_shape`), whose vmapped
-    convolutions a GPU groups slowly."""
-    images = getattr(learner, "image_shape", None) is not None
-    return "map" if on_cpu(platform) or images else "vmap"
+    """Seeds vmapped, but mapped on the CPU and for image networks, whose vmapped convolutions a GPU groups slowly."""
+    return "map" if on_cpu(platform) or getattr(learner, "image_shape", None) is not None else "vmap"
 
 
 def vectorized_replay(platform: str | None = None) -> bool:

@@ -71,16 +71,12 @@ _valid_conv.defvjp(_valid_conv_fwd, _valid_conv_bwd)
 def canonical_conv(lhs, rhs, window_strides, padding, lhs_dilation=None, rhs_dilation=None, dimension_numbers=None,
                    feature_group_count=1, **kwargs):
     """`nn.Conv`'s `conv_general_dilated` through `_valid_conv` (for XLA:CPU in loops)."""
-    _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count)
-    return _valid_conv(lhs, rhs, tuple(window_strides))
-
-
-def _check_plain_conv(lhs, rhs, padding, lhs_dilation, rhs_dilation, dimension_numbers, feature_group_count):
     unpadded = padding == "VALID" or [tuple(pad) for pad in padding] == [(0, 0)] * 2
     plain = set((*(lhs_dilation or ()), *(rhs_dilation or ()), feature_group_count)) <= {1}
     if not (unpadded and plain and dimension_numbers == jax.lax.conv_dimension_numbers(lhs.shape, rhs.shape, NHWC)):
-        raise ValueError(f"these convolutions take only unpadded NHWC images and HWIO kernels; got padding "
+        raise ValueError(f"canonical_conv only convolves unpadded NHWC images with HWIO kernels; got padding "
                          f"{padding}, dilations {lhs_dilation} {rhs_dilation}, groups {feature_group_count}")
+    return _valid_conv(lhs, rhs, tuple(window_strides))
 
 
 def _through_canonical_conv(call, args, kwargs, context):

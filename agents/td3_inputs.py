@@ -7,7 +7,6 @@ once (`agents.frame_replay.FrameReplay`), sampled images shifted (`random_shift`
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import flax.linen as nn
@@ -31,15 +30,15 @@ class Encoder(nn.Module):
     convolved in `dtype`, its parameters float32."""
 
     dtype: Any = jnp.float32
-    # None: XLA's convolution; or one of the same values (`canonical_conv`, for XLA:CPU)
-    conv: Callable | None = None
+    canonical_gradients: bool = False  # `agents.networks.canonical_conv` (for XLA:CPU); the same values
 
     @nn.compact
     def __call__(self, frames: jax.Array) -> jax.Array:
         x = (frames.astype(jnp.float32) / 255.0 - 0.5).astype(self.dtype)
+        conv = canonical_conv if self.canonical_gradients else None
         for stride in ENCODER_STRIDES:
-            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype,
-                                conv_general_dilated=self.conv, kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
+            x = nn.relu(nn.Conv(32, (3, 3), strides=stride, padding="VALID", dtype=self.dtype, conv_general_dilated=conv,
+                                kernel_init=nn.initializers.orthogonal(2 ** 0.5))(x))
         return x.reshape(*x.shape[:-3], -1)
 
 
@@ -126,8 +125,7 @@ class ImageInputs:
                              f"DrQ-v2's encoder; {env!r} renders {shape[0]}x{shape[1]}: raise --env-opt width= and "
                              "height= (DrQ-v2's: 84)")
         self.config, self.shape, self.trunk = config, shape, config.feature_size
-        conv = canonical_conv if canonical_gradients else None
-        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], conv)
+        self.encoder = Encoder(COMPUTE_DTYPES[config.encoder_dtype], canonical_gradients)
         self.frame_shape = (*shape[:2], getattr(env, "channels", shape[2]))
         self.buffer = FrameReplay(config.max_replay_size, config.num_envs, shape[2] // self.frame_shape[2],
                                   config.num_steps)

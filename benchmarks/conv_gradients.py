@@ -34,9 +34,8 @@ def _gradient_steps(loss, params) -> dict:
 
 
 def encoder_steps(canonical: bool, batch: int, size: int) -> dict:
-    from agents.networks import canonical_conv
     from agents.td3_inputs import Encoder
-    encoder = Encoder(conv=canonical_conv if canonical else None)
+    encoder = Encoder(canonical_gradients=canonical)
     frames = jax.random.randint(jax.random.PRNGKey(0), (batch, size, size, 9), 0, 256).astype(jnp.uint8)
     params = encoder.init(jax.random.PRNGKey(1), frames)
     return _gradient_steps(lambda p: jnp.square(encoder.apply(p, frames)).mean(), params)

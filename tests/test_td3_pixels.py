@@ -92,7 +92,7 @@ def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
     ours, jaxs = jax.grad(conv(canonical_conv), (0, 1))(x, w), jax.grad(conv(None), (0, 1))(x, w)
     for a, b in zip(ours, jaxs, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
-    with pytest.raises(ValueError, match="unpadded NHWC images and HWIO kernels; got padding"):
+    with pytest.raises(ValueError, match="unpadded NHWC images with HWIO kernels; got padding"):
         nn.Conv(7, (kernel,) * 2, padding="SAME", conv_general_dilated=canonical_conv).init(jax.random.PRNGKey(0), x)
 
 
