@@ -307,15 +307,14 @@ class MjxEnv(Env):
     # renderer then reads them as they are.
     positions_fresh_after_step = False
 
-    def compute_positions(self, data: mjx.Data, model: mjx.Model | None = None) -> mjx.Data:
+    def compute_positions(self, data: mjx.Data) -> mjx.Data:
         """What a renderer reads of `data.qpos`: the frames of bodies, geoms, cameras and lights.
         Where the step leaves them fresh (`positions_fresh_after_step`), `data` itself; otherwise
-        `mjx.forward` without the constraint stage, which skips collision and the solve that no
+        `compute_derived` without the constraint stage, which skips collision and the solve that no
         position depends on."""
         if self.positions_fresh_after_step:
             return data
-        model = without_constraints(self.mjx_model if model is None else model)
-        return self._warp.run(mjx.forward, model, data) if self._warp else compiled_forward(model, data)
+        return self.compute_derived(data, without_constraints(self.mjx_model))
 
     def action_to_ctrl(self, action: jax.Array) -> jax.Array:
         """Map an action to the model's `ctrl` vector (see the class docstring)."""
