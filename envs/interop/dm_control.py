@@ -418,7 +418,7 @@ ENDLESS_EPISODE_STEPS = 1_000
 
 
 def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed: int = JUDGE_FIRST_SEED,
-                          max_steps: int | None = None) -> list[float]:
+                          max_steps: int | None = None, camera: "Camera | None" = None) -> list[float]:
     """The returns of `policy` on dm_control's own env of `env`'s task (the twin of judging a
     Gymnasium task on Gymnasium's env): episode i is `suite.load(domain, task)` seeded with
     `first_seed + i`, reset, then stepped with `policy(observation)` (the action in the actuators'
@@ -426,9 +426,10 @@ def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed
     steps; lqr, which has no time limit: at its goal or after `ENDLESS_EPISODE_STEPS`) or after
     `max_steps` control steps. The return sums dm_control's rewards. The observation is dm_control's
     flattened in its order, as our task observes it; for a pixel env (`observation="pixels"`) it is
-    dm_control's own picture (`Camera`), each action held for the env's `action_repeat` steps."""
+    dm_control's own picture (`Camera`, or `camera` where given: one that shows other pictures), each
+    action held for the env's `action_repeat` steps."""
     env = make(env) if isinstance(env, str) else env
-    camera = Camera.of(env)
+    camera = camera or Camera.of(env)
     repeat = 1 if camera is None else camera.action_repeat
     returns = []
     for episode in range(episodes):
