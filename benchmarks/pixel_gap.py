@@ -1,6 +1,7 @@
 """Our pictures against dm_control's, where a pixel policy meets the judge.
 
-    python -m benchmarks.pixel_gap --run DIR [--episodes 2] [--seeds 0,1] [--max-steps N] [--json FILE]
+    MUJOCO_GL=egl python -m benchmarks.pixel_gap --run DIR [--episodes 2] [--seeds 0,1] [--max-steps N]
+        [--ours-only] [--json FILE]
 
 A pixel run on a dm_control task learns from our renderer's pictures (MuJoCo Warp's under impl="warp") and is
 judged on dm_control's own env from dm_control's pictures (OpenGL: its textures, lights and shadows). For each
@@ -11,7 +12,7 @@ pictures (0-255) and of the policy's actions on the two frame stacks. dm_control
 a return that holds on our pictures and falls on dm_control's says the pictures moved it, not the physics.
 Ours come from the run's renderer where this machine has it (impl="warp": a CUDA GPU), else from the JAX ray
 caster, whose flat colours are far from both. Tasks whose episodes draw markers (reacher's target) are
-rendered without them here.
+rendered without them here. `--ours-only`, for a machine without headless OpenGL: the return seeing ours alone.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 from pathlib import Path
 from typing import Callable
 
@@ -51,9 +53,9 @@ def our_pictures(env) -> Callable[[object], np.ndarray]:
     return lambda physics: np.asarray(picture(jnp.asarray(physics.data.qpos, dtype), jnp.asarray(physics.data.qvel, dtype)))
 
 
-def twin_camera(env, ours: Callable, feed: str):
-    """The judge's `Camera` of `env`, rendering dm_control's picture and `ours` every time, feeding the policy
-    `feed`'s ("theirs" or "ours"), and keeping both per episode in `episodes`."""
+def twin_camera(env, ours: Callable, feed: str, renders: bool = True):
+    """The judge's `Camera` of `env`, rendering dm_control's picture (where `renders`) and `ours` every time,
+    feeding the policy `feed`'s ("theirs" or "ours"), and keeping both per episode in `episodes`."""
     from envs.interop.dm_control import Camera
 
     @dataclasses.dataclass
@@ -65,11 +67,13 @@ def twin_camera(env, ours: Callable, feed: str):
             return super().reset(physics)
 
         def picture(self, physics):
-            pair = (super().picture(physics), ours(physics))
+            pair = (super().picture(physics) if renders else None, ours(physics))
             self.episodes[-1].append(pair)
             return pair[feed == "ours"]
 
-    return TwinCamera(**dataclasses.asdict(Camera.of(env)))
+    camera = TwinCamera(**dataclasses.asdict(Camera.of(env)))
+    camera.renders = renders
+    return camera
 
 
 def stacks(pictures: list[np.ndarray], frame_stack: int) -> np.ndarray:
@@ -78,25 +82,29 @@ def stacks(pictures: list[np.ndarray], frame_stack: int) -> np.ndarray:
     return np.stack([np.concatenate(padded[i:i + frame_stack], -1) for i in range(len(pictures))])
 
 
-def gap(policy, env, episodes: int, max_steps: int | None = None) -> dict:
+def gap(policy, env, episodes: int, max_steps: int | None = None, ours_only: bool = False) -> dict:
     """One policy's returns on dm_control's env seeing each renderer's pictures, and the two pictures' and
-    actions' mean absolute differences over every step of both drives."""
+    actions' mean absolute differences over every step of both drives; `ours_only`: the return seeing ours
+    alone, dm_control rendering nothing (a machine without headless OpenGL)."""
     from envs.interop.dm_control import returns_on_dm_control
 
     ours, record, pairs, picture_gap, actions = our_pictures(env), {}, 0, [], []
-    for feed in ("theirs", "ours"):
-        camera = twin_camera(env, ours, feed)
+    feeds = ("ours",) if ours_only else ("theirs", "ours")
+    for feed in feeds:
+        camera = twin_camera(env, ours, feed, renders=not ours_only)
         record[f"returns_seeing_{feed}"] = returns_on_dm_control(policy, env, episodes, max_steps=max_steps,
                                                                  camera=camera)
+        record[f"return_seeing_{feed}"] = float(np.mean(record[f"returns_seeing_{feed}"]))
+        if ours_only:
+            continue
         for episode in camera.episodes:
             theirs, mine = (stacks([pair[i] for pair in episode], camera.frame_stack) for i in (0, 1))
             picture_gap.append(np.abs(theirs[..., -3:].astype(np.int16) - mine[..., -3:]).mean(axis=(1, 2, 3)))
             actions.append(np.abs(np.asarray(policy(theirs)) - np.asarray(policy(mine))).mean(-1))
             pairs += len(episode)
-    for feed in ("theirs", "ours"):
-        record[f"return_seeing_{feed}"] = float(np.mean(record[f"returns_seeing_{feed}"]))
-    record.update(pictures=pairs, picture_abs_diff=float(np.concatenate(picture_gap).mean()),
-                  action_abs_diff=float(np.concatenate(actions).mean()))
+    if not ours_only:
+        record.update(pictures=pairs, picture_abs_diff=float(np.concatenate(picture_gap).mean()),
+                      action_abs_diff=float(np.concatenate(actions).mean()))
     return record
 
 
@@ -106,8 +114,12 @@ def main(argv=None) -> None:
     parser.add_argument("--episodes", type=int, default=2, help="episodes per seed and renderer (default 2)")
     parser.add_argument("--seeds", default=None, help="comma-separated seed indices (default: every seed)")
     parser.add_argument("--max-steps", type=int, default=None, help="control steps per episode (default: its end)")
+    parser.add_argument("--ours-only", action="store_true",
+                        help="only the return seeing our pictures; dm_control renders nothing (no headless OpenGL)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
+    if args.ours_only:
+        os.environ.setdefault("MUJOCO_GL", "disable")  # dm_control then never looks for OpenGL
 
     import agents
     from agents import checkpoint
@@ -120,9 +132,9 @@ def main(argv=None) -> None:
     seeds = range(saved.trained_seeds) if args.seeds is None else [int(s) for s in args.seeds.split(",")]
     record = {"kind": "pixel-gap", "run": str(args.run), "env": saved.env, "env_options": saved.env_options,
               "renderer": "warp" if env.unwrapped.impl == "warp" else "jax ray caster", "episodes": args.episodes,
-              "max_steps": args.max_steps, "seeds": {}}
+              "max_steps": args.max_steps, "ours_only": args.ours_only, "seeds": {}}
     for seed in seeds:
-        record["seeds"][seed] = gap(agents.load_policy(args.run, seed), env, args.episodes, args.max_steps)
+        record["seeds"][seed] = gap(agents.load_policy(args.run, seed), env, args.episodes, args.max_steps, args.ours_only)
         print(seed, json.dumps(record["seeds"][seed]), flush=True)
     if args.json:
         append_record(args.json, record)

@@ -166,6 +166,8 @@ def test_the_picture_gap_shows_a_policy_both_renderers_pictures_of_dm_controls_s
         assert record["returns_seeing_theirs"] == returns_on_dm_control(policy, env, 1, max_steps=6)
         assert record["pictures"] == 2 * (1 + 6 // env.action_repeat)
         assert record["picture_abs_diff"] > 10 and record["action_abs_diff"] > 0
+        alone = gap(policy, env, episodes=1, max_steps=6, ours_only=True)
+        assert alone["returns_seeing_ours"] == record["returns_seeing_ours"] and "picture_abs_diff" not in alone
 
         theirs = load("cartpole", "swingup", JUDGE_FIRST_SEED)
         theirs.reset()

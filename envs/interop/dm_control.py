@@ -433,7 +433,7 @@ def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed
     repeat = 1 if camera is None else camera.action_repeat
     returns = []
     for episode in range(episodes):
-        theirs = load(env.unwrapped.domain, env.unwrapped.task, first_seed + episode, renders=camera is not None)
+        theirs = load(env.unwrapped.domain, env.unwrapped.task, first_seed + episode, renders=camera is not None and camera.renders)
         step, total, steps = theirs.reset(), 0.0, 0
         limit = ENDLESS_EPISODE_STEPS if max_steps is None and np.isinf(theirs._step_limit) else max_steps
         observation = flatten(step.observation) if camera is None else camera.reset(theirs.physics)
@@ -461,6 +461,7 @@ class Camera:
     frame_stack: int
     action_repeat: int
     frames: list = dataclasses.field(default_factory=list)
+    renders = True  # whether its pictures are dm_control's (the judge's env is then loaded to render)
 
     @classmethod
     def of(cls, env: Env) -> "Camera | None":
