@@ -162,10 +162,10 @@ _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
 # TD3 from camera images: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium" tasks: 1,024-wide
 # layers, 3-step returns, discount 0.99, target step 0.01, batches of 256, 1M frames = 500k env steps at action repeat
-# 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9. Not DrQ-v2's: 32 updates
-# per 64 env steps at Adam's 3e-4, LayerNorm critics, the encoder in bf16. Batches of 1,024 at 8 updates in float32
-# were 4x slower per update and showed no learning on the GPU; 2 updates at 1e-4 learned nothing from pixels or state
-# (docs/agents.md, "TD3 from pixels").
+# 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9; 32 updates per 64 env
+# steps (DrQ-v2's update_every_steps 2). Not DrQ-v2's: Adam's 3e-4, LayerNorm critics, the encoder in bf16. Batches
+# of 1,024 at 8 updates in float32 were 4x slower per update and showed no learning on the GPU; 2 updates at 1e-4
+# learned nothing from pixels or state (docs/agents.md, "TD3 from pixels").
 _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_updates=32, actor_learning_rate=3e-4,
                   critic_learning_rate=3e-4, critic_layer_norm=True, weight_decay=0.0, tau=0.01, discounting=0.99,
                   num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1, std_max=0.4,
