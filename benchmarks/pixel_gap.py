@@ -50,7 +50,7 @@ def our_pictures(env) -> Callable[[object], np.ndarray]:
         return jax.vmap(one)(template, qpos[None], qvel[None])[0]
 
     dtype = template.pipeline_state.qpos.dtype
-    return lambda physics: np.asarray(picture(jnp.asarray(physics.data.qpos, dtype), jnp.asarray(physics.data.qvel, dtype)))
+    return lambda physics: np.asarray(picture(*(jnp.asarray(x, dtype) for x in (physics.data.qpos, physics.data.qvel))))
 
 
 def twin_camera(env, ours: Callable, feed: str, renders: bool = True):
@@ -108,12 +108,18 @@ def gap(policy, env, episodes: int, max_steps: int | None = None, ours_only: boo
     return record
 
 
+def count(text: str) -> int:
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be a whole number of at least 1, got {text!r}")
+    return int(text)
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.pixel_gap", description=__doc__.splitlines()[0])
     parser.add_argument("--run", required=True, type=Path, help="a run directory of a pixel dm_control task")
-    parser.add_argument("--episodes", type=int, default=2, help="episodes per seed and renderer (default 2)")
+    parser.add_argument("--episodes", type=count, default=2, help="episodes per seed and renderer (default 2)")
     parser.add_argument("--seeds", default=None, help="comma-separated seed indices (default: every seed)")
-    parser.add_argument("--max-steps", type=int, default=None, help="control steps per episode (default: its end)")
+    parser.add_argument("--max-steps", type=count, default=None, help="control steps per episode (default: its end)")
     parser.add_argument("--ours-only", action="store_true",
                         help="only the return seeing our pictures; dm_control renders nothing (no headless OpenGL)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
@@ -124,7 +130,10 @@ def main(argv=None) -> None:
     import agents
     from agents import checkpoint
 
-    saved = checkpoint.load_config(args.run)
+    try:
+        saved = checkpoint.load_config(args.run)
+    except FileNotFoundError as error:
+        parser.error(f"--run: {error}")
     if saved.env_options.get("observation") != "pixels" or not saved.env.startswith("dmc-"):
         parser.error(f"--run {args.run}: a run of {saved.env} with {saved.env_options}; pixel_gap compares "
                      "pictures of a dm_control task trained with --env-opt observation=pixels")
@@ -134,7 +143,8 @@ def main(argv=None) -> None:
               "renderer": "warp" if env.unwrapped.impl == "warp" else "jax ray caster", "episodes": args.episodes,
               "max_steps": args.max_steps, "ours_only": args.ours_only, "seeds": {}}
     for seed in seeds:
-        record["seeds"][seed] = gap(agents.load_policy(args.run, seed), env, args.episodes, args.max_steps, args.ours_only)
+        policy = agents.load_policy(args.run, seed)
+        record["seeds"][seed] = gap(policy, env, args.episodes, args.max_steps, args.ours_only)
         print(seed, json.dumps(record["seeds"][seed]), flush=True)
     if args.json:
         append_record(args.json, record)
