@@ -29,16 +29,21 @@ import numpy as np
 from benchmarks.suite import append_record
 
 
+def pixels_of(env):
+    """`env`'s `envs.pixels.Pixels` wrapper."""
+    from envs.pixels import Pixels
+
+    while not isinstance(env, Pixels):
+        env = env.env
+    return env
+
+
 def our_pictures(env) -> Callable[[object], np.ndarray]:
     """`picture(physics)`: `env`'s uint8 picture (H, W, 3) of dm_control's physics state (its qpos and qvel)."""
     import jax
     import jax.numpy as jnp
 
-    from envs.pixels import Pixels
-
-    pixels = env
-    while not isinstance(pixels, Pixels):
-        pixels = pixels.env
+    pixels = pixels_of(env)
     task = pixels.unwrapped
     template = jax.vmap(pixels.reset)(jax.random.PRNGKey(0)[None])  # a batch of one: MuJoCo Warp's worlds
 
@@ -53,31 +58,42 @@ def our_pictures(env) -> Callable[[object], np.ndarray]:
     return lambda physics: np.asarray(picture(*(jnp.asarray(x, dtype) for x in (physics.data.qpos, physics.data.qvel))))
 
 
-def twin_camera(env, ours: Callable, feed: str, renders: bool = True):
-    """The judge's `Camera` of `env`, rendering dm_control's picture (where `renders`) and `ours` every time,
-    feeding the policy `feed`'s ("theirs" or "ours"), and keeping both per episode in `episodes`."""
-    from envs.interop.dm_control import Camera
+@dataclasses.dataclass
+class TwinCamera:
+    """A camera for `envs.returns_on_dm_control`, as the judge's: frames stacked oldest first (a reset's repeated),
+    each action held `action_repeat` steps. Each picture is dm_control's (`physics.render`, where `renders`) and
+    `ours`; the policy sees `feed`'s ("theirs" or "ours"); both are kept per episode in `episodes`."""
 
-    @dataclasses.dataclass
-    class TwinCamera(Camera):
-        episodes: list = dataclasses.field(default_factory=list)
+    pixels: object
+    ours: Callable
+    feed: str
+    renders: bool = True
+    frames: list = dataclasses.field(default_factory=list)
+    episodes: list = dataclasses.field(default_factory=list)
 
-        def reset(self, physics):
-            self.episodes.append([])
-            return super().reset(physics)
+    @property
+    def action_repeat(self) -> int:
+        return self.pixels.action_repeat
 
-        def picture(self, physics):
-            pair = (super().picture(physics) if renders else None, ours(physics))
-            self.episodes[-1].append(pair)
-            return pair[feed == "ours"]
+    def picture(self, physics) -> np.ndarray:
+        pixels = self.pixels
+        theirs = physics.render(pixels.height, pixels.width, camera_id=pixels.cam) if self.renders else None
+        pair = (theirs, self.ours(physics))
+        self.episodes[-1].append(pair)
+        return pair[self.feed == "ours"]
 
-    camera = TwinCamera(**dataclasses.asdict(Camera.of(env)))
-    camera.renders = renders
-    return camera
+    def reset(self, physics) -> np.ndarray:
+        self.episodes.append([])
+        self.frames = [self.picture(physics)] * self.pixels.frame_stack
+        return np.concatenate(self.frames, -1)
+
+    def observe(self, physics) -> np.ndarray:
+        self.frames = [*self.frames[1:], self.picture(physics)]
+        return np.concatenate(self.frames, -1)
 
 
 def stacks(pictures: list[np.ndarray], frame_stack: int) -> np.ndarray:
-    """The frame stack after each picture of an episode, oldest first, the first picture repeated (`Camera`)."""
+    """The frame stack after each picture of an episode, oldest first, the first picture repeated."""
     padded = [pictures[0]] * (frame_stack - 1) + pictures
     return np.stack([np.concatenate(padded[i:i + frame_stack], -1) for i in range(len(pictures))])
 
@@ -86,19 +102,19 @@ def gap(policy, env, episodes: int, max_steps: int | None = None, ours_only: boo
     """One policy's returns on dm_control's env seeing each renderer's pictures, and the two pictures' and
     actions' mean absolute differences over every step of both drives; `ours_only`: the return seeing ours
     alone, dm_control rendering nothing (a machine without headless OpenGL)."""
-    from envs.interop.dm_control import returns_on_dm_control
+    from envs import returns_on_dm_control
 
     ours, record, pairs, picture_gap, actions = our_pictures(env), {}, 0, [], []
     feeds = ("ours",) if ours_only else ("theirs", "ours")
     for feed in feeds:
-        camera = twin_camera(env, ours, feed, renders=not ours_only)
+        camera = TwinCamera(pixels_of(env), ours, feed, renders=not ours_only)
         record[f"returns_seeing_{feed}"] = returns_on_dm_control(policy, env, episodes, max_steps=max_steps,
                                                                  camera=camera)
         record[f"return_seeing_{feed}"] = float(np.mean(record[f"returns_seeing_{feed}"]))
         if ours_only:
             continue
         for episode in camera.episodes:
-            theirs, mine = (stacks([pair[i] for pair in episode], camera.frame_stack) for i in (0, 1))
+            theirs, mine = (stacks([pair[i] for pair in episode], camera.pixels.frame_stack) for i in (0, 1))
             picture_gap.append(np.abs(theirs[..., -3:].astype(np.int16) - mine[..., -3:]).mean(axis=(1, 2, 3)))
             actions.append(np.abs(np.asarray(policy(theirs)) - np.asarray(policy(mine))).mean(-1))
             pairs += len(episode)
