@@ -29,21 +29,16 @@ import numpy as np
 from benchmarks.suite import append_record
 
 
-def pixels_of(env):
-    """`env`'s `envs.pixels.Pixels` wrapper."""
-    from envs.pixels import Pixels
-
-    while not isinstance(env, Pixels):
-        env = env.env
-    return env
-
-
 def our_pictures(env) -> Callable[[object], np.ndarray]:
     """`picture(physics)`: `env`'s uint8 picture (H, W, 3) of dm_control's physics state (its qpos and qvel)."""
     import jax
     import jax.numpy as jnp
 
-    pixels = pixels_of(env)
+    from envs.pixels import Pixels
+
+    pixels = env
+    while not isinstance(pixels, Pixels):
+        pixels = pixels.env
     task = pixels.unwrapped
     template = jax.vmap(pixels.reset)(jax.random.PRNGKey(0)[None])  # a batch of one: MuJoCo Warp's worlds
 
@@ -58,38 +53,28 @@ def our_pictures(env) -> Callable[[object], np.ndarray]:
     return lambda physics: np.asarray(picture(*(jnp.asarray(x, dtype) for x in (physics.data.qpos, physics.data.qvel))))
 
 
-@dataclasses.dataclass
-class TwinCamera:
-    """A camera for `envs.returns_on_dm_control`, as the judge's: frames stacked oldest first (a reset's repeated),
-    each action held `action_repeat` steps. Each picture is dm_control's (`physics.render`, where `renders`) and
-    `ours`; the policy sees `feed`'s ("theirs" or "ours"); both are kept per episode in `episodes`."""
+def twin_camera(env, ours: Callable, feed: str, renders: bool = True):
+    """The judge's camera of `env` (`envs.DmControlCamera`: frames stacked, actions repeated as the judge does), each
+    picture both dm_control's (where `renders`) and `ours`, the policy seeing `feed`'s ("theirs" or "ours"); both
+    are kept per episode in `episodes`."""
+    from envs import DmControlCamera
 
-    pixels: object
-    ours: Callable
-    feed: str
-    renders: bool = True
-    frames: list = dataclasses.field(default_factory=list)
-    episodes: list = dataclasses.field(default_factory=list)
+    @dataclasses.dataclass
+    class TwinCamera(DmControlCamera):
+        episodes: list = dataclasses.field(default_factory=list)
 
-    @property
-    def action_repeat(self) -> int:
-        return self.pixels.action_repeat
+        def reset(self, physics):
+            self.episodes.append([])
+            return super().reset(physics)
 
-    def picture(self, physics) -> np.ndarray:
-        pixels = self.pixels
-        theirs = physics.render(pixels.height, pixels.width, camera_id=pixels.cam) if self.renders else None
-        pair = (theirs, self.ours(physics))
-        self.episodes[-1].append(pair)
-        return pair[self.feed == "ours"]
+        def picture(self, physics):
+            pair = (super().picture(physics) if renders else None, ours(physics))
+            self.episodes[-1].append(pair)
+            return pair[feed == "ours"]
 
-    def reset(self, physics) -> np.ndarray:
-        self.episodes.append([])
-        self.frames = [self.picture(physics)] * self.pixels.frame_stack
-        return np.concatenate(self.frames, -1)
-
-    def observe(self, physics) -> np.ndarray:
-        self.frames = [*self.frames[1:], self.picture(physics)]
-        return np.concatenate(self.frames, -1)
+    camera = TwinCamera(**dataclasses.asdict(DmControlCamera.of(env)))
+    camera.renders = renders
+    return camera
 
 
 def stacks(pictures: list[np.ndarray], frame_stack: int) -> np.ndarray:
@@ -98,23 +83,23 @@ def stacks(pictures: list[np.ndarray], frame_stack: int) -> np.ndarray:
     return np.stack([np.concatenate(padded[i:i + frame_stack], -1) for i in range(len(pictures))])
 
 
-def gap(policy, env, episodes: int, max_steps: int | None = None, ours_only: bool = False) -> dict:
-    """One policy's returns on dm_control's env seeing each renderer's pictures, and the two pictures' and
-    actions' mean absolute differences over every step of both drives; `ours_only`: the return seeing ours
-    alone, dm_control rendering nothing (a machine without headless OpenGL)."""
+def gap(policy, env, ours: Callable, episodes: int, max_steps: int | None = None, ours_only: bool = False) -> dict:
+    """One policy's returns on dm_control's env seeing its pictures and `ours` (`our_pictures(env)`), and the two
+    pictures' and actions' mean absolute differences over every step of both drives; `ours_only`: the return
+    seeing ours alone, dm_control rendering nothing (a machine without headless OpenGL)."""
     from envs import returns_on_dm_control
 
-    ours, record, pairs, picture_gap, actions = our_pictures(env), {}, 0, [], []
+    record, pairs, picture_gap, actions = {}, 0, [], []
     feeds = ("ours",) if ours_only else ("theirs", "ours")
     for feed in feeds:
-        camera = TwinCamera(pixels_of(env), ours, feed, renders=not ours_only)
+        camera = twin_camera(env, ours, feed, renders=not ours_only)
         record[f"returns_seeing_{feed}"] = returns_on_dm_control(policy, env, episodes, max_steps=max_steps,
                                                                  camera=camera)
         record[f"return_seeing_{feed}"] = float(np.mean(record[f"returns_seeing_{feed}"]))
         if ours_only:
             continue
         for episode in camera.episodes:
-            theirs, mine = (stacks([pair[i] for pair in episode], camera.pixels.frame_stack) for i in (0, 1))
+            theirs, mine = (stacks([pair[i] for pair in episode], camera.frame_stack) for i in (0, 1))
             picture_gap.append(np.abs(theirs[..., -3:].astype(np.int16) - mine[..., -3:]).mean(axis=(1, 2, 3)))
             actions.append(np.abs(np.asarray(policy(theirs)) - np.asarray(policy(mine))).mean(-1))
             pairs += len(episode)
@@ -155,12 +140,13 @@ def main(argv=None) -> None:
                      "pictures of a dm_control task trained with --env-opt observation=pixels")
     env = checkpoint.saved_env(args.run)[1]
     seeds = range(saved.trained_seeds) if args.seeds is None else [int(s) for s in args.seeds.split(",")]
+    ours = our_pictures(env)  # compiled once, for every seed
     record = {"kind": "pixel-gap", "run": str(args.run), "env": saved.env, "env_options": saved.env_options,
               "renderer": "warp" if env.unwrapped.impl == "warp" else "jax ray caster", "episodes": args.episodes,
               "max_steps": args.max_steps, "ours_only": args.ours_only, "seeds": {}}
     for seed in seeds:
         policy = agents.load_policy(args.run, seed)
-        record["seeds"][seed] = gap(policy, env, args.episodes, args.max_steps, args.ours_only)
+        record["seeds"][seed] = gap(policy, env, ours, args.episodes, args.max_steps, args.ours_only)
         print(seed, json.dumps(record["seeds"][seed]), flush=True)
     if args.json:
         append_record(args.json, record)

@@ -93,6 +93,7 @@ _LAZY_API = {
     "to_brax": "envs.interop.brax",
     "returns_on_dm_control": "envs.interop.dm_control",  # a policy judged on dm_control's own env
     "load_dm_control": "envs.interop.dm_control",  # dm_control's own env, on the installed mujoco
+    "DmControlCamera": "envs.interop.dm_control",  # the judge's pictures of a pixel env, from dm_control's renderer
     "to_dm_env": "envs.interop.dm_control",  # a dmc-* task behind dm_control's dm_env interface
 }
 

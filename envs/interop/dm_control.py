@@ -426,14 +426,15 @@ def returns_on_dm_control(policy, env: Env | str, episodes: int = 10, first_seed
     steps; lqr, which has no time limit: at its goal or after `ENDLESS_EPISODE_STEPS`) or after
     `max_steps` control steps. The return sums dm_control's rewards. The observation is dm_control's
     flattened in its order, as our task observes it; for a pixel env (`observation="pixels"`) it is
-    dm_control's own picture (`Camera`, or `camera` where given: one that shows other pictures), each
+    dm_control's own picture (`Camera`, or `camera` where given: a subclass that shows other pictures), each
     action held for the env's `action_repeat` steps."""
     env = make(env) if isinstance(env, str) else env
     camera = camera or Camera.of(env)
     repeat = 1 if camera is None else camera.action_repeat
     returns = []
     for episode in range(episodes):
-        theirs = load(env.unwrapped.domain, env.unwrapped.task, first_seed + episode, renders=camera is not None and camera.renders)
+        renders = camera is not None and camera.renders
+        theirs = load(env.unwrapped.domain, env.unwrapped.task, first_seed + episode, renders=renders)
         step, total, steps = theirs.reset(), 0.0, 0
         limit = ENDLESS_EPISODE_STEPS if max_steps is None and np.isinf(theirs._step_limit) else max_steps
         observation = flatten(step.observation) if camera is None else camera.reset(theirs.physics)
@@ -487,6 +488,9 @@ class Camera:
     def observe(self, physics) -> np.ndarray:
         self.frames = [*self.frames[1:], self.picture(physics)]
         return np.concatenate(self.frames, -1)
+
+
+DmControlCamera = Camera  # as `envs` offers it (a judge that shows other pictures subclasses it)
 
 
 class DmEnv(dm_env.Environment):
