@@ -14,4 +14,10 @@ get "$parts" warp-lang==1.19.0
 for i in 1 2 3; do mkdir -p .wp$i && mv "$parts"/part.a$(echo abc | cut -c$i) .wp$i/; done
 site=$("${PYTHON:-.venv/bin/python}" -c "import dm_control, pathlib; print(pathlib.Path(dm_control.__file__).parent.parent)")
 mkdir -p .whl-dmc && tar czf .whl-dmc/dm_control_suite.tgz -C "$site" dm_control/__init__.py dm_control/suite/
-du -sh .whl .whl-pg .wp1 .wp2 .wp3 .whl-dmc
+# The rest of dm_control that its env and renderer import (for the judge and benchmarks.pixel_gap there), and
+# the wheels of its imports the GPU image lacks; carried with .wp2 (each call takes at most 64 MiB).
+mkdir -p .whl-dmc2 && tar czf .whl-dmc2/dm_control_rest.tgz -C "$site" --exclude=dm_control/suite \
+  --exclude=dm_control/locomotion --exclude=dm_control/blender --exclude='*/testing' --exclude='*/test_assets' \
+  --exclude='*/__pycache__' dm_control
+get .whl-dmc2 dm-env==1.6 dm-tree==0.1.10 lxml==6.2.0 absl-py==2.5.1
+du -sh .whl .whl-pg .wp1 .wp2 .wp3 .whl-dmc .whl-dmc2

@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # On the GPU machine: warp-lang's part N (1, 2, 3) kept outside the checkout; the first also unpacks
-# dm_control's suite, the third joins the parts and installs warp-lang.
+# dm_control's suite, the second the rest of dm_control (where .whl-dmc2 came), the third joins the parts and installs warp-lang.
 set -euo pipefail
 mkdir -p /root/wparts && cp .wp"$1"/* /root/wparts/
 if [ "$1" = 1 ]; then
   tar xzf .whl-dmc/dm_control_suite.tgz -C "$(python -c 'import site; print(site.getsitepackages()[0])')"
+fi
+if [ "$1" = 2 ] && [ -d .whl-dmc2 ]; then
+  tar xzf .whl-dmc2/dm_control_rest.tgz -C "$(python -c 'import site; print(site.getsitepackages()[0])')"
+  python -m pip install -q --no-deps .whl-dmc2/*.whl
 fi
 if [ "$1" = 3 ]; then
   wheel=/root/warp_lang-1.19.0-py3-none-manylinux_2_28_x86_64.whl
