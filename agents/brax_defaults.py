@@ -165,12 +165,11 @@ _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(
 # 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9; 32 updates per 64 env
 # steps (DrQ-v2's update_every_steps 2). Not DrQ-v2's: Adam's 3e-4, LayerNorm critics, the encoder in bf16. Batches
 # of 1,024 at 8 updates in float32 were 4x slower per update and showed no learning on the GPU; 2 updates at 1e-4
-# learned nothing from pixels or state (docs/agents.md, "TD3 from pixels"). rlkit's pre-tanh penalty (finger spin's):
-# without it every walker walk actor saturated from pixels (docs/agents.md, "The pre-tanh penalty from pixels").
+# learned nothing; without rlkit's pre-tanh penalty walker walk's actors saturated (docs/agents.md, "TD3 from pixels").
 _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_updates=32, actor_learning_rate=3e-4,
-                  critic_learning_rate=3e-4, pre_tanh_penalty=1e-3, critic_layer_norm=True, weight_decay=0.0, tau=0.01, discounting=0.99,
-                  num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1, std_max=0.4,
-                  policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
+                  critic_learning_rate=3e-4, pre_tanh_penalty=1e-3, critic_layer_norm=True, weight_decay=0.0, tau=0.01,
+                  discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
+                  std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
