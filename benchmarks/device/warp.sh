@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # On the GPU machine: warp-lang's part N (1, 2, 3) kept outside the checkout; the first also unpacks
-# dm_control's suite, the second the rest of dm_control (where .whl-dmc2 came), the third joins the parts and installs warp-lang.
+# dm_control's suite, the second the rest of dm_control (where .whl-dmc2 came), the third joins the parts and
+# installs warp-lang.
 set -euo pipefail
 mkdir -p /root/wparts && cp .wp"$1"/* /root/wparts/
 if [ "$1" = 1 ]; then
