@@ -109,13 +109,11 @@ def gap(policy, env, ours: Callable, episodes: int, max_steps: int | None = None
     return record
 
 
-def count(text: str) -> int:
-    if not text.isdigit() or int(text) < 1:
-        raise argparse.ArgumentTypeError(f"must be a whole number of at least 1, got {text!r}")
-    return int(text)
-
-
 def main(argv=None) -> None:
+    from agents.cli import ranged
+    from envs.ranges import COUNT
+
+    count = ranged(int, COUNT)
     parser = argparse.ArgumentParser(prog="python -m benchmarks.pixel_gap", description=__doc__.splitlines()[0])
     parser.add_argument("--run", required=True, type=Path, help="a run directory of a pixel dm_control task")
     parser.add_argument("--episodes", type=count, default=2, help="episodes per seed and renderer (default 2)")

@@ -175,11 +175,11 @@ def test_the_picture_gap_shows_a_policy_both_renderers_pictures_of_dm_controls_s
         model, start = theirs.physics.model._model, theirs.physics.data.qpos.copy()
         for _ in range(40):
             theirs.step(np.array([1.0]))
-        ours = ours(theirs.physics) > 0
+        seen = ours(theirs.physics) > 0
         _, hits = c_mujoco_depth(model, theirs.physics.data.qpos, env.cam, 32, 24)
         _, hits_at_start = c_mujoco_depth(model, start, env.cam, 32, 24)
-        assert ours.shape == (24, 32, 3) and (ours.max(-1) == (hits >= 0)).mean() > 0.99
-        assert (ours.max(-1) != (hits_at_start >= 0)).sum() > 5  # the picture tells the two states apart
+        assert seen.shape == (24, 32, 3) and (seen.max(-1) == (hits >= 0)).mean() > 0.99
+        assert (seen.max(-1) != (hits_at_start >= 0)).sum() > 5  # the picture tells the two states apart
         print("gap", record)
     """, MUJOCO_GL="egl")
     if "EGL" in result.stderr and "gap" not in result.stdout:

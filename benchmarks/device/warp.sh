@@ -4,11 +4,12 @@
 # installs warp-lang.
 set -euo pipefail
 mkdir -p /root/wparts && cp .wp"$1"/* /root/wparts/
+site=$(python -c 'import site; print(site.getsitepackages()[0])')
 if [ "$1" = 1 ]; then
-  tar xzf .whl-dmc/dm_control_suite.tgz -C "$(python -c 'import site; print(site.getsitepackages()[0])')"
+  tar xzf .whl-dmc/dm_control_suite.tgz -C "$site"
 fi
 if [ "$1" = 2 ] && [ -d .whl-dmc2 ]; then
-  tar xzf .whl-dmc2/dm_control_rest.tgz -C "$(python -c 'import site; print(site.getsitepackages()[0])')"
+  tar xzf .whl-dmc2/dm_control_rest.tgz -C "$site"
   python -m pip install -q --no-deps .whl-dmc2/*.whl
 fi
 if [ "$1" = 3 ]; then
