@@ -39,17 +39,28 @@ _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, 
 # FastTD3's recipe (github.com/younggyoseo/FastTD3, fast_td3/hyperparams.py at commit 229ed59): BaseArgs
 # with MuJoCoPlaygroundArgs' 1,024 envs. Ours: a replay of 1M transitions per seed, the critic's support
 # per task (about the per-step reward bound over 1 - discount), the run's length. Starting points.
-_FASTTD3 = dict(num_envs=1024, batch_size=32768, num_updates=2, policy_frequency=2, actor_learning_rate=3e-4,
-                critic_learning_rate=3e-4, weight_decay=0.1, discounting=0.99, tau=0.1, policy_noise=0.001,
-                noise_clip=0.5, std_min=0.001, std_max=0.4, num_atoms=101, init_scale=0.01,
-                actor_hidden=(512, 256, 128), critic_hidden=(1024, 512, 256), compute_dtype="bfloat16",
-                min_replay_size=10 * 1024, max_replay_size=1 << 20, num_evals=11)
+_FASTTD3_LEARNING = dict(policy_frequency=2, actor_learning_rate=3e-4, critic_learning_rate=3e-4, weight_decay=0.1,
+                         discounting=0.99, tau=0.1, policy_noise=0.001, noise_clip=0.5, std_min=0.001, std_max=0.4,
+                         num_atoms=101, init_scale=0.01)
+_FASTTD3 = dict(_FASTTD3_LEARNING, num_envs=1024, batch_size=32768, num_updates=2, actor_hidden=(512, 256, 128),
+                critic_hidden=(1024, 512, 256), compute_dtype="bfloat16", min_replay_size=10 * 1024,
+                max_replay_size=1 << 20, num_evals=11)
 # The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env, beat
 # PPO's by far, or met the goal where PPO's did not (docs/agents.md, "Which off-policy learner"; docs/tasks.md).
 DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", **dict.fromkeys(("humanoid",
     "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-finger-turn-easy", "dmc-cheetah-run",
     "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run"), "td3")}
 
+# The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
+# 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
+CPU_SIZES: dict[str, dict[str, Any]] = {
+    "ppo": dict(num_timesteps=2_000_000, num_evals=21, num_eval_envs=16, num_envs=64, batch_size=64,
+                num_minibatches=16, unroll_length=16, num_updates_per_batch=4),
+    "sac": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256,
+                grad_updates_per_step=8, min_replay_size=2_000, max_replay_size=300_000),
+    "td3": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256, num_updates=4,
+                min_replay_size=1_024, max_replay_size=300_000),
+}
 SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     # Gymnasium's Pendulum-v1 (solved at -200). Measured here.
     "pendulum-mjx": {
@@ -109,9 +120,9 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
                                 max_replay_size=1048576, min_replay_size=8192, solve_return=3800.0)},
-        # TD3: FastTD3's with a quarter of its envs per seed, eight seeds to a GPU (record "td3-speed"); a starting point
-        "td3": {"default": dict(_FASTTD3, num_envs=256, min_replay_size=10 * 256, num_timesteps=1_843_200,
-                                v_min=-100.0, v_max=500.0, solve_return=3800.0)},
+        # TD3: FastTD3's learning at the "cpu" sizes, a LayerNorm critic (docs/agents.md, "Hopper wants updates, not envs")
+        "td3": {"default": dict(_FASTTD3_LEARNING, **CPU_SIZES["td3"], critic_layer_norm=True, v_min=-100.0, v_max=500.0,
+                                solve_return=3800.0)},
     },
     "walker2d": {  # SAC run, impl="warp"
         "ppo": {"default": dict(num_timesteps=7_864_320, num_evals=20, reward_scaling=5.0, unroll_length=20,
@@ -162,11 +173,11 @@ _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3)}
 # TD3 from camera images: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium" tasks: 1,024-wide
 # layers, 3-step returns, discount 0.99, target step 0.01, batches of 256, 1M frames = 500k env steps at action repeat
-# 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9; 32 updates per 64 env
-# steps (DrQ-v2's update_every_steps 2). Not DrQ-v2's: Adam's 3e-4, LayerNorm critics, the encoder in bf16. Batches
+# 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9; 16 updates per 64 env
+# steps (half DrQ-v2's rate: four seeds step twice as far). Not DrQ-v2's: Adam's 3e-4, LayerNorm critics, bf16. Batches
 # of 1,024 at 8 updates in float32 were 4x slower per update and showed no learning on the GPU; 2 updates at 1e-4
 # learned nothing; without rlkit's pre-tanh penalty walker walk's actors saturated (docs/agents.md, "TD3 from pixels").
-_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_updates=32, actor_learning_rate=3e-4,
+_PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_updates=16, actor_learning_rate=3e-4,
                   critic_learning_rate=3e-4, pre_tanh_penalty=1e-3, critic_layer_norm=True, weight_decay=0.0, tau=0.01,
                   discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
@@ -206,19 +217,8 @@ for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
                                "pixels": dict(_PIXEL_TD3, solve_return=DRQV2_SCORES.get(_task))}}
 del _task, _ppo, _sac, _goal, _solve
 
-
-# The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
                    "walker2d", "reacher", "pusher", "swimmer")
-# 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
-CPU_SIZES: dict[str, dict[str, Any]] = {
-    "ppo": dict(num_timesteps=2_000_000, num_evals=21, num_eval_envs=16, num_envs=64, batch_size=64,
-                num_minibatches=16, unroll_length=16, num_updates_per_batch=4),
-    "sac": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256,
-                grad_updates_per_step=8, min_replay_size=2_000, max_replay_size=300_000),
-    "td3": dict(num_timesteps=300_000, num_evals=11, num_eval_envs=16, num_envs=16, batch_size=256, num_updates=4,
-                min_replay_size=1_024, max_replay_size=300_000),
-}
 # Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
 # A run of more env steps than these (all seeds together; from camera images, which the CPU's ray caster renders) is

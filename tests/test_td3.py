@@ -345,15 +345,24 @@ def test_td3_learns_to_hold_the_drifting_point_at_zero():
     assert np.all(np.asarray(metrics["nan_episodes"]) == 0)
 
 
-@pytest.mark.parametrize("task", ["hopper", "walker2d", "half-cheetah", "ant", "humanoid"])
+@pytest.mark.parametrize("task", ["walker2d", "half-cheetah", "ant", "humanoid"])
 def test_the_gymnasium_tasks_have_fasttd3_recipes(task):
     from agents import brax_defaults
 
     config = TD3Config(**brax_defaults.settings(task, "td3"))
-    # hopper's row takes a quarter of FastTD3's envs (docs/agents.md, "Where a chunk's time goes")
-    assert config.num_envs == (256 if task == "hopper" else 1024)
-    assert config.batch_size == 32768 and config.compute_dtype == "bfloat16"
+    assert config.num_envs == 1024 and config.batch_size == 32768 and config.compute_dtype == "bfloat16"
     assert config.critic_hidden == (1024, 512, 256) and config.v_min < 0 < config.v_max
+
+
+def test_hoppers_td3_recipe_is_fasttd3s_learning_at_the_cpu_sizes_with_a_layernorm_critic():
+    """Hopper wants updates, not envs (docs/agents.md): its row is the "cpu" preset plus the LayerNorm critic."""
+    from agents import brax_defaults
+
+    row = brax_defaults.settings("hopper", "td3")
+    assert row == brax_defaults.settings("hopper", "td3", "cpu")
+    config = TD3Config(**row)
+    assert (config.num_envs, config.batch_size, config.num_updates, config.critic_layer_norm) == (16, 256, 4, True)
+    assert (config.tau, config.std_max, config.num_atoms) == (0.1, 0.4, 101)  # FastTD3's learning settings
 
 
 @pytest.mark.slow  # two compiles of pendulum-mjx's programs
