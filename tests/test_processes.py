@@ -232,7 +232,7 @@ sys.exit(main())
     done = subprocess.run([sys.executable, "-c", code, "train", "--env", "hopper", "--seeds", "2", "--out",
                            str(tmp_path / "run")], capture_output=True, text=True, timeout=120)
     assert "backend started: False gpus: ['0', '1']" in done.stdout, done.stdout + done.stderr
-    assert "mjx: False backend: False agent: ppo" in done.stdout, done.stdout + done.stderr
+    assert "mjx: False backend: False agent: td3" in done.stdout, done.stdout + done.stderr
     assert checkpoint.process_dirs(tmp_path / "run") is not None
 
 
