@@ -222,8 +222,10 @@ GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "huma
 # Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
 # A run of more env steps than these (all seeds together; from camera images, which the CPU's ray caster renders) is
-# a GPU's work: on a CPU it takes hours.
+# a GPU's work: on a CPU it takes hours. SAC and TD3 pay for their updates, not their env steps: twice the "cpu"
+# preset's length is already a GPU's (hopper's TD3 row, 700k).
 GPU_SIZED_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 100_000
+GPU_SIZED_OFF_POLICY_STEPS = 2 * CPU_SIZES["td3"]["num_timesteps"]
 
 
 def cpu_settings(task: str, agent: str) -> dict[str, Any]:
@@ -237,10 +239,12 @@ def cpu_settings(task: str, agent: str) -> dict[str, Any]:
 
 def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: bool = False) -> str | None:
     """The note for a run without a GPU whose recipe is sized for one (more env steps over its seeds than
-    GPU_SIZED_STEPS, or GPU_SIZED_PIXEL_STEPS from camera images), naming what fits a CPU; None for a CPU-sized run."""
+    GPU_SIZED_STEPS, GPU_SIZED_OFF_POLICY_STEPS for SAC and TD3, or GPU_SIZED_PIXEL_STEPS from camera images), naming
+    what fits a CPU; None for a CPU-sized run."""
     from agents import registry
 
-    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else GPU_SIZED_STEPS):
+    off_policy = GPU_SIZED_OFF_POLICY_STEPS if agent in ("sac", "td3") else GPU_SIZED_STEPS
+    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else off_policy):
         return None
     per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
     cpu_agent = next((a for a in (agent, "td3") if "cpu" in presets(task, a)), None)  # PPO on dm_control: TD3's

@@ -299,6 +299,10 @@ def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts_naming_the_cpu_preset
     commands.say_gpu_sized("dmc-cartpole-balance", "td3", pixels, 1, gpus=[], pixels=True)
     assert ("TD3 recipe from camera images trains 0.5M env steps, sized for a GPU: on this CPU that takes hours; camera "
             "images come from MJX's ray caster here") in capsys.readouterr().err
+    hopper_td3 = TD3Config(**brax_defaults.settings("hopper", "td3"))  # 0.7M steps, 4 updates per 16: an hour's
+    commands.say_gpu_sized("hopper", "td3", hopper_td3, 1, gpus=[])
+    assert ("hopper's TD3 recipe trains 0.7M env steps, sized for a GPU: on this CPU that takes hours; --preset cpu "
+            "trains a smaller one (300,064 env steps)") in capsys.readouterr().err
     commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
     commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
