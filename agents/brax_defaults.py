@@ -47,9 +47,9 @@ _FASTTD3 = dict(_FASTTD3_LEARNING, num_envs=1024, batch_size=32768, num_updates=
                 max_replay_size=1 << 20, num_evals=11)
 # The agent of a continuous task without --agent, where not "ppo": the one whose row, judged on the reference env, beat
 # PPO's by far, or met the goal where PPO's did not (docs/agents.md, "Which off-policy learner"; docs/tasks.md).
-DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", **dict.fromkeys((
-    "hopper", "humanoid", "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-finger-turn-easy", "dmc-cheetah-run",
-    "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run"), "td3")}
+DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "walker2d": "sac", "swimmer": "sac", **dict.fromkeys(("hopper",
+    "humanoid", "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-finger-turn-easy",
+    "dmc-cheetah-run", "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run"), "td3")}
 
 # The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
 # 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
@@ -114,13 +114,12 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=4800.0)},
         "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-300.0, v_max=1500.0, solve_return=4800.0)},
     },
-    "hopper": {  # PPO and TD3 run, impl="warp" (TD3 the default: every seed over 3,000 in ten minutes, where PPO's
-        # left three of eight under 2,200). PPO: Playground's recipe with the discount 0.99 (docs/agents.md, "GPU results")
+    "hopper": {  # PPO and TD3 run, impl="warp"; TD3 the default (every seed over 3,000 in ten minutes). PPO: Playground's
+        # with the discount 0.99. TD3: FastTD3's learning at the "cpu" sizes, a LayerNorm critic (docs/agents.md)
         "ppo": {"default": dict(_PLAYGROUND_PPO, discounting=0.99, solve_return=3800.0)},
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
                                 max_replay_size=1048576, min_replay_size=8192, solve_return=3800.0)},
-        # TD3: FastTD3's learning at the "cpu" sizes, a LayerNorm critic (docs/agents.md, "Hopper wants updates, not envs")
         "td3": {"default": {**_FASTTD3_LEARNING, **CPU_SIZES["td3"], "num_timesteps": 700_000, "critic_layer_norm": True,
                             "v_min": -100.0, "v_max": 500.0, "solve_return": 3800.0}},
     },
@@ -221,11 +220,9 @@ GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "huma
                    "walker2d", "reacher", "pusher", "swimmer")
 # Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
-# A run of more env steps than these (all seeds together; from camera images, which the CPU's ray caster renders) is
-# a GPU's work: on a CPU it takes hours. SAC and TD3 pay for their updates, not their env steps: twice the "cpu"
-# preset's length is already a GPU's (hopper's TD3 row, 700k).
-GPU_SIZED_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 100_000
-GPU_SIZED_OFF_POLICY_STEPS = 2 * CPU_SIZES["td3"]["num_timesteps"]
+# A run of more env steps than these (all seeds together) is a GPU's work: on a CPU it takes hours. SAC and TD3 pay
+# for their updates (over twice their "cpu" preset), camera images for the CPU's ray caster.
+GPU_SIZED_STEPS, GPU_SIZED_OFF_POLICY_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 600_000, 100_000
 
 
 def cpu_settings(task: str, agent: str) -> dict[str, Any]:
@@ -238,13 +235,12 @@ def cpu_settings(task: str, agent: str) -> dict[str, Any]:
 
 
 def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: bool = False) -> str | None:
-    """The note for a run without a GPU whose recipe is sized for one (more env steps over its seeds than
-    GPU_SIZED_STEPS, GPU_SIZED_OFF_POLICY_STEPS for SAC and TD3, or GPU_SIZED_PIXEL_STEPS from camera images), naming
-    what fits a CPU; None for a CPU-sized run."""
+    """The note for a run without a GPU whose recipe is sized for one (more env steps over its seeds than the
+    GPU_SIZED limits above), naming what fits a CPU; None for a CPU-sized run."""
     from agents import registry
 
-    off_policy = GPU_SIZED_OFF_POLICY_STEPS if agent in ("sac", "td3") else GPU_SIZED_STEPS
-    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else off_policy):
+    limit = GPU_SIZED_OFF_POLICY_STEPS if agent in ("sac", "td3") else GPU_SIZED_STEPS
+    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else limit):
         return None
     per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
     cpu_agent = next((a for a in (agent, "td3") if "cpu" in presets(task, a)), None)  # PPO on dm_control: TD3's
