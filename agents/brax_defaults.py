@@ -221,7 +221,7 @@ GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "huma
 # Accelerator-sized fields a row may set that CPU_SIZES leaves to the base recipe (its defaults).
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
 # A run of more env steps than these (all seeds together) is a GPU's work: on a CPU it takes hours. SAC and TD3 pay
-# for their updates (over twice their "cpu" preset), camera images for the CPU's ray caster.
+# for their updates: over twice their "cpu" preset per seed. Camera images pay for the CPU's ray caster.
 GPU_SIZED_STEPS, GPU_SIZED_OFF_POLICY_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 600_000, 100_000
 
 
@@ -235,12 +235,12 @@ def cpu_settings(task: str, agent: str) -> dict[str, Any]:
 
 
 def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: bool = False) -> str | None:
-    """The note for a run without a GPU whose recipe is sized for one (more env steps over its seeds than the
-    GPU_SIZED limits above), naming what fits a CPU; None for a CPU-sized run."""
+    """The note for a run without a GPU of a recipe over a GPU_SIZED limit above, naming what fits a CPU; else None."""
     from agents import registry
 
-    limit = GPU_SIZED_OFF_POLICY_STEPS if agent in ("sac", "td3") else GPU_SIZED_STEPS
-    if total_steps * seeds <= (GPU_SIZED_PIXEL_STEPS if pixels else limit):
+    off_policy = agent in ("sac", "td3") and not pixels
+    if (total_steps if off_policy else total_steps * seeds) <= (GPU_SIZED_OFF_POLICY_STEPS if off_policy else
+                                                             GPU_SIZED_PIXEL_STEPS if pixels else GPU_SIZED_STEPS):
         return None
     per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
     cpu_agent = next((a for a in (agent, "td3") if "cpu" in presets(task, a)), None)  # PPO on dm_control: TD3's

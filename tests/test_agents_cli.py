@@ -303,6 +303,8 @@ def test_a_gpu_sized_run_on_a_cpu_says_so_before_it_starts_naming_the_cpu_preset
     commands.say_gpu_sized("hopper", "td3", hopper_td3, 1, gpus=[])
     assert ("hopper's TD3 recipe trains 0.7M env steps, sized for a GPU: on this CPU that takes hours; --preset cpu "
             "trains a smaller one (300,064 env steps)") in capsys.readouterr().err
+    cpu_td3 = TD3Config(**brax_defaults.settings("hopper", "td3", "cpu"))  # SAC's and TD3's limit is per seed
+    assert brax_defaults.gpu_sized_note("hopper", "td3", cpu_td3.total_steps, 4) is None
     commands.say_gpu_sized("hopper", "ppo", hopper, 1, gpus=["0"])  # a GPU: nothing to say
     commands.say_gpu_sized("pendulum-mjx", "ppo", PPOConfig(num_timesteps=100_000), 1, gpus=[])
     assert capsys.readouterr().err == ""
