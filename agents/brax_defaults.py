@@ -114,8 +114,7 @@ SETTINGS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         "sac": {"default": dict(_PLAYGROUND_SAC, solve_return=4800.0)},
         "td3": {"default": dict(_FASTTD3, num_timesteps=15_360_000, v_min=-300.0, v_max=1500.0, solve_return=4800.0)},
     },
-    "hopper": {  # PPO and TD3 run, impl="warp"; TD3 the default (every seed over 3,000 in ten minutes). PPO: Playground's
-        # with the discount 0.99. TD3: FastTD3's learning at the "cpu" sizes, a LayerNorm critic (docs/agents.md)
+    "hopper": {  # PPO and TD3 run, impl="warp"; TD3 the default: every seed over 3,000 in ten minutes (docs/agents.md)
         "ppo": {"default": dict(_PLAYGROUND_PPO, discounting=0.99, solve_return=3800.0)},
         "sac": {"default": dict(num_timesteps=6_553_600, num_evals=20, reward_scaling=30.0, discounting=0.997,
                                 learning_rate=6e-4, num_envs=128, batch_size=512, grad_updates_per_step=64,
@@ -222,7 +221,8 @@ GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "huma
 CPU_DROPPED = ("hidden", "actor_hidden", "critic_hidden", "compute_dtype")
 # A run of more env steps than these (all seeds together) is a GPU's work: on a CPU it takes hours. SAC and TD3 pay
 # for their updates: over twice their "cpu" preset per seed. Camera images pay for the CPU's ray caster.
-GPU_SIZED_STEPS, GPU_SIZED_OFF_POLICY_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 600_000, 100_000
+GPU_SIZED_STEPS, GPU_SIZED_PIXEL_STEPS = 10_000_000, 100_000
+GPU_SIZED_OFF_POLICY_STEPS = 2 * CPU_SIZES["td3"]["num_timesteps"]
 
 
 def cpu_settings(task: str, agent: str) -> dict[str, Any]:
@@ -238,9 +238,9 @@ def gpu_sized_note(task: str, agent: str, total_steps: int, seeds: int, pixels: 
     """The note for a run without a GPU of a recipe over a GPU_SIZED limit above, naming what fits a CPU; else None."""
     from agents import registry
 
-    off_policy = agent in ("sac", "td3") and not pixels
-    if (total_steps if off_policy else total_steps * seeds) <= (GPU_SIZED_OFF_POLICY_STEPS if off_policy else
-                                                             GPU_SIZED_PIXEL_STEPS if pixels else GPU_SIZED_STEPS):
+    per_seed_limit = agent in ("sac", "td3") and not pixels
+    limit = GPU_SIZED_OFF_POLICY_STEPS if per_seed_limit else GPU_SIZED_PIXEL_STEPS if pixels else GPU_SIZED_STEPS
+    if total_steps * (1 if per_seed_limit else seeds) <= limit:
         return None
     per_seed = f" per seed ({seeds} seeds)" if seeds > 1 else ""
     cpu_agent = next((a for a in (agent, "td3") if "cpu" in presets(task, a)), None)  # PPO on dm_control: TD3's
