@@ -353,7 +353,7 @@ def test_the_gymnasium_tasks_have_fasttd3_recipes(task):
     assert config.num_envs == 1024 and config.batch_size == 32768 and config.compute_dtype == "bfloat16"
     assert config.critic_hidden == (1024, 512, 256) and config.v_min < 0 < config.v_max
     # TD3 where its ten-minute run met issue 65's goal (docs/agents.md, "GPU results"); SAC where SAC's did
-    assert brax_defaults.default_agent(task) == {"walker2d": "sac", "half-cheetah": "sac"}.get(task, "td3")
+    assert brax_defaults.default_agent(task) == ("sac" if task == "half-cheetah" else "td3")
 
 
 def test_hoppers_td3_recipe_is_fasttd3s_learning_at_the_cpu_sizes_with_a_layernorm_critic():
