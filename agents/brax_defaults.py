@@ -31,9 +31,10 @@ _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10
 # did not (docs/agents.md, "PPO from pixels").
 _PIXEL_PPO = dict(num_envs=256, batch_size=256)
 # The env options of a run on camera images (`pixel_env_options`): three frames, four task steps apart,
-# so that they show the pole's velocity (docs/agents.md, "PPO from pixels").
-PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {task: {"frame_stack": 3, "action_repeat": 4}
-                                                  for task in ("cartpole-balance-mjx", "cartpole-swingup-mjx")}
+# so that they show the pole's velocity (docs/agents.md, "PPO from pixels"). dm_control's swing-up acts every 8
+# control steps, as PlaNet and DrQ ran it (DrQ-v2: 2; docs/agents.md, "The swing-up at action repeat 8").
+PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {task: {"frame_stack": 3, "action_repeat": 4} for task in (
+    "cartpole-balance-mjx", "cartpole-swingup-mjx")} | {"dmc-cartpole-swingup": {"action_repeat": 8}}
 _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, learning_rate=1e-3, num_envs=128,
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 # FastTD3's recipe (github.com/younggyoseo/FastTD3, fast_td3/hyperparams.py at commit 229ed59): BaseArgs
@@ -180,6 +181,8 @@ _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_update
                   discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
+# The swing-up at action repeat 8 (PIXEL_ENV_OPTIONS): a critic's support for sums of 8 rewards; DrQ-v2's 1M frames.
+_PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(v_max=800.0, num_timesteps=125_000, num_evals=6)}
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
@@ -212,7 +215,8 @@ for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
                            _PIXEL_PPO, num_timesteps=10_000_000, num_evals=21, solve_return=DRQV2_SCORES.get(_task))},
                        "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
                        "td3": {"default": {**_DMC_TD3, **_solve, **_DMC_TD3_TASKS.get(_task, {})},
-                               "pixels": dict(_PIXEL_TD3, solve_return=DRQV2_SCORES.get(_task))}}
+                               "pixels": dict(_PIXEL_TD3, solve_return=DRQV2_SCORES.get(_task),
+                                              **_PIXEL_TD3_TASKS.get(_task, {}))}}
 del _task, _ppo, _sac, _goal, _solve
 
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
@@ -267,16 +271,12 @@ def default_agent(task: str, pixels: bool = False) -> str:
 
 def pixel_env_options(task: str, options: dict[str, Any]) -> dict[str, Any]:
     """The run's `envs.make` overrides, with the task's `PIXEL_ENV_OPTIONS` under them on camera images."""
-    if options.get("observation") != "pixels":
-        return options
-    return {**PIXEL_ENV_OPTIONS.get(task, {}), **options}
+    return {**PIXEL_ENV_OPTIONS.get(task, {}), **options} if options.get("observation") == "pixels" else options
 
 
 def default_preset(task: str, agent: str, observation: str = "state") -> str:
     """The recipe without --preset: the task's "pixels" one on camera images where it has one, else "default"."""
-    if observation == "pixels" and "pixels" in SETTINGS.get(task, {}).get(agent, {}):
-        return "pixels"
-    return "default"
+    return "pixels" if observation == "pixels" and "pixels" in SETTINGS.get(task, {}).get(agent, {}) else "default"
 
 
 def presets(task: str, agent: str) -> list[str]:

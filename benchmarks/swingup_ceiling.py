@@ -8,9 +8,11 @@ rewards over open-loop actions tanh(logits); Adam; `--restarts` random starts), 
 refuses, so the search runs with constraints off (the rail's limits at +-1.8 m): a relaxation, whose best sum is
 at least the constrained one's. The best actions are then replayed on dm_control's env (C MuJoCo, float64,
 constraints on) from the same state, and dm_control's own rewards are summed. A local search: its figures are
-evidence of the ceiling, not a bound proven.
+evidence of the ceiling, not a bound proven. `--action_repeat K` holds each action for K control steps, as a policy
+acting every K steps does (the pixel swing-up's 8).
 
-    python -m benchmarks.swingup_ceiling [--steps 200] [--restarts 16] [--iterations 800] [--resets 2] [--json FILE]
+    python -m benchmarks.swingup_ceiling [--steps 200] [--restarts 16] [--iterations 800] [--resets 2]
+        [--action_repeat 1] [--json FILE]
 """
 
 from __future__ import annotations
@@ -26,16 +28,16 @@ import numpy as np
 TASK, EPISODE = "dmc-cartpole-swingup", 1000
 
 
-def best_actions(env, state, steps: int, restarts: int, iterations: int, key: jax.Array):
-    """Gradient ascent on the sum of `steps` rewards from `state` over open-loop actions: every restart's final
-    sum and actions, and the best restart's sum at every tenth of the iterations."""
+def best_actions(env, state, steps: int, restarts: int, iterations: int, key: jax.Array, repeat: int = 1):
+    """Gradient ascent on the sum of `steps` rewards from `state` over open-loop actions, each held `repeat`
+    steps: every restart's final sum and (per-step) actions, and each restart's sum at every iteration."""
     import optax
 
     def summed(logits):
         def step(state, logit):
             state = env.step(state, jnp.tanh(logit))
             return state, state.reward
-        return jax.lax.scan(step, state, logits)[1].sum()
+        return jax.lax.scan(step, state, jnp.repeat(logits, repeat, axis=0))[1].sum()
 
     optimizer = optax.chain(optax.clip_by_global_norm(10.0), optax.adam(0.05))
 
@@ -46,9 +48,9 @@ def best_actions(env, state, steps: int, restarts: int, iterations: int, key: ja
             updates, opt_state = optimizer.update(jax.tree.map(jnp.negative, grad), opt_state, logits)
             return (optax.apply_updates(logits, updates), opt_state), value
         (logits, _), values = jax.lax.scan(iteration, (logits, optimizer.init(logits)), None, iterations)
-        return summed(logits), jnp.tanh(logits), values
+        return summed(logits), jnp.tanh(jnp.repeat(logits, repeat, axis=0)), values
 
-    starts = jax.random.normal(key, (restarts, steps, env.action_size))
+    starts = jax.random.normal(key, (restarts, steps // repeat, env.action_size))
     return jax.jit(jax.vmap(ascend))(starts)
 
 
@@ -65,7 +67,7 @@ def dm_control_sum(state, actions: np.ndarray) -> float:
     return float(sum(dm_env.step(action).reward for action in actions))
 
 
-def measure(steps: int, restarts: int, iterations: int, resets: int) -> dict:
+def measure(steps: int, restarts: int, iterations: int, resets: int, repeat: int = 1) -> dict:
     import mujoco
 
     import envs
@@ -76,7 +78,7 @@ def measure(steps: int, restarts: int, iterations: int, resets: int) -> dict:
         start = time.perf_counter()
         state = jax.jit(relaxed.reset)(jax.random.PRNGKey(reset))
         sums, actions, curve = jax.device_get(best_actions(relaxed, state, steps, restarts, iterations,
-                                                           jax.random.PRNGKey(1000 + reset)))
+                                                           jax.random.PRNGKey(1000 + reset), repeat))
         best = int(np.argmax(sums))
         found.append({"reset_key": reset, "best_sum": float(sums[best]), "restart_sums": sorted(map(float, sums)),
                       "dm_control_sum": dm_control_sum(state, actions[best]),
@@ -85,8 +87,8 @@ def measure(steps: int, restarts: int, iterations: int, resets: int) -> dict:
         print(json.dumps(found[-1]), flush=True)
     # An episode's return is at most this if the search found the best first `steps` (it may not have).
     bound = max(max(f["best_sum"], f["dm_control_sum"]) for f in found) + EPISODE - steps
-    return {"kind": "swingup-ceiling", "env": TASK, "steps": steps, "restarts": restarts, "iterations": iterations,
-            "resets": found, "return_bound_if_search_optimal": bound, "jax": jax.__version__,
+    return {"kind": "swingup-ceiling", "env": TASK, "steps": steps, "action_repeat": repeat, "restarts": restarts,
+            "iterations": iterations, "resets": found, "return_bound_if_search_optimal": bound, "jax": jax.__version__,
             "device": jax.devices()[0].device_kind}
 
 
@@ -96,11 +98,14 @@ def main(argv=None) -> None:
     parser.add_argument("--restarts", type=int, default=16)
     parser.add_argument("--iterations", type=int, default=800)
     parser.add_argument("--resets", type=int, default=2, help="initial states, drawn by reset keys 0, 1, ...")
+    parser.add_argument("--action_repeat", type=int, default=1, help="control steps each action is held")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
     if not 0 < args.steps <= EPISODE:
         parser.error(f"--steps {args.steps}: optimize between 1 and {EPISODE} control steps")
-    record = measure(args.steps, args.restarts, args.iterations, args.resets)
+    if args.action_repeat < 1 or args.steps % args.action_repeat:
+        parser.error(f"--action_repeat {args.action_repeat}: give a divisor of --steps ({args.steps}), 1 or more")
+    record = measure(args.steps, args.restarts, args.iterations, args.resets, args.action_repeat)
     print(json.dumps(record, indent=1), flush=True)
     if args.json:
         from benchmarks.suite import append_record

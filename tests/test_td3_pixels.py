@@ -141,6 +141,28 @@ def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
     assert brax_defaults.default_agent("dmc-cartpole-balance") == "ppo"  # from state: the table's, unchanged
 
 
+def test_the_swing_up_from_pixels_acts_every_8_control_steps_for_1m_frames():
+    """PlaNet's and DrQ's action repeat for the cart-pole (docs/agents.md, "The swing-up at action repeat 8"): the
+    episode keeps dm_control's 1,000 control steps, the critic's support covers sums of 8 rewards of at most 1, and the
+    row ends at DrQ-v2's 1M frames. --env-opt action_repeat=N still wins; other tasks keep dm_control's 2."""
+    import argparse
+
+    from agents.commands import train_env_options
+
+    def options(task, *pairs):
+        return train_env_options(argparse.Namespace(env=task, env_opts=list(pairs), impl=None, randomize=[],
+                                                     randomize_per=None))
+
+    given = options("dmc-cartpole-swingup", "observation=pixels", "width=16", "height=16")
+    assert given["action_repeat"] == 8 and envs.make("dmc-cartpole-swingup", **given).episode_length == 1000 // 8
+    assert options("dmc-cartpole-swingup", "observation=pixels", "action_repeat=2")["action_repeat"] == 2
+    assert "action_repeat" not in options("dmc-walker-walk", "observation=pixels")
+    assert "action_repeat" not in options("dmc-cartpole-swingup")  # from state: no pixel options
+    config = agent_config("dmc-cartpole-swingup", "td3", None, {}, None, None, observation="pixels")
+    assert config.v_max == pytest.approx(8 / (1 - config.discounting)) and 1e6 <= config.total_steps * 8 < 1.01e6
+    assert agent_config("dmc-walker-walk", "td3", None, {}, None, None, observation="pixels").v_max == 200.0
+
+
 @pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
 def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
     env = envs.make(TASK, **PIXELS)
