@@ -12,6 +12,9 @@ the images of one camera, rendered inside the jitted step:
   rewards (as the pixel benchmarks of dm_control's suite do), so the frames are k task steps
   apart; a step that ends the episode ends the repeat. The time limit counts env steps, and
   defaults to the task's over k (the same seconds); a given `episode_length` counts env steps.
+- `shadows=True`: MuJoCo Warp's renderer casts shadow rays from the model's lights, as dm_control's
+  OpenGL draws shadows (the judge's pictures); off by default, as in every run measured so far. The JAX
+  ray caster draws no lights, so no shadows either way.
 - Depth is planar, as MuJoCo Warp's: the distance along the camera's optical axis (0 where no geom
   is hit). `Pixels.render` returns the float images a frame is made from.
 
@@ -50,7 +53,7 @@ if TYPE_CHECKING:
 OBSERVATIONS = ("state", "pixels")
 # The options `envs.make` takes for pixels, with their defaults (the registry adds them to every MJX task).
 PIXEL_OPTIONS = {"observation": "state", "camera": None, "width": 64, "height": 64, "depth": False, "frame_stack": 1,
-                 "action_repeat": 1}
+                 "action_repeat": 1, "shadows": False}
 MAX_SIZE = 4096  # pixels per side
 DEFAULT_CAMERA = "pixels_default"
 GEOM_GROUPS = (0, 1, 2)  # the geom groups drawn (MuJoCo Warp's default `enabled_geom_groups`)
@@ -77,8 +80,9 @@ def check_pixel_options(options: dict[str, Any], env_name: str, defaults: dict[s
     for name in ("width", "height"):
         if options[name] > MAX_SIZE:
             raise ValueError(f"{where}: {name}={options[name]}; at most {MAX_SIZE} pixels per side")
-    if not isinstance(options["depth"], (bool, np.bool_)):
-        raise ValueError(f"{where}: depth={options['depth']!r}; it must be true or false")
+    for name in ("depth", "shadows"):
+        if not isinstance(options[name], (bool, np.bool_)):
+            raise ValueError(f"{where}: {name}={options[name]!r}; it must be true or false")
     camera = options["camera"]
     if camera is not None and (isinstance(camera, bool) or not isinstance(camera, (str, int, np.integer))):
         raise ValueError(f"{where}: camera={camera!r}; give a camera's name or index in the MJCF, or leave it "
@@ -266,18 +270,18 @@ def _ray_cylinder(size: jax.Array, pnt: jax.Array, vec: jax.Array) -> jax.Array:
 
 class WarpRenderer:
     """One camera's images by MuJoCo Warp's batch ray tracer (impl="warp"): the model's lights,
-    materials and textures, no shadows; the skybox where the task sets `render_skybox` (dm_control's).
+    materials and textures, shadows if asked; the skybox where the task sets `render_skybox` (dm_control's).
 
     `mjx.create_render_context(mjm, nworld, ...)` fixes the number of worlds and cannot go under
     `vmap`; so `render` is a `custom_vmap` function (as `WarpWorlds.run`): each vmap over it folds
     its axis into one world axis, and at the bottom the context for that many worlds is built
     (once per batch size, kept in `contexts`) and the worlds are rendered in one call."""
 
-    def __init__(self, task: MjxEnv, cam: int, width: int, height: int, depth: bool):
+    def __init__(self, task: MjxEnv, cam: int, width: int, height: int, depth: bool, shadows: bool = False):
         from envs.mjx_env import mjx
 
         self.mjx, self.task, self.cam = mjx, task, cam
-        self.width, self.height, self.depth = width, height, depth
+        self.width, self.height, self.depth, self.shadows = width, height, depth, shadows
         self.contexts: dict[int, Any] = {}  # number of worlds -> mjx RenderContext
 
     def context(self, worlds: int):
@@ -285,7 +289,7 @@ class WarpRenderer:
             self.contexts[worlds] = self.mjx.create_render_context(
                 self.task.mj_model, worlds, cam_res=(self.width, self.height), render_rgb=True,
                 render_depth=True, render_seg=False, cam_active=[self.cam], use_textures=True,
-                use_shadows=False, render_skybox=self.task.render_skybox,
+                use_shadows=self.shadows, render_skybox=self.task.render_skybox,
                 enabled_geom_groups=list(GEOM_GROUPS))
         return self.contexts[worlds]
 
@@ -340,7 +344,7 @@ class Pixels(Wrapper):
     costly_reset = True  # a reset renders: `BatchedAutoReset` resets only the envs that ended
 
     def __init__(self, env, camera: str | int | None = None, width: int = 64, height: int = 64,
-                 depth: bool = False, frame_stack: int = 1, action_repeat: int = 1):
+                 depth: bool = False, frame_stack: int = 1, action_repeat: int = 1, shadows: bool = False):
         super().__init__(env)
         self.action_repeat = action_repeat
         task = env.unwrapped
@@ -352,7 +356,7 @@ class Pixels(Wrapper):
         self.depth_range = 2.0 * float(task.mj_model.stat.extent)  # depth at or past it is 255
         self.warp_renders = task.impl == "warp"  # the training programs then keep XLA's default CUDA graphs
         if self.warp_renders:
-            self.renderer = WarpRenderer(task, self.cam, width, height, depth)
+            self.renderer = WarpRenderer(task, self.cam, width, height, depth, shadows)
         else:
             self.renderer = RayRenderer(task, self.cam, width, height)
 

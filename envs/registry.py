@@ -18,7 +18,7 @@ from envs.wrappers import TimeLimit
 
 # Overrides every MJX task takes besides its own (see `make`): `opt` (MuJoCo's solver options,
 # `envs.mjx_options`), MuJoCo Warp's buffer sizes (None: derived from the model), `randomize` and the
-# camera observation (`envs.pixels`: observation="pixels", camera, width, height, depth, frame_stack).
+# camera observation (`envs.pixels`: observation="pixels", camera, width, height, depth, frame_stack, ...).
 MJX_OPTIONS = {"impl": "jax", "opt": None, "nconmax": None, "naconmax": None, "njmax": None,
                "randomize": None, "randomize_per": PER[0], **PIXEL_OPTIONS}
 
@@ -68,8 +68,8 @@ def make(name: str, **overrides: Any) -> Env:
     (`mujoco.MjOption` fields, e.g. `opt={"iterations": 4, "solver": "CG"}`), `nconmax`,
     `naconmax` and `njmax` (MuJoCo Warp's buffers, see `envs.mjx_warp.WarpBuffers`) and
     `randomize` (ranges of model values, see `envs.randomize`) with `randomize_per`, and
-    `observation="pixels"` with `camera`, `width`, `height`, `depth`, `frame_stack` (camera images as
-    the observation, see `envs.pixels`)."""
+    `observation="pixels"` with `camera`, `width`, `height`, `depth`, `frame_stack`, `action_repeat` and
+    `shadows` (camera images as the observation, see `envs.pixels`)."""
     return _built(*_checked(name, overrides))
 
 

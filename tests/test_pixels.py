@@ -179,6 +179,8 @@ def c_mujoco_depth(model: mujoco.MjModel, qpos: np.ndarray, cam: int, width: int
     ({"observation": "pixels", "frame_stack": 1.5}, ["frame_stack=1.5", "positive integer"]),
     ({"observation": "pixels", "height": 5000}, ["height=5000", "at most 4096"]),
     ({"observation": "pixels", "depth": "yes"}, ["depth='yes'", "true or false"]),
+    ({"observation": "pixels", "shadows": 1}, ["shadows=1", "true or false"]),
+    ({"shadows": True}, ["'shadows': True", "observation='state'"]),
     ({"width": 32}, ["'width': 32", "observation='state'", "observation=pixels"]),
     ({"observation": "pixels", "action_repeat": 0}, ["action_repeat=0", "positive integer"]),
     ({"action_repeat": 2}, ["'action_repeat': 2", "observation='state'"]),
@@ -311,6 +313,22 @@ def test_a_batch_of_pixel_envs_resets_only_the_envs_that_ended(env, monkeypatch)
     assert envs.BatchedAutoReset(env, 4).reset_by_index
     assert envs.BatchedAutoReset(env, 4, under_vmap=True).reset_across_vmap
     assert not envs.BatchedAutoReset(envs.make(ROLLOUT_TASK), 4).reset_by_index
+
+
+def test_shadows_reach_warps_render_context_and_the_cpus_ray_caster_draws_none(monkeypatch):
+    """`shadows=True` asks MuJoCo Warp's ray tracer for shadow rays (dm_control's OpenGL draws shadows); off by
+    default. The render context is built by a stand-in here (MuJoCo Warp needs a GPU)."""
+    from envs.pixels import WarpRenderer
+
+    built = []
+    task = envs.make("dmc-cheetah-run").unwrapped
+    for shadows in (False, True):
+        renderer = WarpRenderer(task, 0, 8, 8, False, **({"shadows": True} if shadows else {}))
+        monkeypatch.setattr(renderer.mjx, "create_render_context", lambda *args, **kw: built.append(kw), raising=False)
+        renderer.context(4)
+    assert [kw["use_shadows"] for kw in built] == [False, True] and all(kw["use_textures"] for kw in built)
+    shaded = envs.make("dmc-cheetah-run", observation="pixels", width=8, height=8, shadows=True)
+    assert not shaded.warp_renders  # on the CPU: the JAX ray caster, which draws no lights
 
 
 def test_programs_that_render_with_warp_keep_xlas_default_cuda_graphs():
