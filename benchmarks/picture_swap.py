@@ -63,7 +63,7 @@ def returns(run: str, seed: int, variant: str, episodes: int, floor: str) -> lis
     import agents
     import envs
     from agents import checkpoint
-    from envs.interop.dm_control import Camera, returns_on_dm_control
+    from envs import DmControlCamera as Camera, returns_on_dm_control
     from envs.pixels import PIXEL_OPTIONS
 
     config = checkpoint.load_config(run)
