@@ -10,7 +10,7 @@ Warp draws them by default), and `dm_sky` / `dm_floor` / `dm_body`: Warp's pictu
 dm_control's (the part by Warp's segmentation: no geom hit, the geom named by `--floor`, every other geom). A
 return that holds under `warp` and falls under `dm_floor` says the policy reads something of the floor that the two
 renderers draw differently. Warp's pictures come from mujoco_warp itself on warp-lang's default device: a CUDA GPU,
-or this machine's CPU (warp-lang installed: `pip install warp-lang`), a few images a second at 84x84.
+or this machine's CPU (warp-lang installed: `pip install warp-lang`).
 """
 
 from __future__ import annotations
