@@ -26,23 +26,23 @@ from benchmarks.suite import append_record
 VARIANTS = ("warp", "dm_control", "dm_plain", "dm_sky", "dm_floor", "dm_body")
 
 
-def warp_pictures(env, camera, floor: str):
-    """`picture(physics, theirs)`: Warp's uint8 picture of dm_control's physics state, and its sky, floor and body
-    masks (H, W, 1)."""
+def warp_pictures(env, camera, shadows: bool, floor: str):
+    """`picture(physics)`: Warp's uint8 picture of dm_control's physics state, rendered as the run's
+    `envs.pixels.WarpRenderer` renders, and its sky, floor and body masks (H, W, 1)."""
     import mujoco
     import warp as wp
     from mujoco.mjx.third_party import mujoco_warp as mjw
+
+    from envs.pixels import WarpRenderer
 
     task = env.unwrapped
     mjm, size = task.mj_model, (camera.height, camera.width)
     floor_id = mujoco.mj_name2id(mjm, mujoco.mjtObj.mjOBJ_GEOM, floor)
     if floor_id < 0:
         raise SystemExit(f"picture_swap: --floor {floor!r} names no geom of {task.name}; give the floor geom's name")
+    renderer = WarpRenderer(task, camera.camera, camera.width, camera.height, False, shadows)
     mjd, model = mujoco.MjData(mjm), mjw.put_model(mjm)
-    context = mjw.create_render_context(mjm, 1, cam_res=(camera.width, camera.height), render_rgb=True,
-                                        render_depth=True, render_seg=True, cam_active=[camera.camera],
-                                        use_textures=True, use_shadows=False, render_skybox=task.render_skybox,
-                                        enabled_geom_groups=[0, 1, 2])
+    context = mjw.create_render_context(mjm, 1, **renderer.context_options(render_seg=True))
     rgb, seg = wp.zeros((1, *size), dtype=wp.vec3), wp.zeros((1, *size), dtype=wp.vec2i)
 
     def picture(physics):
@@ -59,7 +59,8 @@ def warp_pictures(env, camera, floor: str):
     return picture
 
 
-def returns(run: str, seed: int, variant: str, episodes: int, floor: str) -> list[float]:
+def swap_returns(run: str, seed: int, variants: list[str], episodes: int, floor: str):
+    """Yields (variant, returns) for each of `variants`: the run, its policy and Warp's renderer loaded once."""
     import agents
     import envs
     from agents import checkpoint
@@ -67,26 +68,29 @@ def returns(run: str, seed: int, variant: str, episodes: int, floor: str) -> lis
     from envs.pixels import PIXEL_OPTIONS
 
     config = checkpoint.load_config(run)
-    env = envs.make(config.env, **{k: v for k, v in config.env_options.items() if k in PIXEL_OPTIONS})
+    options = {k: v for k, v in config.env_options.items() if k in PIXEL_OPTIONS}
+    env = envs.make(config.env, **options)
     judge = Camera.of(env)
     if judge is None:
         raise SystemExit(f"picture_swap: {run} was trained on state observations; give a run on camera images")
-    fields = dataclasses.astuple(judge)[:5]
-    warp = None if variant in ("dm_control", "dm_plain") else warp_pictures(env, judge, floor)
+    policy = agents.load_policy(run, seed)
+    needs_warp = set(variants) - {"dm_control", "dm_plain"}
+    warp = warp_pictures(env, judge, options.get("shadows", False), floor) if needs_warp else None
+    for variant in variants:
 
-    @dataclasses.dataclass
-    class Composite(Camera):
-        renders = variant != "warp"  # dm_control's picture is needed
+        @dataclasses.dataclass
+        class Composite(Camera):
+            renders = variant != "warp"  # dm_control's picture is needed
 
-        def picture(self, physics):
-            if variant == "dm_plain":
-                physics.model.mat_reflectance[:], physics.model.light_castshadow[:] = 0.0, False
-            if warp is None:
-                return super().picture(physics)
-            ours, masks = warp(physics)
-            return ours if variant == "warp" else np.where(masks[variant], super().picture(physics), ours)
+            def picture(self, physics, variant=variant):
+                if variant == "dm_plain":
+                    physics.model.mat_reflectance[:], physics.model.light_castshadow[:] = 0.0, False
+                if variant in ("dm_control", "dm_plain"):
+                    return super().picture(physics)
+                ours, masks = warp(physics)
+                return ours if variant == "warp" else np.where(masks[variant], super().picture(physics), ours)
 
-    return returns_on_dm_control(agents.load_policy(run, seed), env, episodes, camera=Composite(*fields))
+        yield variant, returns_on_dm_control(policy, env, episodes, camera=Composite(*dataclasses.astuple(judge)[:5]))
 
 
 def main(argv=None) -> None:
@@ -102,8 +106,7 @@ def main(argv=None) -> None:
     if unknown := set(variants) - set(VARIANTS):
         parser.error(f"--variants: {sorted(unknown)} unknown; choose from {','.join(VARIANTS)}")
     record = {"kind": "picture-swap", "run": args.run, "seed": args.seed, "episodes": args.episodes, "variants": {}}
-    for variant in variants:
-        found = returns(args.run, args.seed, variant, args.episodes, args.floor)
+    for variant, found in swap_returns(args.run, args.seed, variants, args.episodes, args.floor):
         record["variants"][variant] = {"returns": found, "mean": float(np.mean(found))}
         print(json.dumps({variant: record["variants"][variant]}), flush=True)
     if args.json:

@@ -284,13 +284,16 @@ class WarpRenderer:
         self.width, self.height, self.depth, self.shadows = width, height, depth, shadows
         self.contexts: dict[int, Any] = {}  # number of worlds -> mjx RenderContext
 
+    def context_options(self, render_seg: bool = False) -> dict[str, Any]:
+        """`create_render_context`'s options after the model and the number of worlds (MJX's and mujoco_warp's
+        take the same), so that a picture made outside a run (benchmarks.picture_swap) is the run's."""
+        return dict(cam_res=(self.width, self.height), render_rgb=True, render_depth=True, render_seg=render_seg,
+                    cam_active=[self.cam], use_textures=True, use_shadows=self.shadows,
+                    render_skybox=self.task.render_skybox, enabled_geom_groups=list(GEOM_GROUPS))
+
     def context(self, worlds: int):
         if worlds not in self.contexts:
-            self.contexts[worlds] = self.mjx.create_render_context(
-                self.task.mj_model, worlds, cam_res=(self.width, self.height), render_rgb=True,
-                render_depth=True, render_seg=False, cam_active=[self.cam], use_textures=True,
-                use_shadows=self.shadows, render_skybox=self.task.render_skybox,
-                enabled_geom_groups=list(GEOM_GROUPS))
+            self.contexts[worlds] = self.mjx.create_render_context(self.task.mj_model, worlds, **self.context_options())
         return self.contexts[worlds]
 
     def render(self, data, info=None) -> tuple[jax.Array, jax.Array]:
