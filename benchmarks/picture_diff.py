@@ -27,15 +27,16 @@ VARIANTS = ("warp", "shadows", "no_spotlight", "no_spotlight_reflection")
 PARTS = ("sky", "floor", "body", "all")
 
 
-def dm_control_states(physics, step, states: int, every: int, seed: int):
-    """`states` (qpos, qvel) of dm_control's env under uniform random actions, one every `every` control steps."""
-    rng, found = np.random.default_rng(seed), []
+def dm_control_states(dm_env, states: int, every: int, seed: int):
+    """`states` (qpos, qvel) of dm_control's env under uniform random actions, one every `every` control steps
+    (at most 200 steps an episode, then a new one)."""
+    rng, found, data = np.random.default_rng(seed), [], dm_env.physics.data
     while len(found) < states:
-        timestep = step(None)
-        for _ in range(200):
-            timestep = step(rng.uniform(-1, 1, physics.model.nu))
-            if len(found) < states and _ % every == every - 1:
-                found.append((physics.data.qpos.copy(), physics.data.qvel.copy()))
+        dm_env.reset()
+        for step in range(1, 201):
+            timestep = dm_env.step(rng.uniform(-1, 1, dm_env.physics.model.nu))
+            if step % every == 0 and len(found) < states:
+                found.append((data.qpos.copy(), data.qvel.copy()))
             if timestep.last():
                 break
     return found
@@ -51,11 +52,7 @@ def differences(task: str, variants: list[str], states: int, floor: str, seed: i
     dm_env = load_dm_control(env.unwrapped.domain, env.unwrapped.task, seed, renders=True)
     physics = dm_env.physics
     reflectance, active = physics.model.mat_reflectance.copy(), mjm.light_active.copy()
-
-    def step(action):
-        return dm_env.reset() if action is None else dm_env.step(action)
-
-    found = dm_control_states(physics, step, states, every=10, seed=seed)
+    found = dm_control_states(dm_env, states, every=10, seed=seed)
     table = {}
     for variant in variants:
         spotlight = not variant.startswith("no_spotlight")
