@@ -20,7 +20,7 @@ import json
 
 import numpy as np
 
-from benchmarks.picture_swap import warp_pictures
+from benchmarks.picture_swap import chosen_variants, warp_pictures
 from benchmarks.suite import append_record
 
 VARIANTS = ("warp", "shadows", "no_spotlight", "no_spotlight_reflection")
@@ -83,9 +83,7 @@ def main(argv=None) -> None:
     parser.add_argument("--floor", default="floor", help="the floor geom's name (cheetah's: ground)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
-    variants = args.variants.split(",")
-    if unknown := set(variants) - set(VARIANTS):
-        parser.error(f"--variants: {sorted(unknown)} unknown; choose from {','.join(VARIANTS)}")
+    variants = chosen_variants(parser, args.variants, VARIANTS)
     if not args.env.startswith("dmc-"):
         parser.error(f"--env {args.env!r}: not a dm_control task; give a dmc-* task (e.g. dmc-cheetah-run)")
     table = differences(args.env, variants, args.states, args.floor)

@@ -26,6 +26,14 @@ from benchmarks.suite import append_record
 VARIANTS = ("warp", "dm_control", "dm_plain", "dm_sky", "dm_floor", "dm_body")
 
 
+def chosen_variants(parser: argparse.ArgumentParser, text: str, choices: tuple[str, ...]) -> list[str]:
+    """`--variants`' comma-separated names, each one of `choices` (else the parser's error naming them)."""
+    variants = text.split(",")
+    if unknown := set(variants) - set(choices):
+        parser.error(f"--variants: {sorted(unknown)} unknown; choose from {','.join(choices)}")
+    return variants
+
+
 def warp_pictures(env, camera, shadows: bool, floor: str):
     """`picture(physics)`: Warp's uint8 picture of dm_control's physics state, rendered as the run's
     `envs.pixels.WarpRenderer` renders, and its sky, floor and body masks (H, W, 1)."""
@@ -102,9 +110,7 @@ def main(argv=None) -> None:
     parser.add_argument("--floor", default="ground", help="the floor geom's name (dm_control's: ground, floor)")
     parser.add_argument("--json", metavar="FILE", help="append the record to FILE (a JSON list)")
     args = parser.parse_args(argv)
-    variants = args.variants.split(",")
-    if unknown := set(variants) - set(VARIANTS):
-        parser.error(f"--variants: {sorted(unknown)} unknown; choose from {','.join(VARIANTS)}")
+    variants = chosen_variants(parser, args.variants, VARIANTS)
     record = {"kind": "picture-swap", "run": args.run, "seed": args.seed, "episodes": args.episodes, "variants": {}}
     for variant, found in swap_returns(args.run, args.seed, variants, args.episodes, args.floor):
         record["variants"][variant] = {"returns": found, "mean": float(np.mean(found))}
