@@ -181,8 +181,9 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # and 5 for its bf16 encoder option, by 61 for TD3's two kinds of input as objects, td3_inputs.py, in place of eleven
 # branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops, by 34 for
 # the best policy written between checkpoints, which a pixel run's replay spaces out, by 12 for TD3's
-# actor_saturation and 6 for its uniform first fill, DrQ-v2's, by 6 for the retired config fields a saved run may hold)
-LARGEST_AGENTS = 6_800
+# actor_saturation and 6 for its uniform first fill, DrQ-v2's, by 6 for the retired config fields a saved run may hold,
+# by 10 for TD3's correlated exploration noise)
+LARGEST_AGENTS = 6_810
 
 
 def _functions(path: Path):

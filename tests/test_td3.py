@@ -45,6 +45,7 @@ def test_chunks_are_timed_as_sacs():
     ("min_replay_size", 392, "min_replay_size .* must be below num_timesteps"),
     ("max_replay_size", 8, "max_replay_size .* raise it to 32"),
     ("solve_return", float("nan"), "TD3Config.solve_return"),
+    ("noise_correlation", 1.0, r"TD3Config.noise_correlation .* in \[0, 0.999\]"),
 ])
 def test_bad_settings_are_refused_with_the_option_and_the_fix(field, value, message):
     base = dataclasses.replace(SMALL, std_max=0.4) if field == "std_min" else SMALL
@@ -121,6 +122,24 @@ def test_each_env_keeps_its_noise_scale_until_its_episode_ends():
     np.testing.assert_array_equal(scales[2], scales[0])
     assert np.all(scales[3] != scales[2]) and np.all(scales[6] != scales[5])
     np.testing.assert_array_equal(scales[5], scales[3])
+
+
+@pytest.mark.parametrize("correlation", [0.0, 0.9])
+def test_correlated_noise_keeps_its_std_and_carries_over_from_step_to_step(correlation):
+    """noise_correlation c: each env's noise is AR(1), so consecutive actions' noise correlates by c at the
+    same std (the actor does not learn in `collect`, and without a normalizer acts as it did on each row)."""
+    config = dataclasses.replace(SMALL, num_envs=64, min_replay_size=0, max_replay_size=4096, std_min=0.2,
+                                 std_max=0.2, noise_correlation=correlation, normalize_observations=False)
+    td3 = TD3(config, drift(episode_length=1000))
+    ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+    collect = jax.jit(td3.collect)
+    for i in range(48):
+        ts, _ = collect(ts, jax.random.PRNGKey(i))
+    rows = unpack(ts.buffer.data[:int(ts.buffer.size)], td3.obs_size, td3.action_size)
+    noise = np.asarray(rows.action - td3.policy(ts.params, rows.obs)).reshape(48, 64, -1)
+    assert noise.std() == pytest.approx(0.2, rel=0.1)
+    lag_one = np.corrcoef(noise[1:].ravel(), noise[:-1].ravel())[0, 1]
+    assert lag_one == pytest.approx(correlation, abs=0.06)
 
 
 def collected(env, steps, num_steps):
