@@ -302,9 +302,9 @@ def test_seed_i_of_a_batched_run_is_a_one_seed_run_of_seed_i():
 
 @pytest.mark.slow  # its kill -9 twin is slow too; PPO's resume and the DQN lifecycle tests run by default
 def test_a_run_resumed_from_a_host_copy_of_its_state_ends_as_the_uninterrupted_run():
-    """The whole state of a seed (replay, noise scales, the n-step window and envs included) is the
-    train state: copied to numpy after a chunk and back, the run continues bit for bit."""
-    td3 = TD3(dataclasses.replace(SMALL, num_steps=2), drift())
+    """The whole state of a seed (replay, noise scales, correlated noise, the n-step window and envs
+    included) is the train state: copied to numpy after a chunk and back, the run continues bit for bit."""
+    td3 = TD3(dataclasses.replace(SMALL, num_steps=2, noise_correlation=0.5), drift())
     keys = jax.random.split(jax.random.PRNGKey(3), 2)
     init = jax.jit(jax.vmap(td3.init))
     whole, whole_history = run_chunks(td3, init(keys), SMALL.num_chunks, jax.vmap)
