@@ -163,6 +163,25 @@ def test_the_swing_up_from_pixels_acts_every_8_control_steps_for_1m_frames():
     assert agent_config("dmc-walker-walk", "td3", None, {}, None, None, observation="pixels").v_max == 200.0
 
 
+def test_the_cheetah_from_pixels_acts_every_4_control_steps_with_shadows_for_1m_frames():
+    """The cheetah's measured setting (docs/agents.md, "Cheetah run from pixels with shadows"): action repeat 4,
+    Warp's shadows, a critic's support for sums of 4 rewards, DrQ-v2's 1M frames; --env-opt still wins."""
+    import argparse
+
+    from agents.commands import train_env_options
+
+    def options(*pairs):
+        return train_env_options(argparse.Namespace(env="dmc-cheetah-run", env_opts=list(pairs), impl=None,
+                                                     randomize=[], randomize_per=None))
+
+    given = options("observation=pixels", "width=16", "height=16")
+    assert given["action_repeat"] == 4 and given["shadows"] is True
+    assert envs.make("dmc-cheetah-run", **given).episode_length == 1000 // 4
+    assert options("observation=pixels", "shadows=false")["shadows"] is False
+    config = agent_config("dmc-cheetah-run", "td3", None, {}, None, None, observation="pixels")
+    assert config.v_max == pytest.approx(4 / (1 - config.discounting)) and 1e6 <= config.total_steps * 4 < 1.01e6
+
+
 @pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
 def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
     env = envs.make(TASK, **PIXELS)
