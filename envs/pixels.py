@@ -13,8 +13,8 @@ the images of one camera, rendered inside the jitted step:
   apart; a step that ends the episode ends the repeat. The time limit counts env steps, and
   defaults to the task's over k (the same seconds); a given `episode_length` counts env steps.
 - `shadows=True`: MuJoCo Warp's renderer casts shadow rays from the model's lights, as dm_control's
-  OpenGL draws shadows (the judge's pictures); off by default, as in every run measured so far. The JAX
-  ray caster draws no lights, so no shadows either way.
+  OpenGL draws shadows (the judge's pictures); off by default here (`mjxsuite train` turns them on for the
+  cheetah: `agents.brax_defaults.PIXEL_ENV_OPTIONS`). The JAX ray caster draws no lights, so no shadows either way.
 - Depth is planar, as MuJoCo Warp's: the distance along the camera's optical axis (0 where no geom
   is hit). `Pixels.render` returns the float images a frame is made from.
 
