@@ -32,9 +32,8 @@ _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10
 _PIXEL_PPO = dict(num_envs=256, batch_size=256)
 # The env options of a run on camera images (`pixel_env_options`): three frames, four task steps apart,
 # so that they show the pole's velocity (docs/agents.md, "PPO from pixels"). dm_control's swing-up acts every 8
-# control steps, as PlaNet and DrQ ran it (DrQ-v2: 2; docs/agents.md, "The swing-up at action repeat 8"); its cheetah
-# every 4 (PlaNet's and DrQ's), with Warp's shadows, without which its policies lost their return on dm_control's
-# pictures (docs/agents.md, "Cheetah run from pixels with shadows").
+# control steps and its cheetah every 4, as PlaNet and DrQ ran them (DrQ-v2: 2), the cheetah with Warp's shadows
+# (docs/agents.md, "The swing-up at action repeat 8", "Cheetah run from pixels with shadows").
 PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {task: {"frame_stack": 3, "action_repeat": 4} for task in (
     "cartpole-balance-mjx", "cartpole-swingup-mjx")} | {"dmc-cartpole-swingup": {"action_repeat": 8},
                                                         "dmc-cheetah-run": {"action_repeat": 4, "shadows": True}}
@@ -184,8 +183,7 @@ _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_update
                   discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
-# The swing-up at action repeat 8 and the cheetah at 4 (PIXEL_ENV_OPTIONS): a critic's support for sums of 8 (4)
-# rewards; DrQ-v2's 1M frames.
+# The swing-up at action repeat 8, the cheetah at 4 (PIXEL_ENV_OPTIONS): a support for sums of 8 (4) rewards; 1M frames.
 _PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(v_max=800.0, num_timesteps=125_000, num_evals=6),
                     "dmc-cheetah-run": dict(v_max=400.0, num_timesteps=250_000, num_evals=11)}
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks

@@ -130,8 +130,8 @@ def test_on_the_cpu_seeds_start_one_after_another_so_no_qr_is_batched(agent):
 
 
 def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
-    config = agent_config("dmc-cheetah-run", "td3", None, {}, None, None, observation="pixels")
-    assert (config.num_envs, config.batch_size, config.solve_return, config.num_timesteps) == (64, 256, 714.0, 500_000)
+    config = agent_config("dmc-walker-walk", "td3", None, {}, None, None, observation="pixels")
+    assert (config.num_envs, config.batch_size, config.solve_return, config.num_timesteps) == (64, 256, 765.0, 500_000)
     assert (config.num_updates, config.encoder_dtype) == (16, "bfloat16")  # measured on the GPU (docs/agents.md)
     assert config.augment_pad == 4 and config.feature_size == 50  # DrQ-v2's
     assert agent_config("dmc-cheetah-run", "td3", None, {}, None, None).num_envs == 1024  # its state recipe
