@@ -5,6 +5,7 @@ loss and shared with the actor, exact resume, and the recipe the command line ta
 Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
 step with the ray-cast camera, so the default run compiles no env and the slow test compiles one run."""
 
+import argparse
 import dataclasses
 import re
 
@@ -17,7 +18,7 @@ from test_sac import assert_trees_equal, run_chunks
 
 import envs
 from agents import brax_defaults, registry
-from agents.commands import agent_config
+from agents.commands import agent_config, train_env_options
 from agents.run import seeds_init
 from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
@@ -141,23 +142,21 @@ def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
     assert brax_defaults.default_agent("dmc-cartpole-balance") == "ppo"  # from state: the table's, unchanged
 
 
+def train_options(task: str, *pairs: str) -> dict:
+    """`mjxsuite train --env TASK --env-opt PAIR ...`'s `envs.make` overrides (the task's pixel options under them)."""
+    return train_env_options(argparse.Namespace(env=task, env_opts=list(pairs), impl=None, randomize=[],
+                                                randomize_per=None))
+
+
 def test_the_swing_up_from_pixels_acts_every_8_control_steps_for_1m_frames():
     """PlaNet's and DrQ's action repeat for the cart-pole (docs/agents.md, "The swing-up at action repeat 8"): the
     episode keeps dm_control's 1,000 control steps, the critic's support covers sums of 8 rewards of at most 1, and the
     row ends at DrQ-v2's 1M frames. --env-opt action_repeat=N still wins; other tasks keep dm_control's 2."""
-    import argparse
-
-    from agents.commands import train_env_options
-
-    def options(task, *pairs):
-        return train_env_options(argparse.Namespace(env=task, env_opts=list(pairs), impl=None, randomize=[],
-                                                     randomize_per=None))
-
-    given = options("dmc-cartpole-swingup", "observation=pixels", "width=16", "height=16")
+    given = train_options("dmc-cartpole-swingup", "observation=pixels", "width=16", "height=16")
     assert given["action_repeat"] == 8 and envs.make("dmc-cartpole-swingup", **given).episode_length == 1000 // 8
-    assert options("dmc-cartpole-swingup", "observation=pixels", "action_repeat=2")["action_repeat"] == 2
-    assert "action_repeat" not in options("dmc-walker-walk", "observation=pixels")
-    assert "action_repeat" not in options("dmc-cartpole-swingup")  # from state: no pixel options
+    assert train_options("dmc-cartpole-swingup", "observation=pixels", "action_repeat=2")["action_repeat"] == 2
+    assert "action_repeat" not in train_options("dmc-walker-walk", "observation=pixels")
+    assert "action_repeat" not in train_options("dmc-cartpole-swingup")  # from state: no pixel options
     config = agent_config("dmc-cartpole-swingup", "td3", None, {}, None, None, observation="pixels")
     assert config.v_max == pytest.approx(8 / (1 - config.discounting)) and 1e6 <= config.total_steps * 8 < 1.01e6
     assert agent_config("dmc-walker-walk", "td3", None, {}, None, None, observation="pixels").v_max == 200.0
@@ -166,18 +165,10 @@ def test_the_swing_up_from_pixels_acts_every_8_control_steps_for_1m_frames():
 def test_the_cheetah_from_pixels_acts_every_4_control_steps_with_shadows_for_1m_frames():
     """The cheetah's measured setting (docs/agents.md, "Cheetah run from pixels with shadows"): action repeat 4,
     Warp's shadows, a critic's support for sums of 4 rewards, DrQ-v2's 1M frames; --env-opt still wins."""
-    import argparse
-
-    from agents.commands import train_env_options
-
-    def options(*pairs):
-        return train_env_options(argparse.Namespace(env="dmc-cheetah-run", env_opts=list(pairs), impl=None,
-                                                     randomize=[], randomize_per=None))
-
-    given = options("observation=pixels", "width=16", "height=16")
+    given = train_options("dmc-cheetah-run", "observation=pixels", "width=16", "height=16")
     assert given["action_repeat"] == 4 and given["shadows"] is True
     assert envs.make("dmc-cheetah-run", **given).episode_length == 1000 // 4
-    assert options("observation=pixels", "shadows=false")["shadows"] is False
+    assert train_options("dmc-cheetah-run", "observation=pixels", "shadows=false")["shadows"] is False
     config = agent_config("dmc-cheetah-run", "td3", None, {}, None, None, observation="pixels")
     assert config.v_max == pytest.approx(4 / (1 - config.discounting)) and 1e6 <= config.total_steps * 4 < 1.01e6
 
