@@ -27,9 +27,10 @@ def split_returns(run: str, joint: str, episodes: int, first_seed: int):
     import agents
     import envs
     from agents import checkpoint
+    from envs.pixels import PIXEL_OPTIONS
 
-    saved = checkpoint.load_config(run)
-    env = envs.make(saved.env)
+    saved = checkpoint.load_config(run)  # a pixel run's env, so the judge shows dm_control's pictures as it does
+    env = envs.make(saved.env, **{k: v for k, v in saved.env_options.items() if k in PIXEL_OPTIONS})
     task = env.unwrapped
     if not hasattr(task, "domain"):
         raise SystemExit(f"reset_split: {run} trained {saved.env!r}, not a dm_control task")
@@ -63,7 +64,8 @@ def tally(episodes: list[tuple[float, float]], success: float) -> dict:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.reset_split", description=__doc__.splitlines()[0])
-    parser.add_argument("--run", required=True, help="a run directory of a dm_control task (state observations)")
+    parser.add_argument("--run", required=True, help="a run directory of a dm_control task (from pixels: "
+                        "set MUJOCO_GL=egl, as the judge needs)")
     parser.add_argument("--joint", default="rooty", help="the joint of the reset state to split by (hopper: rooty)")
     parser.add_argument("--episodes", type=int, default=24)
     parser.add_argument("--first-seed", type=int, default=2000, help="dm_control's seed of the first episode "

@@ -34,3 +34,14 @@ def test_the_sides_are_counted_apart_and_a_bad_joint_names_the_ones_to_give():
     with pytest.raises(SystemExit, match=r"--joint 'thigh': give a hinge or slide joint of the model, one of "
                                          r"rootx, rootz, rooty, waist, hip, knee, ankle"):
         reset_split.joint_at_reset(envs.load_dm_control("hopper", "stand", 0), "thigh")
+
+
+def test_a_pixel_run_is_judged_as_the_judge_judges_it_on_dm_controls_pictures(monkeypatch):
+    options = {"observation": "pixels", "width": 32, "height": 32, "action_repeat": 4, "impl": "warp"}
+    monkeypatch.setattr("agents.checkpoint.load_config", lambda run: SavedRun("dmc-hopper-stand", 1, None, options, 0))
+    monkeypatch.setattr("agents.load_policy", lambda run, seed_index=None: still)
+    judged = []  # the env each episode is judged with
+    monkeypatch.setattr("envs.returns_on_dm_control", lambda policy, env, *_: judged.append(env) or [0.0])
+    [(_, [(_, total)])] = reset_split.split_returns("runs/x", "rooty", 1, 2000)
+    camera = envs.DmControlCamera.of(judged[0])
+    assert total == 0.0 and (camera.width, camera.height, camera.action_repeat) == (32, 32, 4)
