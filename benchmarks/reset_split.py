@@ -45,13 +45,12 @@ def split_returns(run: str, joint: str, episodes: int, first_seed: int):
 def joint_at_reset(theirs, joint: str) -> float:
     """The coordinate of hinge or slide `joint` in the state `theirs.reset()` draws."""
     theirs.reset()
-    model = theirs.physics.model
-    names = [model.id2name(i, "joint") for i in range(model.njnt)]
-    value = np.atleast_1d(theirs.physics.named.data.qpos[joint]) if joint in names else None
-    if value is None or value.size != 1:
+    model, qpos = theirs.physics.model, theirs.physics.named.data.qpos
+    scalar = [name for name in (model.id2name(i, "joint") for i in range(model.njnt)) if np.size(qpos[name]) == 1]
+    if joint not in scalar:
         raise SystemExit(f"reset_split: --joint {joint!r}: give a hinge or slide joint of the model, one of "
-                         f"{', '.join(n for n in names if np.atleast_1d(theirs.physics.named.data.qpos[n]).size == 1)}")
-    return float(value[0])
+                         f"{', '.join(scalar)}")
+    return float(np.ravel(qpos[joint])[0])
 
 
 def tally(episodes: list[tuple[float, float]], success: float) -> dict:
