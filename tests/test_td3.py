@@ -390,12 +390,12 @@ def test_hoppers_td3_recipe_is_fasttd3s_learning_at_the_cpu_sizes_with_a_layerno
 
 def test_hopper_stands_td3_recipe_is_the_dm_control_recipe_with_correlated_noise():
     """Hopper stand's seeds learned to get up from both sides more often with AR(1) noise of correlation 0.97
-    (docs/tasks.md, "Hopper stand with correlated noise"); its row is the dm_control recipe with that alone, and TD3
-    is its agent without --agent. Hopper hop keeps white noise (not run with it)."""
+    (docs/tasks.md, "Hopper stand with correlated noise"); its row is the dm_control recipe with that and 13 chunks of
+    1.024M steps (the ten minutes filled), and TD3 is its agent without --agent. Hopper hop keeps white noise."""
     from agents import brax_defaults
 
     stand, hop = brax_defaults.settings("dmc-hopper-stand", "td3"), brax_defaults.settings("dmc-hopper-hop", "td3")
-    assert stand == {**hop, "noise_correlation": 0.97, "solve_return": 700.0}
+    assert stand == {**hop, "noise_correlation": 0.97, "num_timesteps": 13_312_000, "num_evals": 14, "solve_return": 700.0}
     assert TD3Config(**stand).noise_correlation == 0.97 and TD3Config(**hop).noise_correlation == 0.0
     assert brax_defaults.default_agent("dmc-hopper-stand") == "td3"
 
