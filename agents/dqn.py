@@ -214,7 +214,7 @@ class TrainState:
 def first_state(params, env_state, key: jax.Array) -> dict:
     """The train-state fields a run starts with (DQN, SAC, TD3): no steps taken, `params` the best so far."""
     return dict(env_state=env_state, key=key, env_steps=jnp.zeros((), jnp.int32), best_params=params,
-                best_return=jnp.full((), -jnp.inf), solve_step=jnp.full((), -1, jnp.int32))
+                best_return=jnp.full((), -jnp.inf, jnp.float32), solve_step=jnp.full((), -1, jnp.int32))
 
 
 # What every agent's chunk adds up (its `CHUNK_TOTALS`), typed so the loop needs no extra trace to learn them.

@@ -115,11 +115,17 @@ def _nets(params):
     return losses.PPONetworkParams(policy=params[1], value=params[2])
 
 
+_PROGRAMS = {}  # (id(agent), batched): (agent, its jitted training steps and judge), kept for the test file
+
+
 def run_chunks(ppo, ts, chunks, batched=None):
-    """`chunks` chunks as train_run drives them: training steps, then the judge (`batched`: over seeds)."""
-    wrap = batched or (lambda f: f)
-    train_steps = jax.jit(wrap(ppo.train_steps))
-    judge = jax.jit(wrap(functools.partial(ppo.evaluate_and_keep_best, record=False)))
+    """`chunks` chunks as train_run drives them: training steps, then the judge (`batched`: over seeds). The
+    programs are jitted once per agent and seed axis, so a resume's chunks run the whole run's compiled programs."""
+    if (id(ppo), batched) not in _PROGRAMS:
+        wrap = batched or (lambda f: f)
+        _PROGRAMS[id(ppo), batched] = ppo, jax.jit(wrap(ppo.train_steps)), jax.jit(
+            wrap(functools.partial(ppo.evaluate_and_keep_best, record=False)))
+    _, train_steps, judge = _PROGRAMS[id(ppo), batched]
     records = []
     for _ in range(chunks):
         ts, trained, eval_key = train_steps(ts)

@@ -183,12 +183,18 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
 
 
 # ---- seeds, the pure `train`, and exact resume -----------------------------------------------
+_PROGRAMS = {}  # (id(agent), batched): (agent, its jitted training steps and judge), kept for the test file
+
+
 def run_chunks(sac, ts, chunks, batched=None):
-    """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge."""
-    train_steps, judge = sac.train_steps, sac.evaluate_and_keep_best
-    if batched is not None:
-        train_steps, judge = batched(train_steps), batched(judge)
-    train_steps, judge = jax.jit(train_steps), jax.jit(judge)
+    """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge. The programs are
+    jitted once per agent and seed axis, so a resume's chunks run the whole run's compiled programs."""
+    if (id(sac), batched) not in _PROGRAMS:
+        train_steps, judge = sac.train_steps, sac.evaluate_and_keep_best
+        if batched is not None:
+            train_steps, judge = batched(train_steps), batched(judge)
+        _PROGRAMS[id(sac), batched] = sac, jax.jit(train_steps), jax.jit(judge)
+    _, train_steps, judge = _PROGRAMS[id(sac), batched]
     history = []
     for _ in range(chunks):
         ts, trained, eval_key = train_steps(ts)
