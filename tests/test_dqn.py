@@ -359,3 +359,22 @@ def test_gpu_training_options_are_options_this_xla_knows():
     program.compile(options)
     with pytest.raises(Exception, match="not a valid enum value"):
         program.compile({**options, "xla_gpu_command_buffer_scheduling_mode": "CONCURENT"})
+
+
+@pytest.mark.parametrize("agent", ["dqn", "ppo", "sac", "td3"])
+def test_a_chunk_gives_back_the_train_state_types_it_took_so_its_jitted_program_compiles_once(agent):
+    """Every agent's first train state (`first_state`) is typed as its chunks leave it, weak types included: a
+    weakly typed first best_return made every jitted chunk program compile twice, once for the first chunk."""
+    from test_ppo import SMALL as PPO_SMALL
+    from test_sac import SMALL as SAC_SMALL, drift
+    from test_td3 import SMALL as TD3_SMALL
+
+    from agents import PPO, SAC, TD3
+
+    learner = {"dqn": lambda: DQN(SMALL, envs.make("cartpole")), "ppo": lambda: PPO(PPO_SMALL, drift()),
+               "sac": lambda: SAC(SAC_SMALL, drift()), "td3": lambda: TD3(TD3_SMALL, drift())}[agent]()
+    first = jax.eval_shape(learner.init, jax.random.PRNGKey(0))
+    later = jax.eval_shape(lambda ts: learner.chunk(ts, record=False)[0], first)
+    typed = lambda ts: [(jax.tree_util.keystr(path), x.shape, x.dtype, x.weak_type)
+                        for path, x in jax.tree_util.tree_flatten_with_path(ts)[0]]
+    assert typed(later) == typed(first)
