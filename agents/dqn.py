@@ -212,7 +212,7 @@ class TrainState:
 
 
 def first_state(params, env_state, key: jax.Array) -> dict:
-    """The train-state fields a run starts with (DQN, SAC, TD3): no steps taken, `params` the best so far."""
+    """The train-state fields every agent's run starts with: no steps, `params` the best so far, typed as chunks leave them."""
     return dict(env_state=env_state, key=key, env_steps=jnp.zeros((), jnp.int32), best_params=params,
                 best_return=jnp.full((), -jnp.inf, jnp.float32), solve_step=jnp.full((), -1, jnp.int32))
 
