@@ -287,8 +287,7 @@ def settled(env, qpos: np.ndarray, qvel: np.ndarray, warmstart: np.ndarray, targ
 
 # insert_ball's step compiles for over a minute on two cores (the cup's contacts): the heavy run's.
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [name if name == "dmc-manipulator-bring-ball" else  # the benchmark's task
-                                  pytest.param(name, marks=pytest.mark.slow if "bring" in name else pytest.mark.heavy)
+@pytest.mark.parametrize("name", [name if "bring" in name else pytest.param(name, marks=pytest.mark.heavy)
                                   for name in NAMES])
 def test_steps_match_dm_control(name):
     """One control step (10 physics steps with contacts, elliptic cones) from each of dm_control's
