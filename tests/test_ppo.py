@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from agents.ppo import PPO, PPOConfig, TrainState, train
+from test_sac import assert_trees_equal, mapped, run_chunks as sac_run_chunks
 
 
 class Slide(envs.Env):
@@ -46,11 +47,6 @@ SMALL = PPOConfig(num_timesteps=3 * 256, num_envs=8, unroll_length=8, batch_size
 
 def slide(episode_length=20, **kwargs):
     return envs.TimeLimit(Slide(**kwargs), episode_length=episode_length)
-
-
-def assert_trees_equal(a, b):
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
 def test_config_rounds_like_brax_and_says_so():
@@ -115,27 +111,9 @@ def _nets(params):
     return losses.PPONetworkParams(policy=params[1], value=params[2])
 
 
-_PROGRAMS = {}  # (id(agent), batched): (agent, its jitted training steps and judge), kept for the test file
-
-
 def run_chunks(ppo, ts, chunks, batched=None):
-    """`chunks` chunks as train_run drives them: training steps, then the judge (`batched`: over seeds). The
-    programs are jitted once per agent and seed axis, so a resume's chunks run the whole run's compiled programs."""
-    if (id(ppo), batched) not in _PROGRAMS:
-        wrap = batched or (lambda f: f)
-        _PROGRAMS[id(ppo), batched] = ppo, jax.jit(wrap(ppo.train_steps)), jax.jit(
-            wrap(functools.partial(ppo.evaluate_and_keep_best, record=False)))
-    _, train_steps, judge = _PROGRAMS[id(ppo), batched]
-    records = []
-    for _ in range(chunks):
-        ts, trained, eval_key = train_steps(ts)
-        ts, judged = judge(ts, eval_key)
-        records.append({**trained, **judged})
-    return ts, records
-
-
-def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after another
-    return lambda *args: jax.lax.map(lambda a: fn(*a), args)
+    """`chunks` chunks as train_run drives them (`test_sac.run_chunks`), the judge recording no episode."""
+    return sac_run_chunks(ppo, ts, chunks, batched, record=False)
 
 
 @pytest.mark.heavy

@@ -2,6 +2,7 @@
 seeds under vmap, exact resume from a host copy of the train state, and (slow) learning."""
 
 import dataclasses
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -183,18 +184,19 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
 
 
 # ---- seeds, the pure `train`, and exact resume -----------------------------------------------
-_PROGRAMS = {}  # (id(agent), batched): (agent, its jitted training steps and judge), kept for the test file
+_PROGRAMS = {}  # (id(agent), batched, record): (agent, its jitted training steps and judge), kept for the test file
 
 
-def run_chunks(sac, ts, chunks, batched=None):
-    """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge. The programs are
-    jitted once per agent and seed axis, so a resume's chunks run the whole run's compiled programs."""
-    if (id(sac), batched) not in _PROGRAMS:
-        train_steps, judge = sac.train_steps, sac.evaluate_and_keep_best
+def run_chunks(sac, ts, chunks, batched=None, record=True):
+    """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge (`batched`: over seeds;
+    `record`: the judge's first episode). The programs are jitted once per agent, seed axis and `record`, so a
+    resume's chunks run the whole run's compiled programs."""
+    if (id(sac), batched, record) not in _PROGRAMS:
+        train_steps, judge = sac.train_steps, partial(sac.evaluate_and_keep_best, record=record)
         if batched is not None:
             train_steps, judge = batched(train_steps), batched(judge)
-        _PROGRAMS[id(sac), batched] = sac, jax.jit(train_steps), jax.jit(judge)
-    _, train_steps, judge = _PROGRAMS[id(sac), batched]
+        _PROGRAMS[id(sac), batched, record] = sac, jax.jit(train_steps), jax.jit(judge)
+    _, train_steps, judge = _PROGRAMS[id(sac), batched, record]
     history = []
     for _ in range(chunks):
         ts, trained, eval_key = train_steps(ts)
