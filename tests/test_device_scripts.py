@@ -29,8 +29,9 @@ def test_a_training_longer_than_its_call_goes_on_and_a_later_call_collects_it(tm
         # The training outlives its call: the machine ends a call's processes but those of another session.
         for _ in range(100):
             found = subprocess.run(["pgrep", "-f", f"gym_training.*/tmp/runs{tag}"], capture_output=True, text=True)
-            if found.stdout or time.sleep(0.1):
+            if found.stdout:
                 break
+            time.sleep(0.1)
         assert os.getsid(int(found.stdout)) != os.getsid(0)
         ended = subprocess.run(["bash", "benchmarks/device/wait.sh"], cwd=ROOT, env={**env, "WAIT": "240", "OUT": str(second)},
                                capture_output=True, text=True, timeout=300)
