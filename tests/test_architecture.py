@@ -182,8 +182,9 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # branches on whether it had an encoder, by 74 for convolutions' gradients that XLA:CPU runs fast in loops, by 34 for
 # the best policy written between checkpoints, which a pixel run's replay spaces out, by 12 for TD3's
 # actor_saturation and 6 for its uniform first fill, DrQ-v2's, by 6 for the retired config fields a saved run may hold,
-# by 10 for TD3's correlated exploration noise, by 3 for the cheetah's pixel recipe, by 2 for hopper stand's length)
-LARGEST_AGENTS = 6_815
+# by 10 for TD3's correlated exploration noise, by 3 for the cheetah's pixel recipe, by 2 for hopper stand's length,
+# by 2 for walker run's pixel length)
+LARGEST_AGENTS = 6_817
 
 
 def _functions(path: Path):

@@ -173,6 +173,17 @@ def test_the_cheetah_from_pixels_acts_every_4_control_steps_with_shadows_for_1m_
     assert config.v_max == pytest.approx(4 / (1 - config.discounting)) and 1e6 <= config.total_steps * 4 < 1.01e6
 
 
+def test_walker_run_from_pixels_trains_the_measured_run_of_its_20_minutes():
+    """Issue 66's 20-minute task as run on one H100 (docs/agents.md, "Walker run from pixels"): the recipe's settings
+    at DrQ-v2's action repeat, 200,192 env steps per seed in 8 chunks; other tasks keep the recipe's 500k."""
+    assert "action_repeat" not in train_options("dmc-walker-run", "observation=pixels")
+    config = agent_config("dmc-walker-run", "td3", None, {}, None, None, observation="pixels")
+    walk = agent_config("dmc-walker-walk", "td3", None, {}, None, None, observation="pixels")
+    assert (config.total_steps, config.num_chunks, config.v_max) == (200_192, 8, 200.0)
+    assert config == dataclasses.replace(walk, num_timesteps=200_000, num_evals=9, solve_return=680.0)  # DrQ-v2 at 3M frames
+    assert walk.num_timesteps == 500_000
+
+
 @pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
 def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
     env = envs.make(TASK, **PIXELS)
