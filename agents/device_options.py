@@ -22,6 +22,12 @@ def default_seed_axis(platform: str | None = None, learner: Any = None) -> str:
     return "map" if on_cpu(platform) or getattr(learner, "image_shape", None) is not None else "vmap"
 
 
+def judge_seed_axis(seed_axis: str, platform: str | None = None, learner: Any = None) -> str:
+    """The judge's seeds: batched off the CPU even where image networks map the training's (`default_seed_axis`), so
+    every seed's episodes step as one batch of envs, and the networks act one seed after another (`PPO.evaluate`)."""
+    return "vmap" if getattr(learner, "image_shape", None) is not None and not on_cpu(platform) else seed_axis
+
+
 def vectorized_replay(platform: str | None = None) -> bool:
     """Replay buffers use gathers and scatters (`agents.replay`'s `vectorized`) but on the CPU, which loops faster."""
     return not on_cpu(platform)

@@ -12,7 +12,7 @@ import contextlib
 import dataclasses
 import functools
 import math
-from typing import Any, ClassVar, NamedTuple
+from typing import Any, Callable, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -133,6 +133,28 @@ class PPOConfig:
 
 # Brax's vision networks convolve each observation entry whose key starts with "pixels/": ours goes under this key.
 PIXELS_KEY = "pixels/camera"
+
+
+def one_seed_at_a_time(policy: Callable) -> Callable:
+    """`policy(params, obs)`, whose vmap (the judge's over seeds, `judge_seed_axis`) runs one seed after another:
+    vmapped, image networks' convolutions would be grouped ones, which a GPU runs slowly (`default_seed_axis`)."""
+
+    def act(params, obs):
+        leaves, treedef = jax.tree.flatten(params)  # the rule's batch mask of Brax's `UInt64` count holds no booleans
+
+        @jax.custom_batching.custom_vmap
+        def on_leaves(leaves, obs):
+            return policy(jax.tree.unflatten(treedef, leaves), obs)
+
+        @on_leaves.def_vmap
+        def per_seed(axis_size, in_batched, leaves, obs):
+            spread = lambda x, batched: x if batched else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))  # noqa: E731
+            leaves, obs = [spread(*pair) for pair in zip(leaves, in_batched[0])], spread(obs, in_batched[1])
+            return jax.lax.map(lambda args: on_leaves(*args), (leaves, obs)), True
+
+        return on_leaves(leaves, obs)
+
+    return act
 
 
 def image_shape(env: Env) -> tuple[int, int, int] | None:
@@ -363,7 +385,9 @@ class PPO:
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
         """The deterministic policy's return of each of `num_episodes` fresh episodes (default: the
         config's); with `record`, also the first episode step by step (`agents.evaluation.evaluate`)."""
-        return evaluation.evaluate(self.env, lambda obs: self.policy(params, obs), key,
+        images = getattr(self, "image_shape", None) is not None
+        policy = one_seed_at_a_time(self.policy) if images else self.policy
+        return evaluation.evaluate(self.env, lambda obs: policy(params, obs), key,
                                    num_episodes or self.config.eval_episodes,
                                    jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)
 

@@ -20,7 +20,7 @@ import numpy as np
 
 import envs
 from agents import checkpoint, evaluation, registry, run_steps, sharding, signals, traced_programs
-from agents.device_options import default_seed_axis, init_compiler_options, training_compiler_options
+from agents.device_options import default_seed_axis, init_compiler_options, judge_seed_axis, training_compiler_options
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
@@ -343,8 +343,9 @@ class _Run:
             train = self._lower(f"{kind}.train_steps over seeds by {seed_axis}",
                                 seed_batched(partial(_train_steps, learner), per_device, seed_axis), (ts,), donate=True)
         train_program = _in_background(train.compile, "train", after=after_traces)
-        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, seed_axis)
-        judged = (f"{kind}.evaluate_and_keep_best over seeds by {seed_axis}"
+        judge_axis = judge_seed_axis(seed_axis, learner=learner)
+        judge_fn = seed_batched(partial(learner.evaluate_and_keep_best, record=record_episode), per_device, judge_axis)
+        judged = (f"{kind}.evaluate_and_keep_best over seeds by {judge_axis}"
                   + ("" if record_episode else ", no episode recorded"))
         return train_program, self._lower(judged, judge_fn, (ts, ts.key), donate=True)
 

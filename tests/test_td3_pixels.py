@@ -8,6 +8,7 @@ step with the ray-cast camera, so the default run compiles no env and the slow t
 import argparse
 import dataclasses
 import re
+from functools import partial
 
 import flax.linen as nn
 import jax
@@ -19,6 +20,7 @@ from test_sac import assert_trees_equal, run_chunks
 import envs
 from agents import brax_defaults, registry
 from agents.commands import agent_config, train_env_options
+from agents.device_options import judge_seed_axis
 from agents.run import seeds_init
 from agents.networks import canonical_conv
 from agents.td3 import TD3, TD3Config
@@ -128,6 +130,36 @@ def test_on_the_cpu_seeds_start_one_after_another_so_no_qr_is_batched(agent):
     dims = qr_batch_dims(seeds_init(learner, 2), keys)
     assert dims and not any(dims)
     assert all(qr_batch_dims(jax.vmap(learner.init), keys))  # the check sees a batched kernel
+
+
+@pytest.mark.parametrize("agent", ["td3", "ppo"])
+def test_off_the_cpu_the_judge_batches_the_seeds_of_image_networks(agent):
+    """`judge_seed_axis`: where image networks map the training's seeds on a GPU, the judge vmaps them, so every
+    seed's episodes step as one batch of envs; on the CPU, and for state vectors, it keeps the training's axis."""
+    small = {"num_envs": "4", "cnn_output_channels": "8", "cnn_kernel_size": "3", "cnn_stride": "1"}
+    config = TINY if agent == "td3" else agent_config(TASK, agent, None, small, None, None, "pixels")
+    learner = registry.make(config, envs.make(TASK, **PIXELS))
+    assert judge_seed_axis("map", "gpu", learner) == "vmap" and judge_seed_axis("map", "cpu", learner) == "map"
+    assert judge_seed_axis("map", "gpu", registry.make(config, envs.make(TASK))) == "map"
+    assert judge_seed_axis("vmap", "gpu", registry.make(config, envs.make(TASK))) == "vmap"
+
+
+@pytest.mark.slow  # compiles a pixel evaluation twice
+def test_a_judge_over_vmapped_seeds_acts_one_seed_after_another_and_gives_each_seed_its_own_returns():
+    """The judge's vmap over seeds steps the envs as one batch, and the networks one seed after another
+    (`one_seed_at_a_time`): no grouped convolution. Each seed's returns are those of its own evaluation alone, to
+    the float rounding of a batched program over these episodes (the two seeds' returns differ by 10% and more)."""
+    learner = TD3(TINY, envs.make(TASK, **PIXELS))
+    params = jax.vmap(lambda key: learner.init(key).params)(jax.random.split(jax.random.PRNGKey(0), 2))
+    keys = jax.random.split(jax.random.PRNGKey(1), 2)
+    judge = jax.jit(jax.vmap(partial(learner.evaluate, num_episodes=2))).lower(params, keys)
+    program = judge.as_text()
+    assert "feature_group_count = 1" in program and "feature_group_count = 2" not in program
+    frames = jnp.zeros((2, 3, *learner.image_shape), jnp.uint8)
+    assert "feature_group_count = 2" in jax.jit(jax.vmap(learner.policy)).lower(params, frames).as_text()  # seen
+    alone = jax.jit(partial(learner.evaluate, num_episodes=2))
+    expected = np.stack([alone(jax.tree.map(lambda x: x[i], params), keys[i]) for i in range(2)])
+    np.testing.assert_allclose(judge.compile()(params, keys), expected, rtol=1e-3)
 
 
 def test_dm_control_tasks_from_pixels_take_td3s_pixel_recipe_with_drqv2s_goal():
