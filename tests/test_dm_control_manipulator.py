@@ -55,8 +55,9 @@ GRIP_BOUND = {"dmc-manipulator-bring-ball": 3e-2, "dmc-manipulator-bring-peg": 1
 # Grips that may pass those bounds, positions included: a grazing contact's onset within the step that
 # one solve sees and the other does not (a hair apart after the squeeze's substeps) turns the squeezed
 # prop's spin otherwise, as contact onsets do (docs/tasks.md). The peg's three geoms graze the fingertips
-# where the round ball does not; their rewards stay held to BOUNDS.
-FLIPS = {"dmc-manipulator-bring-ball": 0, "dmc-manipulator-bring-peg": 1, "dmc-manipulator-insert-ball": 0}
+# where the round ball does not; their rewards stay held to BOUNDS. How many flip follows the CPU's float32
+# rounding: one on the CPUs of CI until 2026-12-06, two on an AVX-512 one (docs/tasks.md's proof table).
+FLIPS = {"dmc-manipulator-bring-ball": 0, "dmc-manipulator-bring-peg": 2, "dmc-manipulator-insert-ball": 0}
 TOUCH = slice(24, 29)
 POSITIONS = np.r_[0:16, 29:37, 40:44]  # arm_pos, hand_pos, object_pos, target_pos
 
