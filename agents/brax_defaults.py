@@ -186,7 +186,7 @@ _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_update
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
 # The swing-up at action repeat 8, the cheetah at 4 (PIXEL_ENV_OPTIONS): a support for sums of 8 (4) rewards; 1M frames.
-# Walker run, one of issue 66's 20-minute tasks: the 200k env steps (400k frames) that one H100 trains in 16 minutes.
+# Walker run, one of issue 66's 20-minute tasks: its measured run's 200k env steps (docs/agents.md, "Walker run").
 _PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(v_max=800.0, num_timesteps=125_000, num_evals=6),
                     "dmc-cheetah-run": dict(v_max=400.0, num_timesteps=250_000, num_evals=11),
                     "dmc-walker-run": dict(num_timesteps=200_000, num_evals=9)}
