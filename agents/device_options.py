@@ -17,15 +17,20 @@ def on_cpu(platform: str | None = None) -> bool:
     return (platform or jax.default_backend()) == "cpu"
 
 
+def learns_from_images(learner: Any) -> bool:
+    """Whether `learner` (an agent, or None) acts through image networks: a camera image's shape is set."""
+    return getattr(learner, "image_shape", None) is not None
+
+
 def default_seed_axis(platform: str | None = None, learner: Any = None) -> str:
     """Seeds vmapped, but mapped on the CPU and for image networks, whose vmapped convolutions a GPU groups slowly."""
-    return "map" if on_cpu(platform) or getattr(learner, "image_shape", None) is not None else "vmap"
+    return "map" if on_cpu(platform) or learns_from_images(learner) else "vmap"
 
 
 def judge_seed_axis(seed_axis: str, platform: str | None = None, learner: Any = None) -> str:
     """The judge's seeds: batched off the CPU even where image networks map the training's (`default_seed_axis`), so
     every seed's episodes step as one batch of envs, and the networks act one seed after another (`PPO.evaluate`)."""
-    return "vmap" if getattr(learner, "image_shape", None) is not None and not on_cpu(platform) else seed_axis
+    return "vmap" if learns_from_images(learner) and not on_cpu(platform) else seed_axis
 
 
 def vectorized_replay(platform: str | None = None) -> bool:

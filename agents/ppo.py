@@ -385,8 +385,7 @@ class PPO:
     def evaluate(self, params, key, num_episodes: int | None = None, record: bool = False):
         """The deterministic policy's return of each of `num_episodes` fresh episodes (default: the
         config's); with `record`, also the first episode step by step (`agents.evaluation.evaluate`)."""
-        images = getattr(self, "image_shape", None) is not None
-        policy = one_seed_at_a_time(self.policy) if images else self.policy
+        policy = one_seed_at_a_time(self.policy) if device_options.learns_from_images(self) else self.policy
         return evaluation.evaluate(self.env, lambda obs: policy(params, obs), key,
                                    num_episodes or self.config.eval_episodes,
                                    jax.ShapeDtypeStruct((self.env.action_size,), jnp.float32), record)

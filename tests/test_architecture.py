@@ -184,8 +184,9 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # actor_saturation and 6 for its uniform first fill, DrQ-v2's, by 6 for the retired config fields a saved run may hold,
 # by 10 for TD3's correlated exploration noise, by 3 for the cheetah's pixel recipe, by 2 for hopper stand's length,
 # by 2 for walker run's pixel length, by 31 for the judge's seeds batched where image networks train one seed
-# after another, their networks acting one seed after another, device_options.judge_seed_axis and ppo.one_seed_at_a_time)
-LARGEST_AGENTS = 6_848
+# after another, their networks acting one seed after another, device_options.judge_seed_axis and ppo.one_seed_at_a_time,
+# by 4 for one named test of an image learner, device_options.learns_from_images, where three places read its attribute)
+LARGEST_AGENTS = 6_852
 
 
 def _functions(path: Path):

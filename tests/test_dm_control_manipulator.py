@@ -188,8 +188,7 @@ def assert_same_share(ours: np.ndarray, theirs: np.ndarray, what: str, tied: boo
         (what, ours.mean(), theirs.mean())
 
 
-@pytest.mark.parametrize("name", [name if name == "dmc-manipulator-bring-ball" else  # the benchmark's task
-                                  pytest.param(name, marks=pytest.mark.slow if "bring" in name else pytest.mark.heavy)
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow if "bring" in name else pytest.mark.heavy)
                                   for name in NAMES])
 def test_reset_distribution_matches_dm_control(name):
     """2,000 draws of each: the arm's joints (finger = thumb), the prop's position, angle and thrown

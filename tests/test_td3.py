@@ -124,7 +124,7 @@ def test_each_env_keeps_its_noise_scale_until_its_episode_ends():
     np.testing.assert_array_equal(scales[5], scales[3])
 
 
-@pytest.mark.parametrize("correlation", [0.0, 0.9])
+@pytest.mark.parametrize("correlation", [pytest.param(0.0, marks=pytest.mark.slow), 0.9])  # white noise: slow
 def test_correlated_noise_keeps_its_std_and_carries_over_from_step_to_step(correlation):
     """noise_correlation c: each env's noise is AR(1), so consecutive actions' noise correlates by c at the
     same std (the actor does not learn in `collect`, and without a normalizer acts as it did on each row)."""
@@ -351,6 +351,7 @@ CANARY = TD3Config(num_timesteps=4000, num_envs=8, batch_size=64, num_updates=2,
                    critic_hidden=(64, 64), num_atoms=51, v_min=-20.0, v_max=5.0)
 
 
+@pytest.mark.slow  # a training to a threshold
 def test_td3_learns_to_hold_the_drifting_point_at_zero():
     """A canary: Drift's untrained actor leaves the point where it starts (x ~ U(-1, 1), about -6.7
     a 20-step episode); the trained one pushes it to zero within a few steps."""

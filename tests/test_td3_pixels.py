@@ -74,6 +74,7 @@ def test_a_bfloat16_encoder_convolves_in_bfloat16_with_float32_parameters():
         TD3Config(encoder_dtype="float16")
 
 
+@pytest.mark.slow  # compiles both of TD3's updates on camera images
 def test_the_actors_step_learns_on_the_features_that_the_critics_step_encoded():
     """DrQ-v2's update: the actor's step reads the encoder's features of the observations from the critics' step
     (the encoder before that step, detached), so a whole update convolves no more than the critics' step alone."""
@@ -85,7 +86,9 @@ def test_the_actors_step_learns_on_the_features_that_the_critics_step_encoded():
     assert critics > 0 and convolutions(td3.learn, ts, batch, key, jnp.bool_(True)) == critics
 
 
-@pytest.mark.parametrize("size, kernel, stride", [(20, 3, 2), (21, 3, 2), (17, 3, 1), (64, 8, 4), (15, 4, 3)])
+# Two shapes run by default (strided with a remainder, and stride 1); the rest in the slow run, each a compile of its own.
+@pytest.mark.parametrize("size, kernel, stride", [(21, 3, 2), (17, 3, 1)] + [
+    pytest.param(*shape, marks=pytest.mark.slow) for shape in [(20, 3, 2), (64, 8, 4), (15, 4, 3)]])
 def test_canonical_convolutions_give_jaxs_gradients(size, kernel, stride):
     """`agents.networks.canonical_conv`'s gradients (for XLA:CPU) are JAX's own, for strides that do and do not
     divide the image; padding it does not handle is refused with what it takes."""
@@ -119,7 +122,7 @@ def qr_batch_dims(fn, *args) -> list[int]:
     return [int(dims) for dims in re.findall(r'@lapack_\w*(?:geqrf|orgqr)_ffi\(.*num_batch_dims = "(\d+)"', text)]
 
 
-@pytest.mark.parametrize("agent", ["td3", "ppo"])
+@pytest.mark.parametrize("agent", [pytest.param("td3", marks=pytest.mark.slow), "ppo"])  # TD3's: an encoder's compile
 def test_on_the_cpu_seeds_start_one_after_another_so_no_qr_is_batched(agent):
     """Image networks' orthogonal initializer runs LAPACK's QR. Batched over seeds, jaxlib 0.10's kernel waits on
     XLA's CPU thread pool from inside it: two seeds' TD3 encoders on a 2-core CPU never finished initializing.
@@ -145,6 +148,7 @@ def test_off_the_cpu_the_judge_batches_the_seeds_of_image_networks(agent):
     assert judge_seed_axis("vmap", "gpu", registry.make(config, envs.make(TASK))) == "vmap"
 
 
+@pytest.mark.slow  # two compiles of the pixel policy
 def test_one_seed_at_a_time_vmaps_the_policy_as_a_map_over_seeds_with_no_grouped_convolution():
     """`one_seed_at_a_time`: the judge's vmap over seeds runs the image networks one seed after another (a vmapped
     policy's convolutions are grouped ones), and each seed's actions are its own policy's."""
