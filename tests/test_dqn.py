@@ -207,6 +207,7 @@ def test_every_option_trains_with_finite_losses():
     assert int(metrics["env_steps"][-1]) == config.num_chunks * config.eval_every
 
 
+@pytest.mark.slow  # two compiles of a training
 def test_mapped_and_vmapped_seeds_train_alike():
     """The CPU runs seeds one after another (`_map_in_place`), accelerators vmap them: the same
     agents either way, up to float rounding of batched against plain matmuls."""

@@ -196,6 +196,7 @@ class _CostlyReset(envs.Wrapper):
     costly_reset = True  # as dm_control's cheetah, whose reset runs 200 physics steps
 
 
+@pytest.mark.slow  # compiles a vmapped training step of its own
 def test_a_costly_reset_under_a_vmap_over_seeds_decides_for_every_seed_at_once(monkeypatch):
     """Under the agents' vmap over seeds, a costly reset's batch switches once over the envs of every
     seed (none ended: no reset work; a few: by index; many: all), with the states of the select that
@@ -306,7 +307,7 @@ class _ResetOverflows(envs.CartPoleMjx):
         return jnp.where(data.time == 0, envs.mjx_warp.OVERFLOW_CONSTRAINTS, 0.0).astype(jnp.float32)
 
 
-@pytest.mark.parametrize("reset_by_index", [False, True])
+@pytest.mark.parametrize("reset_by_index", [False, pytest.param(True, marks=pytest.mark.slow)])  # a compile each
 def test_a_reset_that_overflowed_is_counted_on_the_step_whose_end_started_it(reset_by_index):
     """`reset` reports its own Warp work's overflow; an auto-reset adds it to the step that ended the episode, so
     the agents keep that transition from the learner and count it (the fresh episode's own steps are physics)."""

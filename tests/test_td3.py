@@ -260,6 +260,7 @@ def test_the_pre_tanh_penalty_alone_pulls_a_saturated_actor_off_its_bound(penalt
         np.testing.assert_array_equal(bias, 5.0)
 
 
+@pytest.mark.slow  # a compile of its own
 def test_a_uniform_first_fill_spreads_its_actions_over_the_box():
     """DrQ-v2 acts uniformly at random for its first steps (num_expl_steps); TD3's untrained actor with
     its noise (std at most std_max, 0.4) keeps near 0, so a critic learns little about the bounds."""
