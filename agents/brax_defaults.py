@@ -188,14 +188,12 @@ _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_update
                   discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
-# The swing-up at action repeat 8, the cheetah and quadruped at 4 (PIXEL_ENV_OPTIONS): a support for sums of 8 (4)
-# rewards; 1M frames. Walker and quadruped run, issue 66's 20-minute tasks: their measured runs' lengths
-# (docs/agents.md, "Walker run", "Quadruped run").
-_PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(v_max=800.0, num_timesteps=125_000, num_evals=6),
-                    "dmc-cheetah-run": dict(v_max=400.0, num_timesteps=250_000, num_evals=11),
+# The swing-up at action repeat 8, the cheetah at 4 (PIXEL_ENV_OPTIONS): 1M frames. Walker and quadruped run, issue
+# 66's 20-minute tasks: their measured runs' lengths (docs/agents.md, "Walker run", "Quadruped run").
+_PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(num_timesteps=125_000, num_evals=6),
+                    "dmc-cheetah-run": dict(num_timesteps=250_000, num_evals=11),
                     "dmc-walker-run": dict(num_timesteps=200_000, num_evals=9),
-                    "dmc-quadruped-walk": dict(v_max=400.0),
-                    "dmc-quadruped-run": dict(v_max=400.0, num_timesteps=225_000, num_evals=10)}
+                    "dmc-quadruped-run": dict(num_timesteps=225_000, num_evals=10)}
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.
@@ -224,13 +222,15 @@ DRQV2_SCORES = {"dmc-cartpole-swingup": 863.0, "dmc-walker-walk": 765.0, "dmc-ch
                 "dmc-quadruped-walk": 711.0, "dmc-quadruped-run": 723.0, "dmc-hopper-hop": 354.0}
 for _task, (_ppo, _sac, _goal) in _DMC_TASKS.items():
     _solve = {} if _goal is None else {"solve_return": _goal}
+    # TD3's support from pixels: sums of rewards (at most 1 each) over the action repeat, _PIXEL_TD3's for DrQ-v2's 2.
+    _pixel_v_max = _PIXEL_TD3["v_max"] / 2 * PIXEL_ENV_OPTIONS.get(_task, {}).get("action_repeat", 2)
     SETTINGS[_task] = {"ppo": {"default": {**_DMC_PPO, **_ppo, **_solve}, "pixels": dict(  # from camera images
                            _PIXEL_PPO, num_timesteps=10_000_000, num_evals=21, solve_return=DRQV2_SCORES.get(_task))},
                        "sac": {"default": {**_DMC_SAC, **_sac, **_solve}},
                        "td3": {"default": {**_DMC_TD3, **_solve, **_DMC_TD3_TASKS.get(_task, {})},
-                               "pixels": dict(_PIXEL_TD3, solve_return=DRQV2_SCORES.get(_task),
+                               "pixels": dict(_PIXEL_TD3, solve_return=DRQV2_SCORES.get(_task), v_max=_pixel_v_max,
                                               **_PIXEL_TD3_TASKS.get(_task, {}))}}
-del _task, _ppo, _sac, _goal, _solve
+del _task, _ppo, _sac, _goal, _solve, _pixel_v_max
 
 GYMNASIUM_TASKS = ("inverted-pendulum", "inverted-double-pendulum", "ant", "humanoid", "half-cheetah", "hopper",
                    "walker2d", "reacher", "pusher", "swimmer")

@@ -207,7 +207,8 @@ def start_states(env, rng):
 
 
 # swimmer15's program, the largest of the three to compile, is proven in the heavy run, out of CI's time.
-@pytest.fixture(scope="module", params=[pytest.param(name, marks=pytest.mark.heavy if "15" in name else pytest.mark.slow)
+@pytest.fixture(scope="module", params=[pytest.param(name, marks=pytest.mark.heavy if name == "dmc-swimmer-swimmer15"
+                                                     else pytest.mark.slow)
                                         for name in BOUNDS])
 def swim_case(request):
     env = envs.make(request.param).unwrapped
