@@ -32,14 +32,15 @@ _PLAYGROUND_PPO = dict(num_timesteps=60_000_000, num_evals=10, reward_scaling=10
 _PIXEL_PPO = dict(num_envs=256, batch_size=256)
 # The env options of a run on camera images (`pixel_env_options`): three frames, four task steps apart,
 # so that they show the pole's velocity (docs/agents.md, "PPO from pixels"). dm_control's swing-up acts every 8
-# control steps, its cheetah and quadruped every 4, as PlaNet and DrQ ran the first two (DrQ-v2: 2), the cheetah
-# with Warp's shadows (docs/agents.md, "The swing-up at action repeat 8", "Cheetah run from pixels with shadows",
-# "Quadruped run from pixels").
+# control steps, its cheetah, quadruped and hopper hop every 4, as PlaNet and DrQ ran the first two (DrQ-v2: 2), the
+# cheetah and the hopper with Warp's shadows (docs/agents.md, "The swing-up at action repeat 8", "Cheetah run from pixels with shadows",
+# "Quadruped run from pixels", "Hopper hop from pixels").
 PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {task: {"frame_stack": 3, "action_repeat": 4} for task in (
     "cartpole-balance-mjx", "cartpole-swingup-mjx")} | {"dmc-cartpole-swingup": {"action_repeat": 8},
                                                         "dmc-cheetah-run": {"action_repeat": 4, "shadows": True},
                                                         "dmc-quadruped-walk": {"action_repeat": 4},
-                                                        "dmc-quadruped-run": {"action_repeat": 4}}
+                                                        "dmc-quadruped-run": {"action_repeat": 4},
+                                                        "dmc-hopper-hop": {"action_repeat": 4, "shadows": True}}
 _PLAYGROUND_SAC = dict(num_timesteps=5_000_000, num_evals=10, discounting=0.99, learning_rate=1e-3, num_envs=128,
                        batch_size=512, grad_updates_per_step=8, max_replay_size=4 * 1048576, min_replay_size=8192)
 # FastTD3's recipe (github.com/younggyoseo/FastTD3, fast_td3/hyperparams.py at commit 229ed59): BaseArgs
@@ -188,12 +189,14 @@ _PIXEL_TD3 = dict(num_timesteps=500_000, num_envs=64, batch_size=256, num_update
                   discounting=0.99, num_steps=3, actor_hidden=(1024, 1024), critic_hidden=(1024, 1024), std_min=0.1,
                   std_max=0.4, policy_noise=0.2, v_min=0.0, v_max=200.0, min_replay_size=2048, max_replay_size=100_000,
                   num_evals=21, compute_dtype="bfloat16", encoder_dtype="bfloat16")
-# The swing-up at action repeat 8, the cheetah at 4 (PIXEL_ENV_OPTIONS): 1M frames. Walker and quadruped run, issue
-# 66's 20-minute tasks: their measured runs' lengths (docs/agents.md, "Walker run", "Quadruped run").
+# The swing-up at action repeat 8, the cheetah at 4 (PIXEL_ENV_OPTIONS): 1M frames. Walker and quadruped run and
+# hopper hop, issue 66's 20-minute tasks: their measured runs' lengths (docs/agents.md: "Walker run", "Quadruped run",
+# "Hopper hop").
 _PIXEL_TD3_TASKS = {"dmc-cartpole-swingup": dict(num_timesteps=125_000, num_evals=6),
                     "dmc-cheetah-run": dict(num_timesteps=250_000, num_evals=11),
                     "dmc-walker-run": dict(num_timesteps=200_000, num_evals=9),
-                    "dmc-quadruped-run": dict(num_timesteps=225_000, num_evals=10)}
+                    "dmc-quadruped-run": dict(num_timesteps=225_000, num_evals=10),
+                    "dmc-hopper-hop": dict(num_timesteps=250_000, num_evals=11)}
 _SAC_10M = dict(num_timesteps=10_000_000)  # SAC's exception in most of Playground's tasks
 _LONG_RUNS = (dict(num_timesteps=100_000_000), _SAC_10M, None)  # Playground's long runs
 # task: (PPO's fields over _DMC_PPO, SAC's over _DMC_SAC, the goal or None), Playground's exceptions.

@@ -256,6 +256,16 @@ def test_the_quadruped_from_pixels_acts_every_4_control_steps_and_run_trains_its
     assert agent_config("dmc-quadruped-walk", "td3", None, {}, None, None, observation="pixels").num_timesteps == 500_000
 
 
+def test_hopper_hop_from_pixels_trains_its_measured_run_with_shadows_at_action_repeat_4():
+    """Issue 66's third 20-minute task as run on one H100 (docs/agents.md, "Hopper hop from pixels"): action repeat 4
+    with Warp's shadows, as the cheetah's, 250,368 env steps per seed (1M frames) in 10 chunks."""
+    given = train_options("dmc-hopper-hop", "observation=pixels", "width=16", "height=16")
+    assert (given["action_repeat"], given["shadows"]) == (4, True)
+    run = agent_config("dmc-hopper-hop", "td3", None, {}, None, None, observation="pixels")
+    assert (run.total_steps, run.num_chunks, run.solve_return) == (250_368, 10, 354.0)  # DrQ-v2's at 3M frames
+    assert run.v_max == pytest.approx(4 / (1 - run.discounting))
+
+
 @pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
 def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
     env = envs.make(TASK, **PIXELS)
