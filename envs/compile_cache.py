@@ -13,6 +13,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
+
+# XLA options of the proofs' own programs (`envs.interop.gymnasium_equality.transitions`, `envs.interop.dm_control.
+# transitions` and `steps_from`): none, XLA's defaults, as a training's programs. A proof's bound holds for the program
+# it compiled; tests/conftest.py, which builds the tests' other programs with a cheaper backend, sets users' here.
+PROOF_COMPILER_OPTIONS: dict[str, Any] = {}
 
 ENV_VAR = "MJXSUITE_COMPILE_CACHE"
 _OFF = ("0", "off", "false", "no")

@@ -6,12 +6,20 @@ import tempfile
 
 # Tests run on the CPU; keep XLA from grabbing every core's worth of threads per test.
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-# The CPU compiler options `mjxsuite train` uses for its programs (`agents.device_options.CPU_COMPILER_OPTIONS`)
+# The tests' programs are compiled far more than they run: XLA:CPU's LLVM backend at optimization level 1
+# (XLA's own HLO passes, fusion included, unchanged) compiles them faster. It rounds some results otherwise
+# than users' level, so the proofs against Gymnasium and dm_control (`envs.compile_cache.PROOF_COMPILER_OPTIONS`)
+# and a test that holds two different programs to the same bits compile as users' programs do (`USERS_CODEGEN`);
+# level 0 also parted programs that users' level makes bit-equal.
+# And the CPU compiler options `mjxsuite train` uses for its programs (`agents.device_options.CPU_COMPILER_OPTIONS`)
 # for every program the tests compile, their directly jitted DQN and MJX programs too: half the compile
-# time. Subprocesses inherit it; tests/test_sharding.py adds its device count to it. jaxlib 0.11's XLA
-# no longer has the flag (its classic emitters are retired) and aborts on an unknown XLA_FLAGS entry.
+# time. Subprocesses inherit both; tests/test_sharding.py adds its device count. jaxlib 0.11's XLA
+# no longer has the second flag (its classic emitters are retired) and aborts on an unknown XLA_FLAGS entry.
+USERS_CODEGEN = {"xla_backend_optimization_level": 3}  # XLA's default
+_FLAGS = ["--xla_backend_optimization_level=1"]
 if tuple(int(part) for part in importlib.metadata.version("jaxlib").split(".")[:2]) < (0, 11):
-    os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), "--xla_cpu_use_fusion_emitters=false"]).strip()
+    _FLAGS.append("--xla_cpu_use_fusion_emitters=false")
+os.environ["XLA_FLAGS"] = " ".join([os.environ.get("XLA_FLAGS", ""), *_FLAGS]).strip()
 
 # Many tests compile the same programs (the same tiny training run, evaluation, rollout):
 # JAX's persistent compilation cache, in a directory of this session's own (deleted at exit,
@@ -34,6 +42,9 @@ import jax  # noqa: E402 (after the environment above)
 import pytest  # noqa: E402
 
 from agents import traced_programs  # noqa: E402
+from envs.compile_cache import PROOF_COMPILER_OPTIONS  # noqa: E402
+
+PROOF_COMPILER_OPTIONS.update(USERS_CODEGEN)  # the proofs against Gymnasium and dm_control compile as users' programs
 
 if os.environ["MJXSUITE_COMPILE_CACHE"] == _CACHE_DIR:
     jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import USERS_CODEGEN
 from jax.flatten_util import ravel_pytree
 
 import envs
@@ -237,9 +238,9 @@ GPU_SHAPED = DQNConfig(total_steps=600, learning_starts=200, batch_size=32, buff
                        replay="prioritized")
 
 
-def _train_chunks(dqn, chunks=3):
-    ts = jax.jit(dqn.init)(jax.random.PRNGKey(0))
-    chunk = jax.jit(dqn.chunk)
+def _train_chunks(dqn, chunks=3, compiler_options=None):
+    ts = jax.jit(dqn.init, compiler_options=compiler_options)(jax.random.PRNGKey(0))
+    chunk = jax.jit(dqn.chunk, compiler_options=compiler_options)
     for _ in range(chunks):
         ts, _ = chunk(ts)
     return ts
@@ -258,14 +259,14 @@ def test_the_accelerator_replay_is_exact_on_the_cpu(monkeypatch):
     updates per iteration) is identical."""
     from agents import device_options
 
-    cpu = _train_chunks(DQN(GPU_SHAPED, envs.make("cartpole"), platform="cpu"))
+    cpu = _train_chunks(DQN(GPU_SHAPED, envs.make("cartpole"), platform="cpu"), compiler_options=USERS_CODEGEN)
     monkeypatch.setattr(device_options, "flat_optimizer", lambda platform=None: True)
     monkeypatch.setattr(device_options, "transposed_kernel_gradient", lambda platform=None: True)
     monkeypatch.setattr(device_options, "unrolled_inner_loops", lambda platform=None: False)
     monkeypatch.setattr(device_options, "fused_q_network", lambda platform=None, agents=1: False)
     accelerator = DQN(GPU_SHAPED, envs.make("cartpole"), platform="gpu")
     assert accelerator.buffer.vectorized
-    _assert_trees_equal(_train_chunks(accelerator), cpu)
+    _assert_trees_equal(_train_chunks(accelerator, compiler_options=USERS_CODEGEN), cpu)
 
 
 @pytest.mark.slow

@@ -159,7 +159,9 @@ def test_one_seed_at_a_time_vmaps_the_policy_as_a_map_over_seeds_with_no_grouped
         normalizer, encoder, obs = learner.inputs.init(jax.random.fold_in(key, 1))
         return normalizer, learner.inputs.joined(learner.actor.init(key, obs), encoder, "actor")
 
-    params = jax.jit(jax.vmap(actor_params))(jax.random.split(jax.random.PRNGKey(0), 2))
+    # Mapped, as `seeds_init` on the CPU: jaxlib's batched QR (the encoder's orthogonal initializer) can deadlock
+    # XLA's CPU pool on two cores (docs/agents.md, "A fault found and fixed").
+    params = jax.jit(lambda keys: jax.lax.map(actor_params, keys))(jax.random.split(jax.random.PRNGKey(0), 2))
     frames = jax.random.randint(jax.random.PRNGKey(1), (2, 3, *learner.image_shape), 0, 256).astype(jnp.uint8)
     act = jax.jit(jax.vmap(one_seed_at_a_time(learner.policy)))
     assert "feature_group_count = 2" not in act.lower(params, frames).as_text()

@@ -44,6 +44,7 @@ import mujoco
 import numpy as np
 
 from envs.core import Env, Wrapper
+from envs.compile_cache import PROOF_COMPILER_OPTIONS
 from envs.registry import make, options
 
 # The fields mujoco 4.0.0 dropped that dm_control 1.0.50's generated `sizes.array_sizes` (built
@@ -152,7 +153,8 @@ def transitions(env: Env | str, num_envs: int = 16, num_steps: int = 20, keep: i
                                  episode_info(env, start))
 
     keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
-    actions, record, resets = jax.tree.map(np.asarray, jax.jit(jax.vmap(episode))(keys))
+    program = jax.jit(jax.vmap(episode), compiler_options=PROOF_COMPILER_OPTIONS)
+    actions, record, resets = jax.tree.map(np.asarray, program(keys))
     chosen = np.linspace(0, num_envs * num_steps - 1, keep).round().astype(int)
     pick = lambda x: x.reshape(num_envs * num_steps, *x.shape[2:])[chosen]
     qpos, qvel, act, warmstart, obs, reward, discount, episode = jax.tree.map(pick, record)
@@ -201,8 +203,9 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                 resets)
 
     keys = jax.random.split(jax.random.PRNGKey(seed), len(qpos))
+    program = jax.jit(jax.vmap(step), compiler_options=PROOF_COMPILER_OPTIONS)
     act, warmstart, obs, reward, discount, episode, resets = jax.tree.map(
-        np.asarray, jax.jit(jax.vmap(step))(keys, qpos, qvel, act, actions, episode))
+        np.asarray, program(keys, qpos, qvel, act, actions, episode))
     env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
     return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
                        episode, *resets)

@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from envs.core import Env
+from envs.compile_cache import PROOF_COMPILER_OPTIONS
 from envs.registry import make
 
 
@@ -96,7 +97,8 @@ def transitions(env: Env | str, num_envs: int = 32, num_steps: int = 40, keep: i
         return actions, record
 
     keys = jax.random.split(jax.random.PRNGKey(seed), num_envs)
-    actions, (qpos, qvel, warmstart, obs, reward, done, metrics) = jax.jit(jax.vmap(episode))(keys)
+    program = jax.jit(jax.vmap(episode), compiler_options=PROOF_COMPILER_OPTIONS)
+    actions, (qpos, qvel, warmstart, obs, reward, done, metrics) = program(keys)
     flat = lambda x: np.asarray(x).reshape(num_envs * num_steps, *np.shape(x)[2:])
     chosen = np.linspace(0, num_envs * num_steps - 1, keep).round().astype(int)
     pick = lambda x: flat(x)[chosen]
