@@ -33,8 +33,8 @@ _PIXEL_PPO = dict(num_envs=256, batch_size=256)
 # The env options of a run on camera images (`pixel_env_options`): three frames, four task steps apart,
 # so that they show the pole's velocity (docs/agents.md, "PPO from pixels"). dm_control's swing-up acts every 8
 # control steps, its cheetah, quadruped and hopper hop every 4, as PlaNet and DrQ ran the first two (DrQ-v2: 2), the
-# cheetah and the hopper with Warp's shadows (docs/agents.md, "The swing-up at action repeat 8", "Cheetah run from pixels with shadows",
-# "Quadruped run from pixels", "Hopper hop from pixels").
+# cheetah and the hopper with Warp's shadows (docs/agents.md, "The swing-up at action repeat 8", "Cheetah run from
+# pixels with shadows", "Quadruped run from pixels", "Hopper hop from pixels").
 PIXEL_ENV_OPTIONS: dict[str, dict[str, Any]] = {task: {"frame_stack": 3, "action_repeat": 4} for task in (
     "cartpole-balance-mjx", "cartpole-swingup-mjx")} | {"dmc-cartpole-swingup": {"action_repeat": 8},
                                                         "dmc-cheetah-run": {"action_repeat": 4, "shadows": True},
