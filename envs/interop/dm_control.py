@@ -349,7 +349,11 @@ def compare_readings_with_dm_control(env: Env | str, episodes: int = 8, num_step
                 perturb(theirs.physics, rng)
                 theirs.physics.forward()
             result = theirs.step(rng.uniform(low, high))
-            datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
+            # dm_control's step ends in mj_step1, which sizes the constraint rows afresh: their solver-stage fields
+            # (efc_b, efc_force, the island arrays) hold the arena's leftovers until the next step computes them,
+            # and put_data casts every field. None of them is read here.
+            with np.errstate(over="ignore"):
+                datas.append(mjx.put_data(env.mj_model, theirs.physics.data.ptr, impl="jax"))
             obs.append(flatten(result.observation)), rewards.append(result.reward), discounts.append(result.discount)
     batch = jax.tree.map(lambda *leaves: np.stack(leaves), *datas)
     ours_obs, ours_reward = jax.jit(jax.vmap(lambda d: (env.observation(d), env.reward(d, None, d))))(batch)
