@@ -397,11 +397,15 @@ class DQN:
                                    jax.ShapeDtypeStruct((), jnp.int32), record)
 
     # ---- a training run ---------------------------------------------------------
+    def fresh_params(self, key: jax.Array):
+        """A fresh run's parameters, shaped as `init(key).params`, without envs (`load_policy`'s template)."""
+        return self.network.init(jax.random.split(key, 3)[0], jnp.zeros((1, self.env.observation_size)))
+
     def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
         """Fresh parameters, optimizer, buffer and envs; `hyperparams`: a sweep agent's own values."""
-        param_key, env_key, loop_key = jax.random.split(key, 3)
+        _, env_key, loop_key = jax.random.split(key, 3)
         env_state = self.train_env.reset(env_key)
-        params = self.network.init(param_key, env_state.obs)
+        params = self.fresh_params(key)
         example = pack(Transition(env_state.obs[0], jnp.int32(0), env_state.reward[0], env_state.obs[0], env_state.reward[0]))
         return TrainState(
             params=params, target_params=params,

@@ -399,11 +399,15 @@ class PPO:
         return (running_statistics.init_state(obs_spec), self.networks.policy_network.init(policy_key),
                 self.networks.value_network.init(value_key))
 
+    def fresh_params(self, key: jax.Array):
+        """A fresh run's parameters, shaped as `init(key).params`, without envs (`load_policy`'s template)."""
+        return self.init_params(*jax.random.split(jax.random.split(key, 3)[0]))
+
     def init(self, key: jax.Array, hyperparams: Hyperparams | None = None) -> TrainState:
         """Fresh parameters, optimizer and envs; `hyperparams`: a sweep agent's own values."""
         from brax.training.agents.ppo import losses as ppo_losses
-        param_key, env_key, loop_key = jax.random.split(key, 3)
-        params = self.init_params(*jax.random.split(param_key))
+        _, env_key, loop_key = jax.random.split(key, 3)
+        params = self.fresh_params(key)
         return TrainState(
             params=params, opt_state=self.optimizer.init(ppo_losses.PPONetworkParams(policy=params[1], value=params[2])),
             hyperparams=hyperparams, **first_state(params, self.train_env.reset(env_key), loop_key))

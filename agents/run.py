@@ -702,7 +702,7 @@ def load_agent(out_dir: str | Path, env: envs.Env | None = None) -> tuple[str, e
     env = env or checkpoint.saved_env(out_dir)[1]
     agent = registry.make(saved.config, env)
     agents = saved.trained_seeds * len(sweep_configs(saved.config, saved.sweep))
-    template = jax.eval_shape(jax.vmap(agent.init), seed_keys(0, agents)).best_params
+    template = jax.eval_shape(jax.vmap(agent.fresh_params), seed_keys(0, agents))  # best_params' shapes, no envs
     return saved.env, env, agent, checkpoint.load_best_params(out_dir, template)
 
 

@@ -318,17 +318,21 @@ class SAC:
     evaluate = PPO.evaluate  # the deterministic policy's returns
 
     # ---- a training run ---------------------------------------------------------
+    def fresh_params(self, key: jax.Array):
+        """A fresh run's parameters, shaped as `init(key).params`, without envs (`load_policy`'s template)."""
+        from brax.training.acme import running_statistics, specs
+        return (running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32"))),
+                self.networks.policy_network.init(jax.random.split(key, 5)[0]))
+
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
         """Fresh networks (as Brax's), optimizers, temperature 1, envs, and the replay's first fill
         (Brax's `prefill_replay_buffer`). `hyperparams`: DQN's sweep argument; SAC traces none yet."""
-        from brax.training.acme import running_statistics, specs
         if hyperparams is not None:
             raise ValueError("SAC cannot sweep settings within one program yet (no field of SACConfig is traced); "
                              "run one `mjxsuite train --agent sac` per value instead")
-        policy_key, q_key, env_key, fill_key, loop_key = jax.random.split(key, 5)
-        policy_params = self.networks.policy_network.init(policy_key)
+        _, q_key, env_key, fill_key, loop_key = jax.random.split(key, 5)
+        normalizer, policy_params = self.fresh_params(key)
         q_params = self.networks.q_network.init(q_key)
-        normalizer = running_statistics.init_state(specs.Array((self.obs_size,), jnp.dtype("float32")))
         log_alpha = jnp.asarray(0.0, jnp.float32)
         env_state = self.train_env.reset(env_key)
         ts = TrainState(

@@ -379,19 +379,29 @@ class TD3:
     evaluate = SAC.evaluate  # the deterministic policy's returns
 
     # ---- a training run ---------------------------------------------------------
+    def networks(self, key: jax.Array):
+        """`init(key)`'s `params`, actor, twin critics and critic params, the encoder's in both params."""
+        actor_key, critic_key = jax.random.split(key, 6)[:2]
+        normalizer, encoder, obs0 = self.inputs.init(jax.random.fold_in(key, 1))
+        actor = self.actor.init(actor_key, obs0)
+        twins = jax.vmap(lambda k: self.critic.init(k, obs0, jnp.zeros((1, self.action_size))))(
+            jax.random.split(critic_key))
+        return (normalizer, self.inputs.joined(actor, encoder, "actor")), actor, twins, self.inputs.joined(
+            twins, encoder, "twins")
+
+    def fresh_params(self, key: jax.Array):
+        """A fresh run's parameters, shaped as `init(key).params`, without envs (`load_policy`'s template)."""
+        return self.networks(key)[0]
+
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
         """Fresh networks, optimizers, noise scales and envs, then the first fill; `hyperparams`: none traced yet."""
         if hyperparams is not None:
             raise ValueError("TD3 cannot sweep settings within one program yet (no field of TD3Config is traced); "
                              "run one `mjxsuite train --agent td3` per value instead")
         cfg = self.config
-        actor_key, critic_key, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
-        normalizer, encoder, obs0 = self.inputs.init(jax.random.fold_in(key, 1))
-        act0, flag = jnp.zeros((1, self.action_size)), jnp.float32(0)
-        actor = self.actor.init(actor_key, obs0)
-        twins = jax.vmap(lambda k: self.critic.init(k, obs0, act0))(jax.random.split(critic_key))
-        actor_params = self.inputs.joined(actor, encoder, "actor")
-        critic_params = self.inputs.joined(twins, encoder, "twins")
+        _, _, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
+        (normalizer, actor_params), actor, twins, critic_params = self.networks(key)
+        flag = jnp.float32(0)
         env_state = self.train_env.reset(env_key)
         buffer, example = self.inputs.init_buffer(example_transition(env_state, self.action_size))
         window = None if cfg.num_steps == 1 else jax.tree.map(  # each env's last steps, `ended` and `valid`

@@ -130,6 +130,25 @@ def test_the_saved_policy_acts_as_the_agent_does(tiny_run):
         policy(np.zeros(4))
 
 
+@pytest.mark.parametrize("agent", ["dqn", "ppo", "sac", "td3"])
+def test_fresh_params_are_inits_params_without_touching_an_env(agent, monkeypatch):
+    """`load_policy` restores a checkpoint into the shapes of `fresh_params`, not of `init`, whose trace steps the
+    envs (a pixel run's renderer and first fill): the parameters' shapes and types, and no env reset or step."""
+    from agents import DQNConfig
+    config = {"dqn": DQNConfig(hidden=(8,)), "ppo": TINY_PPO, "sac": TINY_SAC,
+              "td3": TD3Config(num_envs=8, batch_size=8, min_replay_size=16, max_replay_size=64, actor_hidden=(8,),
+                               critic_hidden=(8,), num_atoms=5)}[agent]
+    learner = registry.make(config, envs.make("cartpole" if agent == "dqn" else "pendulum-mjx"))
+    keys = jax.random.split(jax.random.PRNGKey(3), 2)
+    expected = jax.eval_shape(jax.vmap(learner.init), keys).params
+    for env in {learner.env, learner.train_env}:
+        monkeypatch.setattr(env, "reset", lambda *_: pytest.fail("fresh_params reset an env"), raising=False)
+        monkeypatch.setattr(env, "step", lambda *_: pytest.fail("fresh_params stepped an env"), raising=False)
+    shapes = jax.eval_shape(jax.vmap(learner.fresh_params), keys)
+    assert jax.tree.structure(shapes) == jax.tree.structure(expected)
+    assert jax.tree.leaves(shapes) == jax.tree.leaves(expected)
+
+
 @pytest.mark.slow
 def test_eval_and_rollout_read_a_ppo_run(tiny_run, tmp_path, capsys):
     out, _ = tiny_run
