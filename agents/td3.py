@@ -379,19 +379,18 @@ class TD3:
     evaluate = SAC.evaluate  # the deterministic policy's returns
 
     # ---- a training run ---------------------------------------------------------
-    def networks(self, key: jax.Array):
-        """`init(key)`'s `params`, actor, twin critics and critic params, the encoder's in both params."""
+    def fresh_networks(self, key: jax.Array):
+        """`init(key)`'s `params` and critic params, the encoder's in both."""
         actor_key, critic_key = jax.random.split(key, 6)[:2]
         normalizer, encoder, obs0 = self.inputs.init(jax.random.fold_in(key, 1))
         actor = self.actor.init(actor_key, obs0)
         twins = jax.vmap(lambda k: self.critic.init(k, obs0, jnp.zeros((1, self.action_size))))(
             jax.random.split(critic_key))
-        return (normalizer, self.inputs.joined(actor, encoder, "actor")), actor, twins, self.inputs.joined(
-            twins, encoder, "twins")
+        return (normalizer, self.inputs.joined(actor, encoder, "actor")), self.inputs.joined(twins, encoder, "twins")
 
     def fresh_params(self, key: jax.Array):
         """A fresh run's parameters, shaped as `init(key).params`, without envs (`load_policy`'s template)."""
-        return self.networks(key)[0]
+        return self.fresh_networks(key)[0]
 
     def init(self, key: jax.Array, hyperparams: Any = None) -> TrainState:
         """Fresh networks, optimizers, noise scales and envs, then the first fill; `hyperparams`: none traced yet."""
@@ -400,7 +399,8 @@ class TD3:
                              "run one `mjxsuite train --agent td3` per value instead")
         cfg = self.config
         _, _, noise_key, env_key, fill_key, loop_key = jax.random.split(key, 6)
-        (normalizer, actor_params), actor, twins, critic_params = self.networks(key)
+        (normalizer, actor_params), critic_params = self.fresh_networks(key)
+        (actor, _), (twins, _) = self.inputs.split(actor_params, "actor"), self.inputs.split(critic_params, "twins")
         flag = jnp.float32(0)
         env_state = self.train_env.reset(env_key)
         buffer, example = self.inputs.init_buffer(example_transition(env_state, self.action_size))

@@ -131,7 +131,7 @@ def test_the_saved_policy_acts_as_the_agent_does(tiny_run):
 
 
 @pytest.mark.parametrize("agent", ["dqn", "ppo", "sac", "td3"])
-def test_fresh_params_are_inits_params_without_touching_an_env(agent, monkeypatch):
+def test_fresh_params_have_inits_shapes_without_touching_an_env(agent, monkeypatch):
     """`load_policy` restores a checkpoint into the shapes of `fresh_params`, not of `init`, whose trace steps the
     envs (a pixel run's renderer and first fill): the parameters' shapes and types, and no env reset or step."""
     from agents import DQNConfig
