@@ -56,7 +56,7 @@ _FASTTD3 = dict(_FASTTD3_LEARNING, num_envs=1024, batch_size=32768, num_updates=
 DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "swimmer": "sac", **dict.fromkeys(("hopper", "walker2d",
     "humanoid", "ant", "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-cheetah-run",
     "dmc-finger-turn-easy", "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run",
-    "dmc-hopper-stand", "dmc-hopper-hop"), "td3")}
+    "dmc-hopper-stand", "dmc-hopper-hop", "dmc-humanoid-walk", "dmc-acrobot-swingup"), "td3")}
 
 # The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
 # 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.
@@ -171,13 +171,16 @@ _DMC_SAC = dict(_PLAYGROUND_SAC, hidden=(256, 256))
 # and the LayerNorm critic its authors suggest for DMC: without it, seeds' actors saturate and stand still (docs/tasks.md).
 _DMC_TD3 = dict(_FASTTD3, discounting=0.97, num_steps=3, std_min=0.1, policy_noise=0.1, v_min=0.0, v_max=35.0,
                 num_timesteps=10_240_000, critic_layer_norm=True)
-# Per task over _DMC_TD3 (docs/tasks.md): lqr's rewards fall below 0; the swing-ups and hopper hop outlast discount
-# 0.97's horizon; finger spin saturates without rlkit's pre-tanh penalty; the hoppers need correlated noise.
+# Per task over _DMC_TD3 (docs/tasks.md): lqr's rewards fall below 0; the swing-ups outlast discount 0.97's horizon;
+# finger spin saturates without rlkit's pre-tanh penalty; the hoppers need correlated noise; hopper hop, humanoid walk
+# and the acrobot, left near their floor by white noise at discount 0.97, learn with both.
+_LONG = dict(discounting=0.99, v_max=100.0)
 _DMC_TD3_TASKS = {"dmc-lqr-lqr-2-1": dict(v_min=-35.0), "dmc-lqr-lqr-6-2": dict(v_min=-35.0),
-                  **dict.fromkeys(("dmc-pendulum-swingup", "dmc-cartpole-swingup"), dict(discounting=0.99, v_max=100.0)),
+                  **dict.fromkeys(("dmc-pendulum-swingup", "dmc-cartpole-swingup"), _LONG),
                   "dmc-finger-spin": dict(pre_tanh_penalty=1e-3),
                   "dmc-hopper-stand": dict(noise_correlation=0.97, num_timesteps=13_312_000, num_evals=14),
-                  "dmc-hopper-hop": dict(noise_correlation=0.97, discounting=0.99, v_max=100.0)}
+                  **dict.fromkeys(("dmc-hopper-hop", "dmc-humanoid-walk", "dmc-acrobot-swingup"),
+                                  dict(_LONG, noise_correlation=0.97))}
 # TD3 from camera images: DrQ-v2's settings (facebookresearch/drqv2, cfgs/config.yaml, "medium" tasks: 1,024-wide
 # layers, 3-step returns, discount 0.99, target step 0.01, batches of 256, 1M frames = 500k env steps at action repeat
 # 2) at GPU scale: 64 envs per seed; a replay of 100k transitions, 4.2 GB per seed at 84x84x9; 16 updates per 64 env

@@ -390,20 +390,23 @@ def test_hoppers_td3_recipe_is_fasttd3s_learning_at_the_cpu_sizes_with_a_layerno
     assert (config.tau, config.std_max, config.num_atoms) == (0.1, 0.4, 101)  # FastTD3's learning settings
 
 
-def test_the_hoppers_td3_recipes_are_the_dm_control_recipe_with_correlated_noise():
+def test_td3_recipes_with_correlated_noise_are_the_dm_control_recipe_with_it():
     """Hopper stand's seeds learned to get up from both sides more often with AR(1) noise of correlation 0.97
     (docs/tasks.md, "Hopper stand with correlated noise"); its row is the dm_control recipe with that and 13 chunks of
     1.024M steps (the ten minutes filled). Hopper hop's seeds hopped with that noise and the swing-ups' discount 0.99
-    ("Hopper hop with correlated noise"), where white noise left them at 1. TD3 is both tasks' agent without --agent."""
+    ("Hopper hop with correlated noise"), where white noise left them at 1, and so did humanoid walk's and the
+    acrobot's ("Humanoid walk and the acrobot with correlated noise"). TD3 is their agent without --agent."""
     from agents import brax_defaults
 
-    stand, hop = brax_defaults.settings("dmc-hopper-stand", "td3"), brax_defaults.settings("dmc-hopper-hop", "td3")
+    stand = brax_defaults.settings("dmc-hopper-stand", "td3")
     walk = brax_defaults.settings("dmc-walker-walk", "td3")
     assert stand == {**walk, "noise_correlation": 0.97, "num_timesteps": 13_312_000, "num_evals": 14, "solve_return": 700.0}
-    assert hop == {**{k: v for k, v in walk.items() if k != "solve_return"}, "noise_correlation": 0.97,
-                   "discounting": 0.99, "v_max": 100.0}
-    assert TD3Config(**hop).noise_correlation == 0.97 and TD3Config(**walk).noise_correlation == 0.0
-    assert brax_defaults.default_agent("dmc-hopper-stand") == brax_defaults.default_agent("dmc-hopper-hop") == "td3"
+    for task in ("dmc-hopper-hop", "dmc-humanoid-walk", "dmc-acrobot-swingup"):
+        row = brax_defaults.settings(task, "td3")
+        assert row == {**{k: v for k, v in walk.items() if k != "solve_return"}, "noise_correlation": 0.97,
+                       "discounting": 0.99, "v_max": 100.0}, task
+        assert TD3Config(**row).noise_correlation == 0.97 and brax_defaults.default_agent(task) == "td3"
+    assert TD3Config(**walk).noise_correlation == 0.0 and brax_defaults.default_agent("dmc-hopper-stand") == "td3"
 
 
 @pytest.mark.slow  # two compiles of pendulum-mjx's programs
