@@ -394,8 +394,9 @@ def test_td3_recipes_with_correlated_noise_are_the_dm_control_recipe_with_it():
     """Hopper stand's seeds learned to get up from both sides more often with AR(1) noise of correlation 0.97
     (docs/tasks.md, "Hopper stand with correlated noise"); its row is the dm_control recipe with that and 13 chunks of
     1.024M steps (the ten minutes filled). Hopper hop's seeds hopped with that noise and the swing-ups' discount 0.99
-    ("Hopper hop with correlated noise"), where white noise left them at 1, and so did humanoid walk's and the
-    acrobot's ("Humanoid walk and the acrobot with correlated noise"). TD3 is their agent without --agent."""
+    ("Hopper hop with correlated noise"), where white noise left them at 1; humanoid walk's and the acrobot's seeds,
+    near their floor with white noise, learned with both ("Humanoid walk and the acrobot with correlated noise").
+    TD3 is their agent without --agent."""
     from agents import brax_defaults
 
     stand = brax_defaults.settings("dmc-hopper-stand", "td3")
