@@ -54,9 +54,10 @@ _FASTTD3 = dict(_FASTTD3_LEARNING, num_envs=1024, batch_size=32768, num_updates=
                 max_replay_size=1 << 20, num_evals=11)
 # Without --agent, where not "ppo": the agent whose row beat PPO's, met a goal PPO's missed, or alone ran (docs/agents.md).
 DEFAULT_AGENT: dict[str, str] = {"half-cheetah": "sac", "swimmer": "sac", **dict.fromkeys(("hopper", "walker2d",
-    "humanoid", "ant", "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin", "dmc-cheetah-run",
-    "dmc-finger-turn-easy", "dmc-pendulum-swingup", "dmc-cartpole-swingup", "dmc-quadruped-walk", "dmc-quadruped-run",
-    "dmc-hopper-stand", "dmc-hopper-hop", "dmc-humanoid-walk", "dmc-acrobot-swingup"), "td3")}
+    "humanoid", "ant", "dmc-walker-stand", "dmc-walker-walk", "dmc-walker-run", "dmc-finger-spin",
+    "dmc-finger-turn-easy", "dmc-finger-turn-hard", "dmc-cheetah-run", "dmc-pendulum-swingup", "dmc-cartpole-swingup",
+    "dmc-quadruped-walk", "dmc-quadruped-run", "dmc-hopper-stand", "dmc-hopper-hop", "dmc-humanoid-walk",
+    "dmc-acrobot-swingup", "dmc-fish-upright"), "td3")}
 
 # The "cpu" preset (`cpu_settings`, offered by `presets`): the default row resized by CPU_SIZES (its own fields stay).
 # 16 episodes an evaluation: 64 of dm_control's 1,000-step episodes cost a CPU more than a chunk of training.

@@ -445,3 +445,14 @@ def test_td3_speed_refuses_a_part_it_does_not_time(capsys):
     with pytest.raises(SystemExit) as exit_info:
         td3_speed.main(["--parts", "learn,learn_blocks"])
     assert exit_info.value.code == 2 and "no part learn_blocks; the parts are act,learn" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("task", ["dmc-finger-turn-hard", "dmc-fish-upright"])
+def test_td3_is_the_default_agent_where_its_first_run_on_the_task_learned(task):
+    """Finger turn_hard (822 at 4.1M steps, half of an H100) and fish upright (555 at 1M, a fifth) learned with the
+    dm_control recipe itself (docs/tasks.md, "The other benchmarking tasks"); no other agent ran on them, so TD3 is
+    their agent without --agent, on the recipe's row with no per-task change."""
+    from agents import brax_defaults
+
+    walk = {k: v for k, v in brax_defaults.settings("dmc-walker-walk", "td3").items() if k != "solve_return"}
+    assert brax_defaults.default_agent(task) == "td3" and brax_defaults.settings(task, "td3") == walk
