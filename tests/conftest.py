@@ -93,6 +93,11 @@ HEAVY_CASES = {
     "tests/test_faults.py::test_a_signal_stops_the_run_cleanly_and_resume_continues_it[during training-SIGINT]",
     "tests/test_faults.py::test_a_signal_stops_the_run_cleanly_and_resume_continues_it[during a save-SIGTERM]",
     "tests/test_faults.py::test_a_signal_stops_the_run_cleanly_and_resume_continues_it[during the final evaluation-SIGINT]",
+    # bring_peg's steps (bring_ball's, the same arm and grips, stay; bring_peg's reset distribution stays), and two
+    # benchmark scripts at tiny sizes, as the others (each task in a process of its own; td3_speed's seed axes)
+    "tests/test_dm_control_manipulator.py::test_steps_match_dm_control[dmc-manipulator-bring-peg]",
+    "tests/test_bench.py::test_each_task_alone_gathers_every_tasks_records_from_a_process_of_its_own",
+    "tests/test_td3.py::test_td3_speed_times_seeds_vmapped_and_mapped",
 }
 
 

@@ -3,7 +3,8 @@ images too small for it, frames stored once as uint8 (`agents.frame_replay`), th
 loss and shared with the actor, exact resume, and the recipe the command line takes.
 
 Tiny images (16x16, the encoder's smallest is 15) of the cart-pole balance; what costs time is compiling its
-step with the ray-cast camera, so the default run compiles no env and the slow test compiles one run."""
+step with the ray-cast camera, so the default run compiles no env, the slow run one first fill and one update,
+and the heavy run the chunks of a resume."""
 
 import argparse
 import dataclasses
@@ -268,11 +269,14 @@ def test_hopper_hop_from_pixels_trains_its_measured_run_with_shadows_at_action_r
     assert run.v_max == pytest.approx(4 / (1 - run.discounting))
 
 
-@pytest.mark.slow  # compiles the cart-pole's camera into TD3's programs
-def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_and_a_resume_is_exact():
-    env = envs.make(TASK, **PIXELS)
-    td3 = TD3(TINY, env)
-    ts = jax.jit(td3.init)(jax.random.PRNGKey(0))
+def tiny_pixel_td3():
+    td3 = TD3(TINY, envs.make(TASK, **PIXELS))
+    return td3, jax.jit(td3.init)(jax.random.PRNGKey(0))
+
+
+@pytest.mark.slow  # compiles the cart-pole's camera into TD3's first fill
+def test_from_pixels_frames_are_stored_as_uint8_and_the_critics_train_the_encoder():
+    td3, ts = tiny_pixel_td3()
     buffer, width, replay = ts.buffer, TINY.num_envs, td3.inputs.buffer
     assert buffer.seen.dtype == jnp.uint8 and buffer.seen.shape == (replay.steps * width, 16, 16, 3)
     assert int(replay.size(buffer)) == TINY.min_replay_size - width  # 2-step rows: the first step's complete later
@@ -293,6 +297,10 @@ def test_from_pixels_frames_are_stored_as_uint8_the_critics_train_the_encoder_an
     assert not all(np.array_equal(a, b) for a, b in zip(
         jax.tree.leaves(update(ts, jax.random.PRNGKey(3), jnp.int32(1))[0].critic_params), jax.tree.leaves(ts.critic_params)))
 
+
+@pytest.mark.heavy  # compiles the camera into TD3's chunk and judge too (TD3's resume from state: tests/test_td3.py)
+def test_from_pixels_a_resume_is_exact():
+    td3, ts = tiny_pixel_td3()
     whole, history = run_chunks(td3, ts, TINY.num_chunks)
     part, _ = run_chunks(td3, ts, 1)
     resumed, resumed_history = run_chunks(td3, jax.tree.map(jnp.asarray, jax.tree.map(np.asarray, part)),
