@@ -390,6 +390,13 @@ def test_hoppers_td3_recipe_is_fasttd3s_learning_at_the_cpu_sizes_with_a_layerno
     assert (config.tau, config.std_max, config.num_atoms) == (0.1, 0.4, 101)  # FastTD3's learning settings
 
 
+def dm_control_td3_row():
+    """`_DMC_TD3` as `settings` gives it, less a task's goal: walker walk's row without its solve_return."""
+    from agents import brax_defaults
+
+    return {k: v for k, v in brax_defaults.settings("dmc-walker-walk", "td3").items() if k != "solve_return"}
+
+
 def test_td3_recipes_with_correlated_noise_are_the_dm_control_recipe_with_it():
     """Hopper stand's seeds learned to get up from both sides more often with AR(1) noise of correlation 0.97
     (docs/tasks.md, "Hopper stand with correlated noise"); its row is the dm_control recipe with that and 13 chunks of
@@ -404,8 +411,7 @@ def test_td3_recipes_with_correlated_noise_are_the_dm_control_recipe_with_it():
     assert stand == {**walk, "noise_correlation": 0.97, "num_timesteps": 13_312_000, "num_evals": 14, "solve_return": 700.0}
     for task in ("dmc-hopper-hop", "dmc-humanoid-walk", "dmc-acrobot-swingup"):
         row = brax_defaults.settings(task, "td3")
-        assert row == {**{k: v for k, v in walk.items() if k != "solve_return"}, "noise_correlation": 0.97,
-                       "discounting": 0.99, "v_max": 100.0}, task
+        assert row == {**dm_control_td3_row(), "noise_correlation": 0.97, "discounting": 0.99, "v_max": 100.0}, task
         assert TD3Config(**row).noise_correlation == 0.97 and brax_defaults.default_agent(task) == "td3"
     assert TD3Config(**walk).noise_correlation == 0.0 and brax_defaults.default_agent("dmc-hopper-stand") == "td3"
 
@@ -454,5 +460,4 @@ def test_td3_is_the_default_agent_where_its_first_run_on_the_task_learned(task):
     their agent without --agent, on the recipe's row with no per-task change."""
     from agents import brax_defaults
 
-    walk = {k: v for k, v in brax_defaults.settings("dmc-walker-walk", "td3").items() if k != "solve_return"}
-    assert brax_defaults.default_agent(task) == "td3" and brax_defaults.settings(task, "td3") == walk
+    assert brax_defaults.default_agent(task) == "td3" and brax_defaults.settings(task, "td3") == dm_control_td3_row()
