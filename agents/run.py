@@ -135,7 +135,9 @@ def _map_in_place(fn: Callable, state: Any, *args):
 def seeds_init(learner: Any, seeds: int) -> Callable:
     """`learner.init` over a leading seed axis, one seed after another on the CPU: there jaxlib 0.10's batched QR
     (image networks' orthogonal init) waits on XLA's thread pool from inside it, and so may wait forever."""
-    return partial(jax.lax.map, learner.init) if seeds > 1 and default_seed_axis() == "map" else jax.vmap(learner.init)
+    if seeds > 1 and default_seed_axis() == "map":  # a sweep's init takes each agent's hyperparameters too
+        return lambda *args: jax.lax.map(lambda one_agent: learner.init(*one_agent), args)
+    return jax.vmap(learner.init)
 
 
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:

@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from agents.ppo import PPO, PPOConfig, TrainState, train
+from conftest import USERS_CODEGEN
 from test_sac import assert_trees_equal, mapped, run_chunks as sac_run_chunks
 
 
@@ -111,9 +112,9 @@ def _nets(params):
     return losses.PPONetworkParams(policy=params[1], value=params[2])
 
 
-def run_chunks(ppo, ts, chunks, batched=None):
+def run_chunks(ppo, ts, chunks, batched=None, compiler_options=None):
     """`chunks` chunks as train_run drives them (`test_sac.run_chunks`), the judge recording no episode."""
-    return sac_run_chunks(ppo, ts, chunks, batched, record=False)
+    return sac_run_chunks(ppo, ts, chunks, batched, record=False, compiler_options=compiler_options)
 
 
 @pytest.mark.heavy
@@ -121,9 +122,12 @@ def test_seed_i_of_many_is_a_one_seed_run_of_seed_i():
     env = slide(terminate_beyond=1.5)
     ppo = PPO(SMALL, env)
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
-    singles = [run_chunks(ppo, jax.jit(ppo.init)(key), 2) for key in keys]
+    # Bit for bit where compiled as users' programs are (XLA:CPU's level 1 rounds the vmapped chunk otherwise).
+    singles = [run_chunks(ppo, jax.jit(ppo.init, compiler_options=USERS_CODEGEN)(key), 2,
+                          compiler_options=USERS_CODEGEN) for key in keys]
     for batched in (jax.vmap, mapped):
-        many, records = run_chunks(ppo, jax.jit(batched(ppo.init))(keys), 2, batched)
+        many, records = run_chunks(ppo, jax.jit(batched(ppo.init), compiler_options=USERS_CODEGEN)(keys), 2, batched,
+                                   compiler_options=USERS_CODEGEN)
         for i, (one, one_records) in enumerate(singles):
             assert_trees_equal(jax.tree.map(lambda x: x[i], many), one)  # bit for bit, every leaf of the state
             for a, b in zip(records, one_records, strict=True):
@@ -245,3 +249,19 @@ def test_a_sweep_agent_is_a_separate_run_of_its_config():
     other, _ = run_chunks(PPO(configs[1], env), jax.jit(PPO(configs[1], env).init)(key), 1)
     assert not np.allclose(np.asarray(swept.params[1]["params"]["hidden_0"]["kernel"][0]),
                            np.asarray(other.params[1]["params"]["hidden_0"]["kernel"]), rtol=1e-4, atol=1e-6)
+
+
+def test_on_the_cpu_a_sweeps_seeds_start_one_after_another_each_with_its_hyperparameters():
+    """train_run's init on the CPU runs the agents one after another (`agents.run.seeds_init`); a sweep's init takes
+    each agent's hyperparameters beside its key, so mapping must pass both."""
+    from agents.ppo import Hyperparams
+    from agents.run import seeds_init
+
+    ppo = PPO(SMALL, slide(terminate_beyond=1.5))
+    hyperparams = Hyperparams.stacked([dataclasses.replace(SMALL, learning_rate=lr) for lr in (1e-3, 3e-4)])
+    keys = jax.random.split(jax.random.PRNGKey(3), 2)
+    one_after_another = jax.jit(seeds_init(ppo, 2))(keys, hyperparams)
+    batched = jax.jit(jax.vmap(ppo.init))(keys, hyperparams)
+    assert_trees_equal(one_after_another.hyperparams, hyperparams)
+    for a, b in zip(jax.tree.leaves(one_after_another), jax.tree.leaves(batched), strict=True):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-7)

@@ -187,16 +187,18 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
 _PROGRAMS = {}  # (id(agent), batched, record): (agent, its jitted training steps and judge), kept for the test file
 
 
-def run_chunks(sac, ts, chunks, batched=None, record=True):
+def run_chunks(sac, ts, chunks, batched=None, record=True, compiler_options=None):
     """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge (`batched`: over seeds;
-    `record`: the judge's first episode). The programs are jitted once per agent, seed axis and `record`, so a
-    resume's chunks run the whole run's compiled programs."""
-    if (id(sac), batched, record) not in _PROGRAMS:
+    `record`: the judge's first episode; `compiler_options`: conftest.USERS_CODEGEN where two programs must agree
+    bit for bit). The programs are jitted once per agent, seed axis, `record` and options, so a resume's chunks run
+    the whole run's compiled programs."""
+    cache_key = (id(sac), batched, record, compiler_options is not None)
+    if cache_key not in _PROGRAMS:
         train_steps, judge = sac.train_steps, partial(sac.evaluate_and_keep_best, record=record)
         if batched is not None:
             train_steps, judge = batched(train_steps), batched(judge)
-        _PROGRAMS[id(sac), batched, record] = sac, jax.jit(train_steps), jax.jit(judge)
-    _, train_steps, judge = _PROGRAMS[id(sac), batched, record]
+        _PROGRAMS[cache_key] = sac, *(jax.jit(fn, compiler_options=compiler_options) for fn in (train_steps, judge))
+    _, train_steps, judge = _PROGRAMS[cache_key]
     history = []
     for _ in range(chunks):
         ts, trained, eval_key = train_steps(ts)
