@@ -112,9 +112,9 @@ def _nets(params):
     return losses.PPONetworkParams(policy=params[1], value=params[2])
 
 
-def run_chunks(ppo, ts, chunks, batched=None, compiler_options=None):
+def run_chunks(ppo, ts, chunks, batched=None, users_codegen=False):
     """`chunks` chunks as train_run drives them (`test_sac.run_chunks`), the judge recording no episode."""
-    return sac_run_chunks(ppo, ts, chunks, batched, record=False, compiler_options=compiler_options)
+    return sac_run_chunks(ppo, ts, chunks, batched, record=False, users_codegen=users_codegen)
 
 
 @pytest.mark.heavy
@@ -123,11 +123,11 @@ def test_seed_i_of_many_is_a_one_seed_run_of_seed_i():
     ppo = PPO(SMALL, env)
     keys = jax.random.split(jax.random.PRNGKey(7), 2)
     # Bit for bit where compiled as users' programs are (XLA:CPU's level 1 rounds the vmapped chunk otherwise).
-    singles = [run_chunks(ppo, jax.jit(ppo.init, compiler_options=USERS_CODEGEN)(key), 2,
-                          compiler_options=USERS_CODEGEN) for key in keys]
+    singles = [run_chunks(ppo, jax.jit(ppo.init, compiler_options=USERS_CODEGEN)(key), 2, users_codegen=True)
+               for key in keys]
     for batched in (jax.vmap, mapped):
         many, records = run_chunks(ppo, jax.jit(batched(ppo.init), compiler_options=USERS_CODEGEN)(keys), 2, batched,
-                                   compiler_options=USERS_CODEGEN)
+                                   users_codegen=True)
         for i, (one, one_records) in enumerate(singles):
             assert_trees_equal(jax.tree.map(lambda x: x[i], many), one)  # bit for bit, every leaf of the state
             for a, b in zip(records, one_records, strict=True):

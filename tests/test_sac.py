@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from agents.sac import SAC, SACConfig, Transition, train, unpack
+from conftest import USERS_CODEGEN
 
 
 class Drift(envs.Env):
@@ -184,20 +185,21 @@ def test_one_update_equals_brax_sac_training_step(monkeypatch):
 
 
 # ---- seeds, the pure `train`, and exact resume -----------------------------------------------
-_PROGRAMS = {}  # (id(agent), batched, record): (agent, its jitted training steps and judge), kept for the test file
+_PROGRAMS = {}  # (id(agent), batched, record, users_codegen): (agent, its jitted steps and judge), for the test file
 
 
-def run_chunks(sac, ts, chunks, batched=None, record=True, compiler_options=None):
+def run_chunks(sac, ts, chunks, batched=None, record=True, users_codegen=False):
     """`chunks` chunks of `ts` as train_run drives them: the training steps, then the judge (`batched`: over seeds;
-    `record`: the judge's first episode; `compiler_options`: conftest.USERS_CODEGEN where two programs must agree
-    bit for bit). The programs are jitted once per agent, seed axis, `record` and options, so a resume's chunks run
-    the whole run's compiled programs."""
-    cache_key = (id(sac), batched, record, compiler_options is not None)
+    `record`: the judge's first episode; `users_codegen`: compiled as users' programs are, where two programs must
+    agree bit for bit). The programs are jitted once per agent, seed axis, `record` and codegen, so a resume's chunks
+    run the whole run's compiled programs."""
+    cache_key = (id(sac), batched, record, users_codegen)
+    options = USERS_CODEGEN if users_codegen else None
     if cache_key not in _PROGRAMS:
         train_steps, judge = sac.train_steps, partial(sac.evaluate_and_keep_best, record=record)
         if batched is not None:
             train_steps, judge = batched(train_steps), batched(judge)
-        _PROGRAMS[cache_key] = sac, *(jax.jit(fn, compiler_options=compiler_options) for fn in (train_steps, judge))
+        _PROGRAMS[cache_key] = sac, *(jax.jit(fn, compiler_options=options) for fn in (train_steps, judge))
     _, train_steps, judge = _PROGRAMS[cache_key]
     history = []
     for _ in range(chunks):
