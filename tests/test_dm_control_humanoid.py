@@ -3,9 +3,9 @@ dm_control's own physics states (falls and floor contacts) and from states stand
 the reset's observation and distribution (collision-free draws), and, with no physics compiled, the
 observation and reward of dm_control's states for the four tasks.
 
-The humanoid's physics (161 contact pairs, 5 substeps, the collision-free loop at reset) compiles for
-minutes on two cores: the step proof compiles one program (`steps_from`: a batch of resets and one
-step from the given states) for stand and runs under `slow`; walk and run are stand's physics with
+The humanoid's physics (161 contact pairs, 5 substeps, the collision-free loop at reset) compiles slowly on
+two cores: the step proof compiles one program (`steps_from`: resets and one step from the given states, mapped
+on the CPU) for stand and runs under `heavy`; walk and run are stand's physics with
 other rewards, and run_pure_state is run's with MuJoCo's state (qpos, qvel) as its observation, all
 proven by their readings."""
 
@@ -20,7 +20,7 @@ import envs
 pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
-from envs.interop.dm_control import (Comparison, assert_resets_touch_nothing, assert_spec_is_dm_controls,  # noqa: E402
+from envs.interop.dm_control import (Comparison, _batched, assert_resets_touch_nothing, assert_spec_is_dm_controls,  # noqa: E402
                                      compare_readings_with_dm_control,
                                      dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
                                      dm_control_steps, steps_from)
@@ -58,6 +58,16 @@ def test_humanoid_observation_and_reward_of_dm_controls_states(name):
 def test_humanoid_tasks_are_dm_controls():
     for name in TASKS:
         assert_spec_is_dm_controls(name)
+
+
+def test_on_the_cpu_the_step_proof_steps_its_states_one_after_another():
+    """`steps_from`'s program holds no batched Cholesky on the CPU: there jaxlib's batched one waits on XLA's thread
+    pool from inside it, and two at once (the reset's and the step's Newton solves) hung `stand_case` on two cores."""
+    factor = _batched(lambda matrix, scale: jax.numpy.linalg.cholesky(matrix * scale))
+    matrices, scales = np.tile(np.eye(3, dtype=np.float32), (4, 1, 1)), np.arange(1.0, 5.0, dtype=np.float32)
+    jaxpr = str(jax.make_jaxpr(factor)(matrices, scales))
+    assert "f32[3,3] = cholesky" in jaxpr and "f32[4,3,3] = cholesky" not in jaxpr, jaxpr
+    np.testing.assert_allclose(factor(matrices, scales), np.sqrt(scales)[:, None, None] * matrices)
 
 
 @pytest.fixture(scope="module")

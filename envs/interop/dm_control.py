@@ -179,7 +179,7 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                act: np.ndarray | None = None) -> Transitions:
     """Our env stepped once from each given state (qpos, qvel, `act` where given; everything else as after a reset,
     `mjx.forward` of it; `episode`: the task's `episode_info` entries, e.g. reacher's target, in place
-    of the reset's) with each action in [-1, 1] (one jitted vmap): for states that random rollouts
+    of the reset's) with each action in [-1, 1] (one jitted program, `_batched`): for states that random rollouts
     from resets rarely reach (a hopper standing, a cheetah running, a fingertip on its target), or
     states taken from dm_control's own rollouts. The resets each step started from (one per state,
     keys from `seed`) come back too (`reset_obs`, `reset_qpos`, ...), from the same compiled program."""
@@ -203,12 +203,21 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
                 resets)
 
     keys = jax.random.split(jax.random.PRNGKey(seed), len(qpos))
-    program = jax.jit(jax.vmap(step), compiler_options=PROOF_COMPILER_OPTIONS)
+    program = jax.jit(_batched(step), compiler_options=PROOF_COMPILER_OPTIONS)
     act, warmstart, obs, reward, discount, episode, resets = jax.tree.map(
         np.asarray, program(keys, qpos, qvel, act, actions, episode))
     env_actions = np.stack([env.to_env_action(a) for a in np.asarray(actions, np.float64)])
     return Transitions(np.asarray(qpos), np.asarray(qvel), act, warmstart, env_actions, Steps(obs, reward, discount),
                        episode, *resets)
+
+
+def _batched(fn: Callable) -> Callable:
+    """`fn` over a leading axis of its arguments: vmapped, but mapped one after another on the CPU. There
+    jaxlib 0.10's batched Cholesky (MJX's Newton solver) waits on XLA's thread pool from inside it, so a
+    program running two of them at once (the reset's and the step's) may wait forever on two cores."""
+    if jax.default_backend() != "cpu":
+        return jax.vmap(fn)
+    return lambda *args: jax.lax.map(lambda one: fn(*one), args)
 
 
 def action_bounds(env: Env, spec) -> tuple[np.ndarray, np.ndarray]:
