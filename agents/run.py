@@ -24,6 +24,7 @@ from agents.device_options import default_seed_axis, init_compiler_options, judg
 from agents.dqn import DQNConfig
 from agents.registry import per_agent, sweep_configs
 from agents.run_steps import CHECKPOINT_EVERY, CHECKPOINT_SECONDS
+from envs.batching import one_after_another
 from envs.mjx_warp import CompileRules, runs_warp
 from envs.ranges import COUNT
 from envs.registry import is_mjx_task
@@ -133,11 +134,9 @@ def _map_in_place(fn: Callable, state: Any, *args):
 
 
 def seeds_init(learner: Any, seeds: int) -> Callable:
-    """`learner.init` over a leading seed axis, one seed after another on the CPU: there jaxlib 0.10's batched QR
-    (image networks' orthogonal init) waits on XLA's thread pool from inside it, and so may wait forever."""
-    if seeds > 1 and default_seed_axis() == "map":  # a sweep's init takes each agent's hyperparameters too
-        return lambda *args: jax.lax.map(lambda one_agent: learner.init(*one_agent), args)
-    return jax.vmap(learner.init)
+    """`learner.init` over a leading seed axis (a sweep's takes each agent's hyperparameters too), one seed after
+    another on the CPU, where a batched QR (image networks' orthogonal init) may wait forever."""
+    return one_after_another(learner.init) if seeds > 1 and default_seed_axis() == "map" else jax.vmap(learner.init)
 
 
 def _in_background(work: Callable[[], Any], name: str, after: threading.Event | None = None) -> Future:

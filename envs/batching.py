@@ -37,3 +37,10 @@ def broadcast(tree, batched, axis_size: int):
 
 def all_batched(tree):
     return jax.tree.map(lambda _: True, tree)
+
+
+def one_after_another(fn: Callable) -> Callable:
+    """`fn` over a leading axis of all its arguments, as `vmap` but one element after another (`lax.map`): where
+    on the CPU jaxlib 0.10's batched linear algebra (QR, Cholesky) waits on XLA's thread pool from inside it, so a
+    program running two such calls at once may wait forever."""
+    return lambda *args: jax.lax.map(lambda one: fn(*one), args)

@@ -43,6 +43,7 @@ import jax
 import mujoco
 import numpy as np
 
+from envs.batching import one_after_another
 from envs.core import Env, Wrapper
 from envs.compile_cache import PROOF_COMPILER_OPTIONS
 from envs.registry import make, options
@@ -212,12 +213,9 @@ def steps_from(env: Env | str, qpos: np.ndarray, qvel: np.ndarray, actions: np.n
 
 
 def _batched(fn: Callable) -> Callable:
-    """`fn` over a leading axis of its arguments: vmapped, but mapped one after another on the CPU. There
-    jaxlib 0.10's batched Cholesky (MJX's Newton solver) waits on XLA's thread pool from inside it, so a
-    program running two of them at once (the reset's and the step's) may wait forever on two cores."""
-    if jax.default_backend() != "cpu":
-        return jax.vmap(fn)
-    return lambda *args: jax.lax.map(lambda one: fn(*one), args)
+    """`fn` over a leading axis of its arguments: vmapped, but one after another on the CPU, where two batched
+    Cholesky factorizations at once (the reset's and the step's Newton solves) may wait forever."""
+    return jax.vmap(fn) if jax.default_backend() != "cpu" else one_after_another(fn)
 
 
 def action_bounds(env: Env, spec) -> tuple[np.ndarray, np.ndarray]:
