@@ -30,6 +30,18 @@ TASKS = {"dmc-quadruped-walk": ("quadruped", "walk"), "dmc-quadruped-run": ("qua
          "dmc-quadruped-fetch": ("quadruped", "fetch")}
 COUNT = 64  # states: one batch shape, one compiled program
 BOUNDS = {"obs": 1e-2, "reward": 1e-4}
+# A reset leaves the body falling freely: the IMU's and the toes' force-torque sensors (columns 48 to 77) read a
+# cancellation, m (a - g) with a = g, which is 0 to float64's rounding there and float32's rounding of the whole
+# body's fall here (about 1e-5; the other columns within 6e-6).
+FALLING_SENSORS = slice(48, 78)
+
+
+def assert_reset_observation_is_dm_controls(env, starts):
+    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
+    others = np.ones(theirs.shape[1], bool)
+    others[FALLING_SENSORS] = False
+    np.testing.assert_allclose(starts.reset_obs[:, others], theirs[:, others], atol=1e-5, rtol=1e-4)
+    np.testing.assert_allclose(starts.reset_obs[:, FALLING_SENSORS], theirs[:, FALLING_SENSORS], atol=3e-5)
 
 
 def push(physics, rng):
@@ -100,8 +112,7 @@ def test_quadruped_steps_match_dm_control(walk_case):
 @pytest.mark.heavy
 def test_quadruped_reset_observation_is_dm_controls(walk_case):
     env, starts, _ = walk_case
-    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
-    np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
+    assert_reset_observation_is_dm_controls(env, starts)
 
 
 @pytest.mark.heavy
@@ -163,8 +174,7 @@ def test_quadruped_fetch_steps_match_dm_control(fetch_case):
 @pytest.mark.heavy
 def test_quadruped_fetch_reset_observation_is_dm_controls(fetch_case):
     env, starts, _, _ = fetch_case
-    theirs = dm_control_observations(env, starts.reset_qpos, starts.reset_qvel)
-    np.testing.assert_allclose(starts.reset_obs, theirs, atol=1e-5, rtol=1e-4)
+    assert_reset_observation_is_dm_controls(env, starts)
 
 
 @pytest.mark.heavy
