@@ -2,7 +2,10 @@
 repeats. Under `vmap`, its axis is folded into the batch's, and the function runs once on the
 whole: MuJoCo Warp steps all worlds of all seeds as one batch (`envs.mjx_warp.WarpWorlds`), and an
 auto-reset decides once for every env of every seed whether any episode ended
-(`envs.wrappers.BatchedAutoReset`), where a `vmap` of a `lax.switch` would run all its branches."""
+(`envs.wrappers.BatchedAutoReset`), where a `vmap` of a `lax.switch` would run all its branches.
+
+`one_after_another`: the `vmap` of a function, run as a `lax.map` (the CPU's way around jaxlib's batched
+linear algebra)."""
 
 from __future__ import annotations
 
