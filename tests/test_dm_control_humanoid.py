@@ -20,8 +20,8 @@ import envs
 pytest.importorskip("dm_control", reason="the DeepMind Control Suite tasks are proven against dm-control==1.0.50 "
                                          "(pip install 'mjxsuite[dmc]'; the test extra has it)")
 
-from envs.interop.dm_control import (Comparison, _batched, assert_resets_touch_nothing, assert_spec_is_dm_controls,  # noqa: E402
-                                     compare_readings_with_dm_control,
+from envs.interop.dm_control import (Comparison, _batched, assert_resets_touch_nothing,  # noqa: E402
+                                     assert_spec_is_dm_controls, compare_readings_with_dm_control,
                                      dm_control_observations, dm_control_reset_samples, dm_control_rollouts,
                                      dm_control_steps, steps_from)
 from tests.test_dm_control import assert_same_distribution  # noqa: E402

@@ -32,7 +32,7 @@ COUNT = 64  # states: one batch shape, one compiled program
 BOUNDS = {"obs": 1e-2, "reward": 1e-4}
 # A reset leaves the body falling freely: the IMU's and the toes' force-torque sensors (columns 48 to 77) read a
 # cancellation, m (a - g) with a = g, which is 0 to float64's rounding there and float32's rounding of the whole
-# body's fall here (about 1e-5; the other columns within 6e-6).
+# body's fall here: a bound of their own, over float32's rounding of forces of the body's weight.
 FALLING_SENSORS = slice(48, 78)
 
 
