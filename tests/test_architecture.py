@@ -190,9 +190,9 @@ LONGEST_CLI = 300  # agents/cli.py: its options are generated from dataclasses, 
 # pixels derived from each task's action repeat, where three rows wrote it, by 3 for hopper hop's pixel rows, by 22
 # for every agent's fresh_params, load_policy's template traced without the envs, a pixel run's renderer and first fill,
 # by 3 for the row of correlated noise at discount 0.99 that hopper hop, humanoid walk and the acrobot share, by 1 for
-# finger turn_hard and fish upright in DEFAULT_AGENT's TD3 list, by 2 for the CPU's init of a sweep, which maps each
-# agent's hyperparameters with its key)
-LARGEST_AGENTS = 6_889
+# finger turn_hard and fish upright in DEFAULT_AGENT's TD3 list, by 1 for the CPU's init of a sweep, which maps each
+# agent's hyperparameters with its key through envs.batching.one_after_another)
+LARGEST_AGENTS = 6_888
 
 
 def _functions(path: Path):

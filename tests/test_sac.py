@@ -11,6 +11,7 @@ import pytest
 
 import envs
 from agents.sac import SAC, SACConfig, Transition, train, unpack
+from envs.batching import one_after_another
 from conftest import USERS_CODEGEN
 
 
@@ -209,8 +210,7 @@ def run_chunks(sac, ts, chunks, batched=None, record=True, users_codegen=False):
     return ts, history
 
 
-def mapped(fn):  # train_run's "map" seed axis (the CPU's): one seed after another
-    return lambda *args: jax.lax.map(lambda a: fn(*a), args)
+mapped = one_after_another  # train_run's "map" seed axis (the CPU's): one seed after another
 
 
 @pytest.mark.heavy  # ~20 s: the default run stays under 6 minutes on 2 cores (test_resume keeps SAC exact there)
