@@ -283,6 +283,11 @@ class MjxEnv(Env):
     def terminated(self, data: mjx.Data) -> jax.Array:
         """True when `data` ends the episode (a scalar bool)."""
 
+    def filmed(self) -> MjxEnv:
+        """This task as a camera observes it (`envs.make(..., observation="pixels")`): itself. A task
+        whose step leaves out what MuJoCo Warp's renderer reads returns a copy that computes it."""
+        return self
+
     def post_step(self, prev: mjx.Data, data: mjx.Data) -> mjx.Data:
         """Adjust the state after the physics step (e.g. clip velocities as a reference
         implementation does). The default changes nothing."""

@@ -358,6 +358,9 @@ class Pixels(Wrapper):
         self.state_observation_size = env.observation_size
         self.depth_range = 2.0 * float(task.mj_model.stat.extent)  # depth at or past it is 255
         self.warp_renders = task.impl == "warp"  # the training programs then keep XLA's default CUDA graphs
+        if self.warp_renders and task.filmed() is not task:
+            raise ValueError(f"task {task.name}: its step leaves out the cameras and lights MuJoCo Warp's renderer "
+                             "reads; wrap task.filmed(), as envs.make(..., observation='pixels') does")
         if self.warp_renders:
             self.renderer = WarpRenderer(task, self.cam, width, height, depth, shadows)
         else:

@@ -81,7 +81,7 @@ def _built(factory: Callable[..., Env], kwargs: dict, mjx_options: dict, episode
                              naconmax=mjx_options["naconmax"], njmax=mjx_options["njmax"])
         pixels = mjx_options["observation"] == "pixels"
         if pixels:
-            env = with_default_camera(env)
+            env = with_default_camera(env.filmed())
         if mjx_options["randomize"]:
             env = Randomize(env, mjx_options["randomize"], mjx_options["randomize_per"])
         if pixels:

@@ -205,3 +205,34 @@ def test_dm_controls_touch_readings_under_warp_are_the_last_substeps_as_under_ja
         np.testing.assert_allclose(states[1].obs, states[0].obs, rtol=1e-5, atol=1e-5)
         touched += bool(np.any(np.asarray(states[0].obs[-2:]) > 0))  # the last two: log1p of the touches
     assert touched  # the readings compared were not all zero
+
+
+def test_the_kinematics_refresh_runs_on_every_world_and_a_filmed_task_refreshes_whole(warp_faked):
+    """A task that reads only the kinematics (`reads_kinematics_only`: the pendulum, Euler) refreshes them under
+    Warp with MJX-JAX's kinematics of every world on `reset_model` (the fake refuses the Warp model
+    there, as MJX does): 2 envs, 20 steps, the observations and rewards of impl="jax" refreshing MJX's
+    whole position and velocity stages. Filmed
+    (observation="pixels"), the task refreshes the whole stages, as MuJoCo Warp's renderer reads the
+    cameras and lights; `Pixels` refuses the unfilmed task."""
+    from envs.pixels import Pixels
+    from envs.wrappers import VmapWrapper
+
+    def rollout(impl):
+        env = VmapWrapper(envs.make("dmc-pendulum-swingup", impl=impl), 2)
+        actions = jax.random.uniform(jax.random.PRNGKey(1), (20, 2, 1), minval=-1, maxval=1)
+        step = lambda state, action: (env.step(state, action),) * 2  # noqa: E731
+        states = jax.jit(lambda key: jax.lax.scan(step, env.reset(key), actions)[1])(jax.random.PRNGKey(0))
+        return np.asarray(states.obs), np.asarray(states.reward)
+
+    warp_obs, warp_reward = rollout("warp")
+    with pytest.MonkeyPatch.context() as patch:  # impl="jax" with MJX's whole position and velocity stages
+        patch.setattr(envs.make("dmc-pendulum-swingup").unwrapped.__class__, "reads_kinematics_only", False)
+        jax_obs, jax_reward = rollout("jax")
+    np.testing.assert_allclose(warp_obs, jax_obs, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(warp_reward, jax_reward, rtol=1e-6, atol=1e-6)
+    task = envs.make("dmc-pendulum-swingup", impl="warp").unwrapped
+    filmed = envs.make("dmc-pendulum-swingup", impl="warp", observation="pixels", width=2, height=2).unwrapped
+    assert task.reads_kinematics_only and not filmed.reads_kinematics_only
+    assert envs.make("dmc-pendulum-swingup").unwrapped.filmed().reads_kinematics_only  # MJX's ray caster
+    with pytest.raises(ValueError, match="task.filmed()"):
+        Pixels(task)

@@ -11,8 +11,9 @@ never copied here) and its task's rules:
   velocity-stage sensors describe the *new* state; `mjx.step` leaves them one substep old. After
   the substeps the task reruns MJX's position and velocity stages and their sensors (impl "jax"),
   or `mjx.forward` keeping the step's acceleration-stage sensors (impl "warp", where MJX has no
-  separate stages). The next step recomputes everything from qpos and qvel: the physics is
-  unchanged, only what the observation and reward read is fresh.
+  separate stages); a task that reads nothing but qpos, qvel and the kinematics reruns MJX's
+  kinematics alone (`reads_kinematics_only`). The next step recomputes everything from qpos and
+  qvel: the physics is unchanged, only what the observation and reward read is fresh.
 - **Reset**: dm_control's `reset_context`: `mj_resetData` (qpos0, zero velocity, ctrl 0), the task's
   `initialize_episode` (`initial_qpos_qvel` here), then `mj_forward`.
 - **Episode**: 1,000 control steps (every domain's `time_limit / control_timestep`), never
@@ -35,6 +36,7 @@ own env.
 from __future__ import annotations
 
 import abc
+import copy
 import warnings
 from typing import ClassVar, Mapping
 
@@ -47,6 +49,9 @@ from envs.assets import dm_control_asset
 from envs.mjx_env import MjxEnv, mjx, without_constraints
 
 VALUE_AT_MARGIN = 0.1  # dm_control's rewards._DEFAULT_VALUE_AT_MARGIN
+# What MJX's `kinematics` computes from qpos: the poses of bodies, their inertia frames, joints, geoms and sites.
+KINEMATICS = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat", "site_xpos",
+              "site_xmat")
 
 
 def _sigmoid(d: jax.Array, value_at_1: float, sigmoid: str) -> jax.Array:
@@ -168,6 +173,10 @@ class DmControlEnv(MjxEnv):
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
     positions_fresh_after_step = True  # the legacy step's refresh (`refresh`)
+    # A task whose observation, reward and termination read only qpos, qvel, ctrl and the kinematics
+    # (`KINEMATICS`: body, geom and site poses) sets this: the legacy step's refresh is then the
+    # kinematics alone. tests/test_dm_control_refresh.py checks every task's setting against what it reads.
+    reads_kinematics_only: ClassVar[bool] = False
     # A task whose reset runs physics (cheetah's settling steps) or a rejection loop (collision tests
     # until nothing touches) sets `costly_reset = True` (`MjxEnv.costly_reset`: under impl="warp" every
     # task's is): an auto-reset batch then resets only where an episode ended (`envs.BatchedAutoReset`);
@@ -224,7 +233,10 @@ class DmControlEnv(MjxEnv):
 
     def refresh(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         """What dm_control's `mj_step1` after the substeps recomputes: kinematics, the position and
-        velocity stages and their sensors; the acceleration-stage sensors stay the step's."""
+        velocity stages and their sensors; the acceleration-stage sensors stay the step's. A task
+        that reads only the kinematics (`reads_kinematics_only`) gets those alone."""
+        if self.reads_kinematics_only:
+            return self.kinematics_refreshed(model, data)
         if self.impl == "warp":  # inside the worlds (`WarpWorlds.run`): a leading axis of worlds
             # MJX offers Warp's forward pass, not its stages: with the constraint stage disabled it
             # skips collision and the solve, which mj_step1's stages never reach; the acceleration
@@ -235,6 +247,30 @@ class DmControlEnv(MjxEnv):
                 qfrc_constraint=data.qfrc_constraint)
         data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
         return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
+
+    def kinematics_refreshed(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
+        """`data` with the kinematics of its qpos (`KINEMATICS`, MJX's `kinematics`); the rest stays
+        the step's. By MJX's JAX implementation under either impl: under Warp a few fused XLA kernels
+        in place of a second Warp call (a forward pass) in every control step."""
+        if self.impl == "warp":  # inside the worlds (a leading axis of worlds): the task's JAX model
+            def kinematics(qpos, mocap_pos, mocap_quat):
+                return mjx.kinematics(self.reset_model, self.reset_data.replace(
+                    qpos=qpos, mocap_pos=mocap_pos, mocap_quat=mocap_quat))
+
+            fresh = jax.vmap(kinematics)(data.qpos, data.mocap_pos, data.mocap_quat)
+        else:
+            fresh = mjx.kinematics(model, data)
+        return data.replace(**{name: getattr(fresh, name) for name in KINEMATICS})
+
+    def filmed(self) -> DmControlEnv:
+        """`MjxEnv.filmed`: under Warp, a task that reads only the kinematics refreshes the whole
+        position and velocity stages when filmed, as MuJoCo Warp's renderer reads the cameras and
+        lights (MJX's ray caster computes what it reads itself)."""
+        if self.impl != "warp" or not self.reads_kinematics_only:
+            return self
+        task = copy.copy(self)
+        task.reads_kinematics_only = False
+        return task
 
     # ---- resets by rejection (ball_in_cup, finger, humanoid, quadruped) --------------------------
     def touching(self, qpos: jax.Array, model: mjx.Model | None = None) -> jax.Array:
