@@ -115,3 +115,24 @@ def _export_cache_off_between_tests():
     over into a test that traces its own variant (a monkeypatched backend choice)."""
     yield
     traced_programs.disable()
+
+
+def random_rollout(env_name: str, impl: str = "jax", steps: int = 30, num_envs: int = 4):
+    """(observations, rewards) of `num_envs` envs of `envs.make(env_name, impl=impl)` over `steps`
+    uniform random actions, as numpy arrays (steps, num_envs, ...)."""
+    import numpy as np
+
+    import envs
+    from envs.wrappers import VmapWrapper
+
+    env = VmapWrapper(envs.make(env_name, impl=impl), num_envs)
+    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size), minval=-1, maxval=1)
+
+    def run(key):
+        def step(state, action):
+            state = env.step(state, action)
+            return state, (state.obs, state.reward)
+
+        return jax.lax.scan(step, env.reset(key), actions)[1]
+
+    return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))

@@ -11,13 +11,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import random_rollout
 
 import envs
 
 pytest.importorskip("dm_control", reason="the dmc-* tasks read dm_control's MJCF (pip install 'mjxsuite[dmc]')")
 
 from envs.tasks.dm_control_suite import KINEMATICS, DmControlEnv  # noqa: E402
-from envs.wrappers import VmapWrapper  # noqa: E402
 
 STATE = ("qpos", "qvel", "act", "ctrl", "time", "mocap_pos", "mocap_quat")  # a step leaves these new
 DM_CONTROL_TASKS = [name for name, *_ in envs.TASKS if name.startswith("dmc-")]
@@ -68,29 +68,14 @@ def test_the_check_sees_a_velocity_read():
     assert "cvel" not in fields_read(DmcPendulumSwingUp())
 
 
-def rollout(name: str, steps: int = 30, num_envs: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """(observations, rewards) of `num_envs` envs over `steps` uniform random actions, impl="jax"."""
-    env = VmapWrapper(envs.make(name), num_envs)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size), minval=-1, maxval=1)
-
-    def run(key):
-        def step(state, action):
-            state = env.step(state, action)
-            return state, (state.obs, state.reward)
-
-        return jax.lax.scan(step, env.reset(key), actions)[1]
-
-    return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
-
-
 @pytest.mark.parametrize("name", ["dmc-pendulum-swingup", pytest.param("dmc-reacher-easy", marks=pytest.mark.slow),
                                   pytest.param("dmc-walker-stand", marks=pytest.mark.slow)])
 def test_the_kinematics_refresh_gives_the_whole_refreshs_observations(name, monkeypatch):
     """30 steps of 4 envs: the observations and rewards after the kinematics alone are those after
     MJX's whole position and velocity stages (reacher: the episode's target; walker: 10 substeps)."""
-    short = rollout(name)
+    short = random_rollout(name)
     monkeypatch.setattr(task_class(name), "reads_kinematics_only", False)
-    whole = rollout(name)
+    whole = random_rollout(name)
     assert np.ptp(short[0], axis=(0, 1)).min() > 0  # every observation element moved
     np.testing.assert_allclose(short[0], whole[0], rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(short[1], whole[1], rtol=1e-6, atol=1e-6)

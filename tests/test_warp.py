@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import random_rollout
 
 pytest.importorskip("warp", reason="impl='warp' needs warp-lang: pip install -e '.[test,warp]'")
 pytest.importorskip("mujoco_warp", reason="impl='warp' needs mujoco-warp: pip install -e '.[test,warp]'")
@@ -173,17 +174,7 @@ GYMNASIUM_TASKS = ["half-cheetah", "hopper", "walker2d", "ant", "humanoid", "swi
 
 def rollout(env_name: str, impl: str, steps: int, num_envs: int = 4):
     """(observations, rewards) of `num_envs` envs over `steps` uniform random actions."""
-    env = VmapWrapper(envs.make(env_name, impl=impl), num_envs)
-    actions = jax.random.uniform(jax.random.PRNGKey(1), (steps, num_envs, env.action_size), minval=-1, maxval=1)
-
-    def run(key):
-        def step(state, action):
-            state = env.step(state, action)
-            return state, (state.obs, state.reward)
-
-        return jax.lax.scan(step, env.reset(key), actions)[1]
-
-    return jax.tree.map(np.asarray, jax.jit(run)(jax.random.PRNGKey(0)))
+    return random_rollout(env_name, impl, steps, num_envs)
 
 
 def assert_alike_under_both(env_name: str, steps: int, num_envs: int = 4) -> np.ndarray:

@@ -11,7 +11,7 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
-from conftest import USERS_CODEGEN
+from conftest import USERS_CODEGEN, random_rollout
 
 import envs
 from agents import brax_defaults, registry
@@ -215,19 +215,11 @@ def test_the_kinematics_refresh_runs_on_every_world_and_a_filmed_task_refreshes_
     (observation="pixels"), the task refreshes the whole stages, as MuJoCo Warp's renderer reads the
     cameras and lights; `Pixels` refuses the unfilmed task."""
     from envs.pixels import Pixels
-    from envs.wrappers import VmapWrapper
 
-    def rollout(impl):
-        env = VmapWrapper(envs.make("dmc-pendulum-swingup", impl=impl), 2)
-        actions = jax.random.uniform(jax.random.PRNGKey(1), (20, 2, 1), minval=-1, maxval=1)
-        step = lambda state, action: (env.step(state, action),) * 2  # noqa: E731
-        states = jax.jit(lambda key: jax.lax.scan(step, env.reset(key), actions)[1])(jax.random.PRNGKey(0))
-        return np.asarray(states.obs), np.asarray(states.reward)
-
-    warp_obs, warp_reward = rollout("warp")
+    warp_obs, warp_reward = random_rollout("dmc-pendulum-swingup", "warp", 20, 2)
     with pytest.MonkeyPatch.context() as patch:  # impl="jax" with MJX's whole position and velocity stages
         patch.setattr(envs.make("dmc-pendulum-swingup").unwrapped.__class__, "reads_kinematics_only", False)
-        jax_obs, jax_reward = rollout("jax")
+        jax_obs, jax_reward = random_rollout("dmc-pendulum-swingup", "jax", 20, 2)
     np.testing.assert_allclose(warp_obs, jax_obs, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(warp_reward, jax_reward, rtol=1e-6, atol=1e-6)
     task = envs.make("dmc-pendulum-swingup", impl="warp").unwrapped
