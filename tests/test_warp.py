@@ -260,3 +260,14 @@ def test_the_refresh_without_the_constraint_stage_gives_a_whole_forward_passes_o
     whole = rollout(env_name, "warp", 40, num_envs=2)
     np.testing.assert_array_equal(skipped[0], whole[0])
     np.testing.assert_array_equal(skipped[1], whole[1])
+
+
+@pytest.mark.parametrize("env_name, warp_calls", [("dmc-pendulum-swingup", 1), ("dmc-walker-walk", 2)])
+def test_a_task_that_reads_the_kinematics_alone_makes_one_warp_call_per_step(env_name, warp_calls):
+    """The legacy-step refresh of a task that reads only the kinematics is MJX-JAX's kinematics, so
+    its step's program calls MuJoCo Warp once (the physics); walker walk reads its speed sensor and
+    refreshes with Warp's forward pass, a second call (`DmControlEnv.refresh`)."""
+    env = VmapWrapper(envs.make(env_name, impl="warp"), 4)
+    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    action = jax.ShapeDtypeStruct((4, env.action_size), jnp.float32)
+    assert str(jax.make_jaxpr(env.step)(state, action)).count("ffi_call") == warp_calls
