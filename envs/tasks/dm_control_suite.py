@@ -11,9 +11,10 @@ never copied here) and its task's rules:
   velocity-stage sensors describe the *new* state; `mjx.step` leaves them one substep old. After
   the substeps the task reruns MJX's position and velocity stages and their sensors (impl "jax"),
   or `mjx.forward` keeping the step's acceleration-stage sensors (impl "warp", where MJX has no
-  separate stages); a task that reads nothing but qpos, qvel and the kinematics reruns MJX's
-  kinematics alone (`reads_kinematics_only`). The next step recomputes everything from qpos and
-  qvel: the physics is unchanged, only what the observation and reward read is fresh.
+  separate stages); a task whose observation and reward read nothing but qpos, qvel, ctrl and the
+  kinematics reruns MJX's kinematics alone (`reads_kinematics_only`, found by tracing them). The
+  next step recomputes everything from qpos and qvel: the physics is unchanged, only what the
+  observation and reward read is fresh.
 - **Reset**: dm_control's `reset_context`: `mj_resetData` (qpos0, zero velocity, ctrl 0), the task's
   `initialize_episode` (`initial_qpos_qvel` here), then `mj_forward`.
 - **Episode**: 1,000 control steps (every domain's `time_limit / control_timestep`), never
@@ -37,6 +38,7 @@ from __future__ import annotations
 
 import abc
 import copy
+import functools
 import warnings
 from typing import ClassVar, Mapping
 
@@ -52,6 +54,8 @@ VALUE_AT_MARGIN = 0.1  # dm_control's rewards._DEFAULT_VALUE_AT_MARGIN
 # What MJX's `kinematics` computes from qpos: the poses of bodies, their inertia frames, joints, geoms and sites.
 KINEMATICS = ("xpos", "xquat", "xmat", "xipos", "ximat", "xanchor", "xaxis", "geom_xpos", "geom_xmat", "site_xpos",
               "site_xmat")
+# What a physics step leaves new in a state (and the action it set): the rest is derived from them.
+STEPPED = ("qpos", "qvel", "act", "ctrl", "time", "mocap_pos", "mocap_quat")
 
 
 def _sigmoid(d: jax.Array, value_at_1: float, sigmoid: str) -> jax.Array:
@@ -173,10 +177,6 @@ class DmControlEnv(MjxEnv):
     observation_shapes: ClassVar[tuple[tuple[str, int], ...]]  # (key, size) in dm_control's order
     reset_computes_derived = True  # dm_control's reset ends with mj_forward: the observation reads it
     positions_fresh_after_step = True  # the legacy step's refresh (`refresh`)
-    # A task whose observation, reward and termination read only qpos, qvel, ctrl and the kinematics
-    # (`KINEMATICS`: body, geom and site poses) sets this: the legacy step's refresh is then the
-    # kinematics alone. tests/test_dm_control_refresh.py checks every task's setting against what it reads.
-    reads_kinematics_only: ClassVar[bool] = False
     # A task whose reset runs physics (cheetah's settling steps) or a rejection loop (collision tests
     # until nothing touches) sets `costly_reset = True` (`MjxEnv.costly_reset`: under impl="warp" every
     # task's is): an auto-reset batch then resets only where an episode ended (`envs.BatchedAutoReset`);
@@ -247,6 +247,27 @@ class DmControlEnv(MjxEnv):
                 qfrc_constraint=data.qfrc_constraint)
         data = mjx.sensor_pos(model, mjx.fwd_position(model, data))
         return mjx.sensor_vel(model, mjx.fwd_velocity(model, data))
+
+    @functools.cached_property
+    def reads_kinematics_only(self) -> bool:
+        """Whether the observation, reward and termination read nothing of a state but what a step
+        leaves new (`STEPPED`) and the kinematics: the legacy step's refresh is then the kinematics
+        alone (`refresh`). Found when first asked, once the task is whole (a subclass's `__init__` done)."""
+        return self.fields_read() <= set(STEPPED + KINEMATICS)
+
+    def fields_read(self) -> set[str]:
+        """The fields of a state (`mjx.Data`'s, e.g. "qpos", "sensordata", "_impl.cinert") that
+        `observation`, `reward` and `terminated` read: the inputs their traced program uses."""
+        leaves, tree = jax.tree_util.tree_flatten_with_path(self._initial_data)
+        action = jnp.zeros(self.action_size, self._initial_data.qpos.dtype)
+
+        def readings(*values):
+            data = jax.tree_util.tree_unflatten(tree, values)
+            return self.observation(data), self._reward_and_terms(data, action, data)[0], self.terminated(data)
+
+        jaxpr = jax.make_jaxpr(readings)(*(value for _, value in leaves)).jaxpr
+        used = {id(var) for eqn in jaxpr.eqns for var in eqn.invars} | {id(var) for var in jaxpr.outvars}
+        return {jax.tree_util.keystr(path)[1:] for (path, _), var in zip(leaves, jaxpr.invars) if id(var) in used}
 
     def kinematics_refreshed(self, model: mjx.Model, data: mjx.Data) -> mjx.Data:
         """`data` with the kinematics of its qpos (`KINEMATICS`, MJX's `kinematics`); the rest stays

@@ -23,7 +23,6 @@ class DmcAcrobot(DmControlEnv):
     """dm_control's `acrobot.Balance(sparse)`; the two tasks below fix it."""
 
     domain = "acrobot"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     observation_shapes = (("orientations", 4), ("velocity", 2))
     sparse: bool
 

@@ -24,7 +24,6 @@ from envs.tasks.dm_control_suite import DmControlEnv
 class DmcBallInCupCatch(DmControlEnv):
     costly_reset = True
     domain, task = "ball_in_cup", "catch"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     control_timestep = 0.02  # dm_control's _CONTROL_TIMESTEP
     observation_shapes = (("position", 4), ("velocity", 4))
 

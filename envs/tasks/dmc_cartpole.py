@@ -63,7 +63,6 @@ class DmcCartPole(DmControlEnv):
     fix the three."""
 
     domain = "cartpole"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     observation_shapes = (("position", 3), ("velocity", 2))
     swing_up: bool
     sparse: bool

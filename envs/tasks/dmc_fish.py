@@ -50,7 +50,6 @@ class DmcFish(DmControlEnv):
     """dm_control's fish domain: the reset, the joints and the uprightness."""
 
     domain = "fish"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     control_timestep = 0.04  # dm_control's _CONTROL_TIMESTEP
 
     def __init__(self, xml: str | None = None):

@@ -81,7 +81,6 @@ class DmcLqr(DmControlEnv):
     tasks below fix the two sizes."""
 
     domain = "lqr"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     n_bodies: ClassVar[int]
     n_actuators: ClassVar[int]
     per_env_model = "its joints' stiffness (jnt_stiffness) is drawn"

@@ -23,7 +23,6 @@ COSINE_BOUND = float(np.cos(np.deg2rad(8)))  # dm_control's _COSINE_BOUND (_ANGL
 
 class DmcPendulumSwingUp(DmControlEnv):
     domain, task = "pendulum", "swingup"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     observation_shapes = (("orientation", 2), ("velocity", 1))
 
     def initial_qpos_qvel(self, key):

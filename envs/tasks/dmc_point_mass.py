@@ -30,7 +30,6 @@ PARALLEL = 0.9  # dm_control's rejection: |dir1 . dir2| above it draws dir2 agai
 
 class DmcPointMassEasy(DmControlEnv):
     domain, task = "point_mass", "easy"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     observation_shapes = (("position", 2), ("velocity", 2))
 
     def initial_qpos_qvel(self, key):

@@ -32,7 +32,6 @@ class DmcReacher(EpisodeTarget, DmControlEnv):
     """dm_control's `reacher.Reacher(target_size)`; the two tasks below fix it."""
 
     domain = "reacher"
-    reads_kinematics_only = True  # `DmControlEnv.refresh`
     observation_shapes = (("position", 2), ("to_target", 2), ("velocity", 2))
     target_size: float
 

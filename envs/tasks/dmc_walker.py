@@ -55,7 +55,6 @@ class DmcWalker(DmControlEnv):
 
 class DmcWalkerStand(DmcWalker):
     task, move_speed = "stand", 0.0
-    reads_kinematics_only = True  # no speed sensor: `DmControlEnv.refresh`
 
 
 class DmcWalkerWalk(DmcWalker):
