@@ -4,6 +4,8 @@ on the CPU too, so these run wherever warp-lang and mujoco-warp are installed
 refuses a machine without a CUDA GPU, so the tests lift that check. The GPU results are in
 docs/randomization.md."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -271,3 +273,14 @@ def test_a_task_that_reads_the_kinematics_alone_makes_one_warp_call_per_step(env
     state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
     action = jax.ShapeDtypeStruct((4, env.action_size), jnp.float32)
     assert str(jax.make_jaxpr(env.step)(state, action)).count("ffi_call") == warp_calls
+
+
+def test_warp_launches_counts_the_kernels_of_a_step(tmp_path):
+    """`benchmarks.warp_launches` on Warp's CPU kernels: the pendulum's step launches Warp's physics
+    kernels only (its refresh is MJX-JAX's), fewer than walker walk's, which adds Warp's forward pass."""
+    from benchmarks import warp_launches
+
+    target = tmp_path / "launches.json"
+    warp_launches.main(["--tasks", "dmc-pendulum-swingup", "dmc-walker-walk", "--envs", "2", "--json", str(target)])
+    pendulum, walker = (record["launches_per_step"] for record in json.loads(target.read_text()))
+    assert 0 < pendulum < walker
