@@ -46,24 +46,25 @@ class LaunchCounter:
         pass
 
 
-def launches_per_step(task: str, num_envs: int) -> float:
-    """Warp's kernel launches per env step of `num_envs` envs of `task` (zero actions)."""
+def launches_per_step(task: str, num_envs: int) -> tuple[float, int]:
+    """Warp's kernel launches per env step of `num_envs` envs of `task` (zero actions), and the
+    env-steps counted on which Warp ran out of a buffer (`info["overflow"]`: not physics)."""
     import warp
 
     env = VmapWrapper(envs.make(task, impl="warp"), num_envs)
     step = jax.jit(env.step)
     action = jnp.zeros((num_envs, env.action_size))
     state = jax.block_until_ready(step(jax.jit(env.reset)(jax.random.PRNGKey(0)), action))
-    counter = LaunchCounter()
+    counter, overflowed = LaunchCounter(), 0
     with warp.ScopedLogger(counter):
         warp.config.print_launches = True
         try:
             for _ in range(STEPS):
                 state = step(state, action)
-            jax.block_until_ready(state)
+                overflowed += int((state.info["overflow"] != 0).sum())
         finally:
             warp.config.print_launches = False
-    return counter.launches / STEPS
+    return counter.launches / STEPS, overflowed
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -77,10 +78,11 @@ def main(argv: list[str] | None = None) -> None:
         mjx_env.require_warp = lambda: None  # Warp's kernels run on the CPU too
     records = []
     for task in args.tasks:
-        count = launches_per_step(task, args.envs)
-        print(f"{task:28s} {count:8.1f} Warp kernel launches per env step", flush=True)
+        count, overflowed = launches_per_step(task, args.envs)
+        print(f"{task:28s} {count:8.1f} Warp kernel launches per env step ({overflowed} env-steps overflowed)", flush=True)
         records.append({"kind": "warp-launches", "env": task, "num_envs": args.envs, "launches_per_step": count,
-                        "device": jax.default_backend(), "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"})
+                        "overflow_steps": overflowed, "device": jax.default_backend(),
+                        "date": f"{datetime.datetime.now(datetime.UTC):%Y-%m-%d %H:%M} UTC"})
     if args.json:
         with open(args.json, "w") as out:
             json.dump(records, out, indent=1)

@@ -37,8 +37,9 @@ def test_the_check_sees_a_velocity_read():
         def observations(self, data):
             return {**super().observations(data), "velocity": data.qvel + data.cvel[1, 0]}
 
-    assert "cvel" in WithVelocity().fields_read() and not WithVelocity().reads_kinematics_only
-    assert "cvel" not in DmcPendulumSwingUp().fields_read() and DmcPendulumSwingUp().reads_kinematics_only
+    with_velocity, pendulum = WithVelocity(), DmcPendulumSwingUp()
+    assert "cvel" in with_velocity.fields_read() and not with_velocity.reads_kinematics_only
+    assert "cvel" not in pendulum.fields_read() and pendulum.reads_kinematics_only
 
 
 @pytest.mark.parametrize("name", ["dmc-pendulum-swingup", pytest.param("dmc-reacher-easy", marks=pytest.mark.slow),

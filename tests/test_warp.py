@@ -174,15 +174,10 @@ GYMNASIUM_TASKS = ["half-cheetah", "hopper", "walker2d", "ant", "humanoid", "swi
                    "inverted-pendulum", "inverted-double-pendulum"]
 
 
-def rollout(env_name: str, impl: str, steps: int, num_envs: int = 4):
-    """(observations, rewards) of `num_envs` envs over `steps` uniform random actions."""
-    return random_rollout(env_name, impl, steps, num_envs)
-
-
 def assert_alike_under_both(env_name: str, steps: int, num_envs: int = 4) -> np.ndarray:
-    """`rollout` under impl="warp" and impl="jax": the same observations and rewards to float32 contact
+    """`random_rollout` under impl="warp" and impl="jax": the same observations and rewards to float32 contact
     rounding; returns impl="jax"'s observations."""
-    (warp_obs, warp_reward), (jax_obs, jax_reward) = (rollout(env_name, impl, steps, num_envs)
+    (warp_obs, warp_reward), (jax_obs, jax_reward) = (random_rollout(env_name, impl, steps, num_envs)
                                                       for impl in ("warp", "jax"))
     np.testing.assert_allclose(warp_obs, jax_obs, atol=2e-3, rtol=2e-3)
     np.testing.assert_allclose(warp_reward, jax_reward, atol=2e-3, rtol=2e-3)
@@ -257,9 +252,9 @@ def test_the_refresh_without_the_constraint_stage_gives_a_whole_forward_passes_o
         return fresh.replace(sensordata=fresh.sensordata.at[..., self._acc_sensors].set(
             data.sensordata[..., self._acc_sensors]))
 
-    skipped = rollout(env_name, "warp", 40, num_envs=2)
+    skipped = random_rollout(env_name, "warp", 40, num_envs=2)
     monkeypatch.setattr(DmControlEnv, "refresh", whole_forward)
-    whole = rollout(env_name, "warp", 40, num_envs=2)
+    whole = random_rollout(env_name, "warp", 40, num_envs=2)
     np.testing.assert_array_equal(skipped[0], whole[0])
     np.testing.assert_array_equal(skipped[1], whole[1])
 
@@ -282,5 +277,7 @@ def test_warp_launches_counts_the_kernels_of_a_step(tmp_path):
 
     target = tmp_path / "launches.json"
     warp_launches.main(["--tasks", "dmc-pendulum-swingup", "dmc-walker-walk", "--envs", "2", "--json", str(target)])
-    pendulum, walker = (record["launches_per_step"] for record in json.loads(target.read_text()))
+    records = json.loads(target.read_text())
+    pendulum, walker = (record["launches_per_step"] for record in records)
     assert 0 < pendulum < walker
+    assert [record["overflow_steps"] for record in records] == [0, 0]

@@ -208,12 +208,12 @@ def test_dm_controls_touch_readings_under_warp_are_the_last_substeps_as_under_ja
 
 
 def test_the_kinematics_refresh_runs_on_every_world_and_a_filmed_task_refreshes_whole(warp_faked):
-    """A task that reads only the kinematics (`reads_kinematics_only`: the pendulum, Euler) refreshes them under
-    Warp with MJX-JAX's kinematics of every world on `reset_model` (the fake refuses the Warp model
-    there, as MJX does): 2 envs, 20 steps, the observations and rewards of impl="jax" refreshing MJX's
-    whole position and velocity stages. Filmed
-    (observation="pixels"), the task refreshes the whole stages, as MuJoCo Warp's renderer reads the
-    cameras and lights; `Pixels` refuses the unfilmed task."""
+    """A task that reads only the kinematics (`reads_kinematics_only`: the pendulum, Euler) refreshes
+    them under Warp with MJX-JAX's kinematics of every world on `reset_model` (the fake refuses the
+    Warp model there, as MJX does): 2 envs, 20 steps, the observations and rewards of impl="jax"
+    refreshing MJX's whole position and velocity stages. Filmed (observation="pixels"), the task
+    refreshes the whole stages, as MuJoCo Warp's renderer reads the cameras and lights; `Pixels`
+    refuses the unfilmed task."""
     from envs.pixels import Pixels
 
     warp_obs, warp_reward = random_rollout("dmc-pendulum-swingup", "warp", 20, 2)
